@@ -1,0 +1,101 @@
+"""The sensor model every stage shares: scanner interior geometry and its mounting on the INS.
+
+Conventions (docs/conventions.md):
+- Camera frame c: x along flight, y to the left, z up; the scanner looks along −z.
+  Pixel j (0-based, pixel centre) looks along
+  (x0 + δx0, (j − c)·pitch + y0 + δy0, −(f + δf)) with c = (pixels − 1) / 2,
+  so pixel 0 looks to the right of the flight direction and the raw image is not mirrored.
+- Body frame b (INS): x forward, y right, z down. Nominal mounting R_c^b = diag(1, −1, −1);
+  the boresight misalignment (ω, φ, κ) is a small rotation applied after it:
+  R_c^b = R_nominal · Rx(ω) · Ry(φ) · Rz(κ).
+- Lever arm a^b: INS centre → scanner perspective centre; antenna offset g^b: INS centre →
+  antenna phase centre; both in metres in the body frame.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field
+
+ARCSEC_RAD = np.pi / (180.0 * 3600.0)
+R_NOMINAL_C_TO_B = np.diag([1.0, -1.0, -1.0])
+
+Vec3 = Annotated[tuple[float, float, float], Field(description="x, y, z")]
+
+
+class StrictModel(BaseModel):
+    """Base for every configuration model: unknown fields are errors, values are immutable."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class ScannerGeometry(StrictModel):
+    """Interior geometry of the line scanner, with the self-calibration terms."""
+
+    pixels: int = Field(512, ge=2, le=65_536, description="spatial pixels per line")
+    pixel_pitch_um: float = Field(15.0, gt=0, le=1000, description="detector pixel pitch")
+    focal_length_mm: float = Field(9.33, gt=0, le=10_000, description="nominal focal length")
+    principal_point_um: tuple[float, float] = Field(
+        (0.0, 0.0), description="x0 (along track), y0 (across track) on the focal plane"
+    )
+    delta_focal_mm: float = Field(0.0, ge=-100, le=100, description="self-calibration δf")
+    delta_principal_point_um: tuple[float, float] = Field(
+        (0.0, 0.0), description="self-calibration δx0, δy0"
+    )
+
+    @property
+    def centre_pixel(self) -> float:
+        return (self.pixels - 1) / 2.0
+
+    @property
+    def fov_deg(self) -> float:
+        half_width_mm = self.pixels * self.pixel_pitch_um * 1e-3 / 2.0
+        return float(2.0 * np.degrees(np.arctan(half_width_mm / self.focal_length_mm)))
+
+    @property
+    def ifov_rad(self) -> float:
+        return self.pixel_pitch_um * 1e-3 / self.focal_length_mm
+
+    def look_vectors_camera(self) -> npt.NDArray[np.float64]:
+        """Unnormalised look vector of every pixel in the camera frame, shape (3, pixels), metres."""
+        j = np.arange(self.pixels, dtype=np.float64)
+        x0_um, y0_um = self.principal_point_um
+        dx0_um, dy0_um = self.delta_principal_point_um
+        look = np.empty((3, self.pixels))
+        look[0] = (x0_um + dx0_um) * 1e-6
+        look[1] = ((j - self.centre_pixel) * self.pixel_pitch_um + y0_um + dy0_um) * 1e-6
+        look[2] = -(self.focal_length_mm + self.delta_focal_mm) * 1e-3
+        return look
+
+
+class Mounting(StrictModel):
+    """Where the scanner and the GPS antenna sit relative to the INS (body frame, metres)."""
+
+    lever_arm_m: Vec3 = Field((0.0, 0.0, 0.3), description="INS centre → perspective centre")
+    antenna_offset_m: Vec3 = Field((0.0, 0.0, -1.5), description="INS centre → antenna")
+    boresight_arcsec: Vec3 = Field(
+        (0.0, 0.0, 0.0), description="misalignment ω, φ, κ about camera x, y, z"
+    )
+
+    def boresight_matrix(self) -> npt.NDArray[np.float64]:
+        """R_c^b: camera frame → body frame, including the nominal mounting."""
+        omega, phi, kappa = (a * ARCSEC_RAD for a in self.boresight_arcsec)
+        return R_NOMINAL_C_TO_B @ rot_x(omega) @ rot_y(phi) @ rot_z(kappa)
+
+
+def rot_x(angle_rad: float) -> npt.NDArray[np.float64]:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(angle_rad: float) -> npt.NDArray[np.float64]:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(angle_rad: float) -> npt.NDArray[np.float64]:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -104,8 +104,8 @@ def _unit(heading_deg: float) -> tuple[float, float]:
 
 
 def strip_lines(scn: Scenario) -> tuple[StripLine, ...]:
-    """Strips in flying order: main strips across the block (seen along the
-    first heading, right-hand edge first), then transversal strips along it; directions alternate if configured."""
+    """Strips in flying order: main strips across the block (right-hand edge first, seen along
+    the first heading), then transversal strips along it; directions alternate if configured."""
     blk, fig = scn.block, block_figures(scn)
     along = _unit(blk.first_strip_heading_deg)
     across = (along[1], -along[0])  # to the right of the first heading
@@ -113,8 +113,9 @@ def strip_lines(scn: Scenario) -> tuple[StripLine, ...]:
 
     def add(kind: StripKind, centre_off: float, axis: tuple[float, float],
             normal: tuple[float, float], half_len: float, heading: float, flip: bool) -> None:
-        a = (normal[0] * centre_off - axis[0] * half_len, normal[1] * centre_off - axis[1] * half_len)
-        b = (normal[0] * centre_off + axis[0] * half_len, normal[1] * centre_off + axis[1] * half_len)
+        mid = (normal[0] * centre_off, normal[1] * centre_off)
+        a = (mid[0] - axis[0] * half_len, mid[1] - axis[1] * half_len)
+        b = (mid[0] + axis[0] * half_len, mid[1] + axis[1] * half_len)
         if flip:
             a, b, heading = b, a, (heading + 180.0) % 360.0
         strips.append(StripLine(len(strips), kind, a, b, heading))

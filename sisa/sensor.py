@@ -60,7 +60,7 @@ class ScannerGeometry(StrictModel):
         return self.pixel_pitch_um * 1e-3 / self.focal_length_mm
 
     def look_vectors_camera(self) -> npt.NDArray[np.float64]:
-        """Unnormalised look vector of every pixel in the camera frame, shape (3, pixels), metres."""
+        """Unnormalised look vectors in the camera frame, shape (3, pixels), metres."""
         j = np.arange(self.pixels, dtype=np.float64)
         x0_um, y0_um = self.principal_point_um
         dx0_um, dy0_um = self.delta_principal_point_um

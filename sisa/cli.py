@@ -1,0 +1,69 @@
+"""The `sisa` command. Each subcommand lives in `sisa.commands.<name>` and registers itself here.
+
+Every error SISA raises on purpose ends as one line on stderr and exit code 2; nothing is left
+half-written (commands write into a temporary folder and rename it at the end).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+
+from sisa import __version__
+from sisa.errors import SisaError
+
+Handler = Callable[[argparse.Namespace], int]
+
+EPILOG = """examples:
+  sisa scenario show garrotxa        resolved scenario and its derived figures
+  sisa truth --preset bench --out runs/bench-truth
+                                     trajectory, DEM, scene and ground points of a scenario
+  sisa <command> --help              every command shows an example
+"""
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    pass
+
+
+def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser], name: str,
+                help_text: str, example: str) -> argparse.ArgumentParser:
+    """A subcommand parser whose --help ends with a worked example."""
+    return sub.add_parser(name, help=help_text, description=help_text,
+                          epilog=f"example:\n  {example}", formatter_class=_Formatter)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from sisa.commands import scenario, truth
+
+    parser = argparse.ArgumentParser(
+        prog="sisa", formatter_class=_Formatter, epilog=EPILOG,
+        description="SISA: emulate, record, synchronise and georeference an airborne "
+                    "pushbroom scanner with its INS and GPS receiver.")
+    parser.add_argument("--version", action="version", version=f"sisa {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    scenario.register(sub)
+    truth.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    handler: Handler | None = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return 2
+    try:
+        return handler(args)
+    except SisaError as exc:
+        print(f"sisa {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"sisa {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

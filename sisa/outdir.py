@@ -1,0 +1,32 @@
+"""Output folders that appear whole or not at all, and never replace an existing one."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from sisa.errors import InputError
+
+
+@contextmanager
+def staged_output_dir(out: Path) -> Iterator[Path]:
+    """Yield a scratch folder beside `out`; rename it to `out` only if the block succeeds."""
+    out = Path(out)
+    if out.exists():
+        raise InputError(f"{out} already exists: choose a new output folder (runs are never "
+                         "overwritten)")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{parent} is not a folder")
+    scratch = parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir()
+    try:
+        yield scratch
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
+    os.replace(scratch, out)

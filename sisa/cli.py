@@ -23,22 +23,11 @@ EPILOG = """examples:
 """
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter):
-    pass
-
-
-def add_command(sub: argparse._SubParsersAction[argparse.ArgumentParser], name: str,
-                help_text: str, example: str) -> argparse.ArgumentParser:
-    """A subcommand parser whose --help ends with a worked example."""
-    return sub.add_parser(name, help=help_text, description=help_text,
-                          epilog=f"example:\n  {example}", formatter_class=_Formatter)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    from sisa.commands import scenario, truth
+    from sisa.commands import Formatter, scenario, truth
 
     parser = argparse.ArgumentParser(
-        prog="sisa", formatter_class=_Formatter, epilog=EPILOG,
+        prog="sisa", formatter_class=Formatter, epilog=EPILOG,
         description="SISA: emulate, record, synchronise and georeference an airborne "
                     "pushbroom scanner with its INS and GPS receiver.")
     parser.add_argument("--version", action="version", version=f"sisa {__version__}")

@@ -8,7 +8,7 @@ from typing import Any
 
 import tomli_w
 
-from sisa.cli import add_command
+from sisa.commands import add_command
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -1,0 +1,113 @@
+"""Pulse lines as timestamped edge messages (an emulated timing board).
+
+A pty has no modem lines, so between processes a pulse travels as a message that carries the
+time of its rising edge on the emulation's own timeline. A receiver acts on the edge's timestamp,
+not on its arrival; an edge that arrives after its deadline is a fault that must be counted.
+
+Wire format of one edge (little-endian, 20 bytes):
+
+| offset | type | field                                         |
+|--------|------|-----------------------------------------------|
+| 0      | 2 B  | magic 0x50 0x4C ("PL")                         |
+| 2      | u8   | line (PulseLine)                              |
+| 3      | u8   | flags (reserved, 0)                           |
+| 4      | u32  | sequence number per line (wraps)              |
+| 8      | i64  | edge time, ns on the emulation timeline       |
+| 16     | u16  | reserved, 0                                   |
+| 18     | u16  | CRC-16/CCITT-FALSE of bytes 0..17             |
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
+
+EDGE_MAGIC = b"PL"
+_EDGE = struct.Struct("<2sBBIqH")
+EDGE_SIZE = _EDGE.size + 2
+
+
+class PulseLine(IntEnum):
+    """Every pulse line of the system; outputs of devices and outputs of the sync unit."""
+
+    PPS = 1  # GPS receiver → SISA
+    PPF = 2  # scanner pulse per frame (mid-exposure) → SISA
+    INS_SYNC = 3  # SISA → INS sync input
+    GPS_EVENT = 4  # SISA → GPS event input
+
+
+@dataclass(frozen=True, slots=True)
+class Edge:
+    line: PulseLine
+    seq: int
+    t_ns: int
+
+
+def crc16_ccitt(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF); check value of b'123456789' is 0x29B1."""
+    for byte in data:
+        crc ^= byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+    return crc
+
+
+def encode_edge(edge: Edge) -> bytes:
+    body = _EDGE.pack(EDGE_MAGIC, int(edge.line), 0, edge.seq & 0xFFFFFFFF, edge.t_ns, 0)
+    return body + struct.pack("<H", crc16_ccitt(body))
+
+
+class EdgeStreamDecoder:
+    """Edges from a byte stream (a socket), resynchronising on the magic after bad bytes."""
+
+    def __init__(self, policy: ErrorPolicy = ErrorPolicy.COUNT) -> None:
+        self.policy = policy
+        self.stats = DecodeStats()
+        self._buf = bytearray()
+        self._offset = 0
+
+    def feed(self, data: bytes) -> list[Decoded[Edge]]:
+        self._buf += data
+        out: list[Decoded[Edge]] = []
+        while len(self._buf) >= EDGE_SIZE:
+            if self._buf[:2] != EDGE_MAGIC:
+                self._skip_to_magic()
+                continue
+            raw = bytes(self._buf[:EDGE_SIZE])
+            edge = self._parse(raw)
+            if edge is None:
+                self._drop(1)
+                continue
+            out.append(Decoded(raw, edge))
+            self.stats.count_message(edge.line.name)
+            self._drop(EDGE_SIZE)
+        return out
+
+    def _parse(self, raw: bytes) -> Edge | None:
+        _magic, line, _flags, seq, t_ns, _res = _EDGE.unpack_from(raw)
+        (crc,) = struct.unpack_from("<H", raw, _EDGE.size)
+        if crc != crc16_ccitt(raw[: _EDGE.size]):
+            report_error(self.policy, self.stats, "checksum", "edge CRC mismatch",
+                         self._offset, raw)
+            return None
+        try:
+            return Edge(PulseLine(line), seq, t_ns)
+        except ValueError:
+            report_error(self.policy, self.stats, "framing", f"unknown pulse line {line}",
+                         self._offset, raw)
+            return None
+
+    def _skip_to_magic(self) -> None:
+        at = self._buf.find(EDGE_MAGIC, 1)
+        skip = len(self._buf) - 1 if at < 0 else at
+        report_error(self.policy, self.stats, "framing", "bytes before edge magic",
+                     self._offset, bytes(self._buf[:skip]))
+        self.stats.bytes_skipped += skip
+        self._drop(skip)
+
+    def _drop(self, n: int) -> None:
+        del self._buf[:n]
+        self._offset += n

@@ -1,0 +1,179 @@
+"""Virtual ports for real-time emulation: ptys for RS-232, an SLCAN adapter on a pty for the CAN
+bus between processes (the way a USB–CAN adapter appears), and a loopback TCP endpoint for the
+pulse lines (timestamped edges both ways).
+
+The client side opens these with ordinary tools: pyserial on the pty path, python-can
+`interface="slcan"` on the adapter's pty path, a TCP socket on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import socket
+import threading
+import tty
+from collections.abc import Callable
+
+import can
+
+from acquisition.codec import ErrorPolicy
+from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
+
+LOOPBACK = "127.0.0.1"
+
+
+class PtyPort:
+    """A pty pair: the emulator writes to the master; clients open `name` (the slave path)."""
+
+    def __init__(self) -> None:
+        self.master_fd, self._slave_fd = os.openpty()
+        tty.setraw(self._slave_fd)  # no echo, no CR/LF translation: bytes pass unchanged
+        os.set_blocking(self.master_fd, False)
+        self.name = os.ttyname(self._slave_fd)
+        self.bytes_dropped = 0
+
+    def write(self, data: bytes) -> None:
+        """Write without blocking; bytes that do not fit the pty buffer are counted as dropped."""
+        try:
+            sent = os.write(self.master_fd, data)
+        except BlockingIOError:
+            sent = 0
+        self.bytes_dropped += len(data) - sent
+
+    def read_available(self) -> bytes:
+        try:
+            return os.read(self.master_fd, 65536)
+        except (BlockingIOError, OSError):
+            return b""
+
+    def close(self) -> None:
+        for fd in (self.master_fd, self._slave_fd):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+class SlcanAdapter:
+    """The firmware of a USB–SLCAN adapter, on a pty: answers the host's ASCII commands and
+    forwards CAN frames to it as `tIIILDD..\\r` lines once the host has opened the channel."""
+
+    VERSION_REPLY = b"V1013\r"
+    SERIAL_REPLY = b"NSISA\r"
+
+    def __init__(self) -> None:
+        self.port = PtyPort()
+        self.name = self.port.name
+        self.is_open = False
+        self.frames_sent = 0
+        self.frames_dropped = 0  # offered while the host had not opened the channel
+        self._buf = bytearray()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="slcan", daemon=True)
+        self._thread.start()
+
+    def send(self, msg: can.Message) -> None:
+        if not self.is_open:
+            self.frames_dropped += 1
+            return
+        kind = "T" if msg.is_extended_id else "t"
+        ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+        line = f"{kind}{ident}{msg.dlc}{bytes(msg.data).hex().upper()}\r".encode()
+        self.port.write(line)
+        self.frames_sent += 1
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self.port.master_fd], [], [], 0.05)
+            if ready:
+                self._buf += self.port.read_available()
+                self._answer_commands()
+
+    def _answer_commands(self) -> None:
+        while (end := self._buf.find(b"\r")) >= 0:
+            cmd = bytes(self._buf[:end])
+            del self._buf[: end + 1]
+            self.port.write(self._reply(cmd))
+
+    def _reply(self, cmd: bytes) -> bytes:
+        head = cmd[:1]
+        if head == b"O" or head == b"L":
+            self.is_open = True
+        elif head == b"C":
+            self.is_open = False
+        elif head == b"V":
+            return self.VERSION_REPLY
+        elif head == b"N":
+            return self.SERIAL_REPLY
+        return b"\r"
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self.port.close()
+
+
+class PulseEndpoint:
+    """Loopback TCP server carrying edges: device outputs go to the connected client; edges the
+    client sends (the sync unit's pulses) are handed to `on_edge` from the receiving thread."""
+
+    def __init__(self, on_edge: Callable[[Edge], None], port: int = 0) -> None:
+        self._server = socket.create_server((LOOPBACK, port))
+        self.address = f"tcp://{LOOPBACK}:{self._server.getsockname()[1]}"
+        self._on_edge = on_edge
+        self._client: socket.socket | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
+        self.edges_dropped = 0  # produced while no client was connected
+        self._thread = threading.Thread(target=self._serve, name="pulses", daemon=True)
+        self._thread.start()
+
+    def send(self, edge: Edge) -> None:
+        with self._lock:
+            client = self._client
+        if client is None:
+            self.edges_dropped += 1
+            return
+        try:
+            client.sendall(encode_edge(edge))
+        except OSError:
+            self.edges_dropped += 1
+
+    def _serve(self) -> None:
+        self._server.settimeout(0.1)
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self._client = conn
+            self._receive(conn)
+            with self._lock:
+                self._client = None
+
+    def _receive(self, conn: socket.socket) -> None:
+        conn.settimeout(0.1)
+        while not self._stop.is_set():
+            try:
+                data = conn.recv(4096)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            if not data:
+                return
+            for item in self.decoder.feed(data):
+                self._on_edge(item.message)
+
+    def close(self) -> None:
+        self._stop.set()
+        with self._lock:
+            if self._client is not None:
+                self._client.close()
+        self._server.close()
+        self._thread.join(timeout=1.0)

@@ -1,0 +1,130 @@
+"""The device runtime: one event loop that runs the same device code in virtual time (as fast as
+the CPU allows, deterministic for a seed) or in real time (paced by the wall clock, optionally
+scaled).
+
+A device schedules its own outputs (bytes on a serial port, CAN frames, pulse edges) on the
+emulation timeline, `t_ns` = true GPS ns, and accepts input edges (its sync or event input) that
+act at the edge's own timestamp. A sink receives every output in time order; in virtual time the
+sink may answer with input edges (the sync unit forwarding a pulse), delivered at once.
+"""
+
+from __future__ import annotations
+
+import heapq
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+
+import can
+
+from acquisition.pulses import Edge
+
+
+class Port(StrEnum):
+    """Where a device output goes."""
+
+    GPS_SERIAL = "gps"
+    SCANNER_SERIAL = "scanner"
+    INS_CAN = "ins"
+    PULSES = "pulses"
+
+
+@dataclass(frozen=True, slots=True)
+class Output:
+    """One device output: `payload` is bytes (serial), a can.Message (CAN) or an Edge (pulses)."""
+
+    t_ns: int
+    port: Port
+    payload: bytes | can.Message | Edge
+
+
+class Device(ABC):
+    """A device model on the emulation timeline."""
+
+    name: str = "device"
+
+    @abstractmethod
+    def next_time_ns(self) -> int | None:
+        """Time of this device's next output, or None when it has nothing more to say."""
+
+    @abstractmethod
+    def emit(self, t_ns: int) -> list[Output]:
+        """Every output due at `t_ns` (the value next_time_ns() returned)."""
+
+    def on_edge(self, edge: Edge) -> None:  # noqa: B027 - most devices have no input
+        """An input pulse; it acts at edge.t_ns, which is never earlier than the current time."""
+
+    def finish(self) -> None:  # noqa: B027
+        """The run is over: close files, flush truth."""
+
+
+Sink = Callable[[Output], Sequence[Edge]]
+
+
+class Router:
+    """Delivers input edges to the devices that listen on their line."""
+
+    def __init__(self, devices: Sequence[Device]) -> None:
+        self._listeners: dict[int, list[Device]] = {}
+        for dev in devices:
+            for line in getattr(dev, "input_lines", ()):
+                self._listeners.setdefault(int(line), []).append(dev)
+
+    def deliver(self, edge: Edge) -> None:
+        for dev in self._listeners.get(int(edge.line), ()):
+            dev.on_edge(edge)
+
+
+class Runner:
+    """Merges the devices' outputs in time order and hands them to the sink.
+
+    `speed` = None runs in virtual time; a float paces emission on the wall clock at that many
+    times real time (1.0 = real time).
+    """
+
+    def __init__(self, devices: Sequence[Device], sink: Sink, speed: float | None = None) -> None:
+        if speed is not None and speed <= 0:
+            raise ValueError("speed must be positive")
+        self.devices = list(devices)
+        self.sink = sink
+        self.speed = speed
+        self.router = Router(self.devices)
+        self.outputs = 0
+        self.late_ns_max = 0
+
+    def run(self, until_ns: int | None = None, should_stop: Callable[[], bool] | None = None
+            ) -> None:
+        heap = [(t, i) for i, d in enumerate(self.devices) if (t := d.next_time_ns()) is not None]
+        heapq.heapify(heap)
+        wall0 = time.perf_counter_ns()
+        t0 = heap[0][0] if heap else 0
+        try:
+            while heap:
+                t_ns, i = heapq.heappop(heap)
+                if until_ns is not None and t_ns > until_ns:
+                    break
+                if self.speed is not None:
+                    self._pace(wall0 + int((t_ns - t0) / self.speed))
+                    if should_stop is not None and should_stop():
+                        break
+                dev = self.devices[i]
+                for out in dev.emit(t_ns):
+                    self.outputs += 1
+                    for edge in self.sink(out):
+                        self.router.deliver(edge)
+                nxt = dev.next_time_ns()
+                if nxt is not None:
+                    heapq.heappush(heap, (nxt, i))
+        finally:
+            for dev in self.devices:
+                dev.finish()
+
+    def _pace(self, due_wall_ns: int) -> None:
+        ahead_ns = due_wall_ns - time.perf_counter_ns()
+        if ahead_ns > 200_000:
+            time.sleep((ahead_ns - 100_000) / 1e9)
+        while (now := time.perf_counter_ns()) < due_wall_ns:
+            pass
+        self.late_ns_max = max(self.late_ns_max, now - due_wall_ns)

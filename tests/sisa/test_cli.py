@@ -1,0 +1,131 @@
+"""The `sisa` command as a user meets it: help with examples, one-line errors, exit codes."""
+
+import subprocess
+import sys
+import tomllib
+
+import pytest
+
+from sisa.cli import build_parser, main
+
+
+def _subcommand_paths(parser, prefix=()):
+    for action in parser._actions:
+        if action.__class__.__name__ == "_SubParsersAction":
+            for name, sub in action.choices.items():
+                yield (*prefix, name)
+                yield from _subcommand_paths(sub, (*prefix, name))
+
+
+def test_top_level_help_shows_examples(capsys):
+    with pytest.raises(SystemExit) as ok:
+        main(["--help"])
+    assert ok.value.code == 0
+    assert "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("path", list(_subcommand_paths(build_parser())))
+def test_every_subcommand_help_shows_an_example(path, capsys):
+    with pytest.raises(SystemExit) as ok:
+        main([*path, "--help"])
+    assert ok.value.code == 0
+    out = capsys.readouterr().out
+    assert "example:" in out
+    assert "sisa " in out.split("example:")[1]
+
+
+def test_bad_scenario_file_is_one_line_and_exit_2(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('base = "bench"\n[block]\nside_overlap_pct = 100\n')
+    proc = subprocess.run([sys.executable, "-m", "sisa.cli", "scenario", "show", str(bad)],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert "block.side_overlap_pct" in lines[0]
+    assert "less than 100" in lines[0]
+
+
+@pytest.mark.parametrize(("table", "field"), [
+    ('[block]\nground_speed_kmh = -5\n', "block.ground_speed_kmh"),
+    ('[flight]\nbank = 3\n', "unknown field 'flight.bank'"),
+])
+def test_bad_values_exit_2(tmp_path, table, field, capsys):
+    bad = tmp_path / "s.toml"
+    bad.write_text(table)
+    assert main(["scenario", "show", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert field in err
+    assert err.count("\n") == 1
+
+
+def test_schema_is_json_with_every_table(capsys):
+    import json
+
+    assert main(["scenario", "schema"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    for table in ("block", "flight", "terrain", "scanner", "ins", "gps", "mounting", "sisa",
+                  "faults"):
+        assert table in schema["properties"]
+
+
+def _show(name, capsys):
+    assert main(["scenario", "show", name]) == 0
+    out = capsys.readouterr().out
+    return tomllib.loads(out), out
+
+
+def test_show_garrotxa_reports_the_seed_figures(capsys):
+    table, _ = _show("garrotxa", capsys)
+    d = table["derived"]
+    assert abs(d["gsd_across_nadir_m"] / 3.5 - 1) < 0.10
+    assert abs(d["line_spacing_along_m"] / 3.5 - 1) < 0.10
+    assert d["strip_spacing_m"] == pytest.approx(d["swath_width_m"] / 2, abs=0.1)
+    assert d["strips_flown"] == 14
+    # 14 strips of 17.5 km at 263 km/h plus the 600 s alignment, climb and turns
+    assert 14 * 17500 / (263 / 3.6) + 600 < d["flight_duration_s"] < 3 * 3600
+    assert table["block"]["strips"] == 14
+
+
+def test_show_bellmunt_reports_both_pixel_figures_and_says_so(capsys):
+    table, out = _show("bellmunt", capsys)
+    d = table["derived"]
+    assert abs(d["gsd_across_nadir_m"] - 1.0) < 0.1
+    assert d["line_spacing_along_m"] == pytest.approx(1.893, abs=0.001)
+    assert "pixels are not square" in out
+    assert d["strips_flown"] == 7
+
+
+def test_show_bench_is_short(capsys):
+    table, _ = _show("bench", capsys)
+    assert table["derived"]["flight_duration_s"] <= 600
+
+
+def test_truth_writes_a_whole_run_and_never_overwrites(tmp_path, capsys):
+    import rasterio
+
+    out = tmp_path / "run"
+    assert main(["truth", "--preset", "bench", "--out", str(out)]) == 0
+    for rel in ("scenario.toml", "truth/trajectory.csv", "truth/strips.csv", "truth/phases.csv",
+                "terrain/dem.tif", "terrain/scene.tif", "terrain/scene.png",
+                "terrain/ground_points.csv"):
+        assert (out / rel).is_file(), rel
+    with rasterio.open(out / "terrain" / "dem.tif") as dem:
+        assert dem.crs.to_epsg() in (32631, None) or "UTM" in dem.crs.to_wkt()
+        assert dem.read(1).std() > 1.0
+    assert tomllib.loads((out / "scenario.toml").read_text())["block"]["name"] == "bench"
+    before = sorted(p.name for p in out.rglob("*"))
+    capsys.readouterr()
+    assert main(["truth", "--preset", "bench", "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert sorted(p.name for p in out.rglob("*")) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no scratch left
+
+
+def test_truth_with_a_bad_scenario_writes_nothing(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[ins]\nrate_hz = 0\n")
+    out = tmp_path / "run"
+    assert main(["truth", "--scenario", str(bad), "--out", str(out)]) == 2
+    assert not out.exists()

@@ -23,6 +23,7 @@ import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
+from acquisition.checksums import crc16_ccitt_false
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
 
 EDGE_MAGIC = b"PL"
@@ -46,18 +47,9 @@ class Edge:
     t_ns: int
 
 
-def crc16_ccitt(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF); check value of b'123456789' is 0x29B1."""
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
-
-
 def encode_edge(edge: Edge) -> bytes:
     body = _EDGE.pack(EDGE_MAGIC, int(edge.line), 0, edge.seq & 0xFFFFFFFF, edge.t_ns, 0)
-    return body + struct.pack("<H", crc16_ccitt(body))
+    return body + struct.pack("<H", crc16_ccitt_false(body))
 
 
 class EdgeStreamDecoder:
@@ -89,7 +81,7 @@ class EdgeStreamDecoder:
     def _parse(self, raw: bytes) -> Edge | None:
         _magic, line, _flags, seq, t_ns, _res = _EDGE.unpack_from(raw)
         (crc,) = struct.unpack_from("<H", raw, _EDGE.size)
-        if crc != crc16_ccitt(raw[: _EDGE.size]):
+        if crc != crc16_ccitt_false(raw[: _EDGE.size]):
             report_error(self.policy, self.stats, "checksum", "edge CRC mismatch",
                          self._offset, raw)
             return None

@@ -115,7 +115,11 @@ class SlcanAdapter:
 
 class PulseEndpoint:
     """Loopback TCP server carrying edges: device outputs go to the connected client; edges the
-    client sends (the sync unit's pulses) are handed to `on_edge` from the receiving thread."""
+    client sends (the sync unit's pulses) are handed to `on_edge` from the receiving thread.
+
+    Sequence numbers belong to the link, not to the devices: the endpoint numbers what it sends
+    per line, so a receiver can count edges lost in transport (a spurious pulse on a real wire
+    is indistinguishable from a true one, and is numbered like one)."""
 
     def __init__(self, on_edge: Callable[[Edge], None], port: int = 0) -> None:
         self._server = socket.create_server((LOOPBACK, port))
@@ -126,6 +130,7 @@ class PulseEndpoint:
         self._stop = threading.Event()
         self.decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
         self.edges_dropped = 0  # produced while no client was connected
+        self._seq: dict[int, int] = {}
         self._thread = threading.Thread(target=self._serve, name="pulses", daemon=True)
         self._thread.start()
 
@@ -135,8 +140,10 @@ class PulseEndpoint:
         if client is None:
             self.edges_dropped += 1
             return
+        seq = self._seq.get(edge.line, 0)
+        self._seq[edge.line] = seq + 1
         try:
-            client.sendall(encode_edge(edge))
+            client.sendall(encode_edge(Edge(edge.line, seq, edge.t_ns)))
         except OSError:
             self.edges_dropped += 1
 

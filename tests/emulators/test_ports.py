@@ -1,0 +1,71 @@
+"""Virtual ports with real clients: pyserial on a pty, python-can slcan on the SLCAN adapter,
+a TCP socket on the pulse endpoint."""
+
+import socket
+import time
+
+import can
+import serial
+
+from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
+from emulators.ports import PtyPort, PulseEndpoint, SlcanAdapter
+
+
+def test_pty_bytes_pass_unchanged_to_pyserial():
+    port = PtyPort()
+    try:
+        with serial.Serial(port.name, 115200, timeout=1.0) as client:
+            payload = b"$GPZDA,120000.00,23,07,1998,00,00*6C\r\n" + bytes(range(256))
+            port.write(payload)
+            assert client.read(len(payload)) == payload
+    finally:
+        port.close()
+
+
+def test_slcan_adapter_serves_python_can():
+    adapter = SlcanAdapter()
+    try:
+        bus = can.Bus(interface="slcan", channel=adapter.name, bitrate=500_000)
+        try:
+            deadline = time.monotonic() + 2.0
+            while not adapter.is_open and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert adapter.is_open
+            sent = [can.Message(arbitration_id=0x100 + i, data=bytes([i] * 8),
+                                is_extended_id=False) for i in range(7)]
+            for msg in sent:
+                adapter.send(msg)
+            got = [bus.recv(timeout=1.0) for _ in sent]
+            assert [(m.arbitration_id, bytes(m.data)) for m in got] == [
+                (m.arbitration_id, bytes(m.data)) for m in sent]
+        finally:
+            bus.shutdown()
+    finally:
+        adapter.close()
+
+
+def test_pulse_endpoint_both_ways_on_loopback():
+    received = []
+    endpoint = PulseEndpoint(received.append)
+    try:
+        host, port = endpoint.address.removeprefix("tcp://").split(":")
+        assert host == "127.0.0.1"
+        with socket.create_connection((host, int(port)), timeout=2.0) as sock:
+            deadline = time.monotonic() + 2.0
+            while endpoint._client is None and time.monotonic() < deadline:
+                time.sleep(0.01)
+            endpoint.send(Edge(PulseLine.PPS, 99, 5_000_000_000))
+            endpoint.send(Edge(PulseLine.PPS, 99, 6_000_000_000))
+            dec = EdgeStreamDecoder()
+            got = []
+            while len(got) < 2:
+                got += [d.message for d in dec.feed(sock.recv(100))]
+            assert [e.t_ns for e in got] == [5_000_000_000, 6_000_000_000]
+            assert [e.seq for e in got] == [0, 1]  # numbered by the link
+            sock.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 0, 7_000_000_000)))
+            deadline = time.monotonic() + 2.0
+            while not received and time.monotonic() < deadline:
+                time.sleep(0.01)
+        assert received == [Edge(PulseLine.INS_SYNC, 0, 7_000_000_000)]
+    finally:
+        endpoint.close()

@@ -11,6 +11,7 @@ sink may answer with input edges (the sync unit forwarding a pulse), delivered a
 from __future__ import annotations
 
 import heapq
+import queue
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -93,6 +94,8 @@ class Runner:
         self.router = Router(self.devices)
         self.outputs = 0
         self.late_ns_max = 0
+        # edges from another process (real time): drained before every emission
+        self.inbox: queue.SimpleQueue[Edge] = queue.SimpleQueue()
 
     def run(self, until_ns: int | None = None, should_stop: Callable[[], bool] | None = None
             ) -> None:
@@ -109,6 +112,7 @@ class Runner:
                     self._pace(wall0 + int((t_ns - t0) / self.speed))
                     if should_stop is not None and should_stop():
                         break
+                self._drain_inbox()
                 dev = self.devices[i]
                 for out in dev.emit(t_ns):
                     self.outputs += 1
@@ -120,6 +124,14 @@ class Runner:
         finally:
             for dev in self.devices:
                 dev.finish()
+
+    def _drain_inbox(self) -> None:
+        while True:
+            try:
+                edge = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            self.router.deliver(edge)
 
     def _pace(self, due_wall_ns: int) -> None:
         ahead_ns = due_wall_ns - time.perf_counter_ns()

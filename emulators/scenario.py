@@ -143,6 +143,10 @@ class GpsSettings(StrictModel):
     pps_jitter_ns: float = Field(20.0, ge=0, le=1e6, description="RMS")
     event_tag_resolution_ns: int = Field(100, ge=1, le=1_000_000)
     max_event_rate_hz: float = Field(1.0, gt=0, le=1000)
+    geoid_separation_m: float = Field(
+        50.0, ge=-120, le=120, description="receiver's geoid: GGA altitude = height − this"
+    )
+    nmea_latency_ms: float = Field(40.0, ge=0, le=900, description="epoch → first sentence")
 
     @property
     def horizontal_sigma_m(self) -> float:

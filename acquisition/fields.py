@@ -22,17 +22,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
 
-from sisa.errors import DecodeError, SisaError
+from sisa.errors import DecodeError, EncodeError, SisaError
 
 _EDGE_SLACK_LSB = 1e-6  # so that a range edge such as 1000 m/s at 1 mm/s counts as an exact LSB
 
 
 class LayoutError(SisaError):
     """A layout declaration is inconsistent: a programming error, raised when the module loads."""
-
-
-class EncodeError(SisaError, ValueError):
-    """A value that cannot go on the wire: missing, not finite, or outside its declared range."""
 
 
 class WireType(Enum):

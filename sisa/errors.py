@@ -15,6 +15,10 @@ class InputError(SisaError):
     """An input file is missing, unreadable or of the wrong kind (set-up phase)."""
 
 
+class EncodeError(SisaError, ValueError):
+    """A value that cannot go on the wire: missing, not finite, or outside its declared range."""
+
+
 class DecodeError(SisaError):
     """Bytes that do not decode as the expected message (operation phase)."""
 

@@ -33,9 +33,8 @@ def scenario_toml(scn: Any) -> str:
 
 def derived_figures(scn: Any) -> dict[str, Any]:
     """Planning figures plus the flown timeline (units in the names)."""
-    from emulators.trajectory import TruthTrajectory
-
     from emulators.block import block_figures
+    from emulators.trajectory import TruthTrajectory
 
     fig = block_figures(scn)
     traj = TruthTrajectory.from_scenario(scn)

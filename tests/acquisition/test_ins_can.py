@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from acquisition.codec import ErrorPolicy
-from acquisition.fields import EncodeError, Field, Layout, LayoutError, WireType
+from acquisition.fields import Field, Layout, LayoutError, WireType
 from acquisition.ins_can import (
     FRAMES,
     FRAMES_PER_RECORD,
@@ -29,7 +29,7 @@ from acquisition.ins_can import (
     frames_from_raw,
     record_bus_load,
 )
-from sisa.errors import DecodeError
+from sisa.errors import DecodeError, EncodeError
 
 FAST = settings(max_examples=60, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

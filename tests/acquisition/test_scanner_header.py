@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from acquisition.codec import ErrorPolicy
-from acquisition.fields import EncodeError, Field
+from acquisition.fields import Field
 from acquisition.scanner_header import (
     BODY,
     HEADER_BYTES,
@@ -21,7 +21,7 @@ from acquisition.scanner_header import (
     crc16_ccitt_false,
     encode_header,
 )
-from sisa.errors import DecodeError
+from sisa.errors import DecodeError, EncodeError
 
 FAST = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

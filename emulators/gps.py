@@ -1,0 +1,244 @@
+"""The geodetic GPS receiver (Ashtech Z-12 class): NMEA fixes, the PPS, and event time tags.
+
+Outputs, on the emulation timeline:
+- a PPS edge at every GPS second, with white jitter (`gps.pps_jitter_ns`), and after it
+  `$PASHR,PTT` with the receiver's measurement of that edge (rounded to the tag resolution);
+- at every NMEA epoch (`gps.nmea_rate_hz`) GGA and RMC, plus ZDA on whole seconds, sent
+  `gps.nmea_latency_ms` after the epoch; positions are the true antenna phase centre plus a
+  first-order Gauss–Markov error (σ and τ from the scenario: code ~1 m, phase ~3–5 cm);
+- `$PASHR,TTT` for every accepted pulse on the event input, tagged at the pulse's own time.
+
+Maximum event rate, the way the receiver enforces it: after an accepted event the input is blind
+for 1 / max_event_rate_hz (a dead time that re-arms when the tag has been output); a pulse in the
+dead time is ignored (no TTT) and written to the truth as rejected. Pulses are never queued.
+
+During a PPS outage (fault profile) the receiver has lost lock: no PPS, no PTT, GGA quality 0 and
+RMC void, and events are not tagged.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Callable
+from functools import partial
+
+import numpy as np
+
+from acquisition.nmea import (
+    FixQuality,
+    ModeIndicator,
+    NmeaMessage,
+    encode,
+    gga_from_fix,
+    ptt_from_gps_ns,
+    rmc_from_fix,
+    ttt_from_gps_ns,
+    zda_from_gps_ns,
+)
+from acquisition.pulses import Edge, PulseLine
+from emulators.localplane import LocalPlane
+from emulators.runtime import Device, Output, Port
+from emulators.scenario import GpsSolution, Scenario
+from emulators.trajectory import TruthTrajectory
+from emulators.truth import TruthTable
+from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.timescale import NS_PER_S
+
+PTT_LATENCY_NS = 25_000_000
+TTT_LATENCY_NS = 30_000_000
+SENTENCE_SPACING_NS = 5_000_000  # one sentence after another on the serial line
+FIX_CHUNK_S = 60.0
+
+
+class _Schedule:
+    """A time-ordered queue of actions; ties keep insertion order."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[int, int, Callable[[int], list[Output]]]] = []
+        self._order = 0
+
+    def at(self, t_ns: int, action: Callable[[int], list[Output]]) -> None:
+        self._order += 1
+        heapq.heappush(self._heap, (t_ns, self._order, action))
+
+    def next_time_ns(self) -> int | None:
+        return self._heap[0][0] if self._heap else None
+
+    def run_due(self, t_ns: int) -> list[Output]:
+        outputs: list[Output] = []
+        while self._heap and self._heap[0][0] <= t_ns:
+            _, _, action = heapq.heappop(self._heap)
+            outputs += action(t_ns)
+        return outputs
+
+
+class GpsReceiver(Device):
+    name = "gps"
+    input_lines = (PulseLine.GPS_EVENT,)
+
+    def __init__(self, scn: Scenario, traj: TruthTrajectory, rng: np.random.Generator,
+                 faults: TruthTable) -> None:
+        self.scn, self.traj, self.rng, self.faults = scn, traj, rng, faults
+        self.plane = LocalPlane.for_scenario(scn)
+        self.tag_res_ns = scn.gps.event_tag_resolution_ns
+        self.dead_time_ns = round(NS_PER_S / scn.gps.max_event_rate_hz)
+        self._outages = [(traj.t_start_ns + int(f.at_s * NS_PER_S),
+                          traj.t_start_ns + int((f.at_s + f.duration_s) * NS_PER_S))
+                         for f in scn.faults.pps_outages]
+        self._armed_at_ns = traj.t_start_ns
+        self._epoch_ns = round(NS_PER_S / scn.gps.nmea_rate_hz)
+        self._fixes: dict[int, tuple[float, float, float, float, float]] = {}
+        self._gm_state: np.ndarray | None = None
+        self._schedule = _Schedule()
+        self.pps = TruthTable("pps", {
+            "t_second_gps_ns": "the GPS second the pulse marks",
+            "t_edge_gps_ns": "true edge time (with jitter)",
+            "ptt_gps_ns": "time the receiver reported in PTT (rounded to the tag resolution)",
+        }, "PPS edges output by the GPS receiver")
+        self.events = TruthTable("events", {
+            "t_edge_gps_ns": "true time of the pulse on the event input",
+            "accepted": "1 if tagged, 0 if ignored",
+            "ttt_gps_ns": "time reported in TTT (-1 if not tagged)",
+            "reason": "why a pulse was not tagged",
+        }, "pulses seen on the GPS receiver's event input")
+        self.fixes = TruthTable("gps_fixes", {
+            "t_gps_ns": "NMEA epoch", "error_n_m": "position error north",
+            "error_e_m": "position error east", "error_d_m": "position error down",
+            "quality": "GGA quality",
+        }, "errors added to the true antenna position in each NMEA fix")
+        first_second = -(-traj.t_start_ns // NS_PER_S) * NS_PER_S
+        self._schedule.at(first_second, self._pps_edge)
+        first_epoch = -(-traj.t_start_ns // self._epoch_ns) * self._epoch_ns
+        self._schedule.at(first_epoch + self._latency_ns, self._nmea_epoch)
+
+    @property
+    def _latency_ns(self) -> int:
+        return round(self.scn.gps.nmea_latency_ms * 1e6)
+
+    def in_outage(self, t_ns: int) -> bool:
+        return any(a <= t_ns < b for a, b in self._outages)
+
+    def next_time_ns(self) -> int | None:
+        return self._schedule.next_time_ns()
+
+    def emit(self, t_ns: int) -> list[Output]:
+        return self._schedule.run_due(t_ns)
+
+    # --- PPS -------------------------------------------------------------------------------
+
+    def _pps_edge(self, t_ns: int) -> list[Output]:
+        second = t_ns  # scheduled on the whole second
+        nxt = second + NS_PER_S
+        if nxt <= self.traj.t_end_ns:
+            self._schedule.at(nxt, self._pps_edge)
+        if self.in_outage(second):
+            return []
+        jitter_ns = round(self.rng.normal(0.0, self.scn.gps.pps_jitter_ns))
+        t_edge = second + jitter_ns
+        ptt = ptt_from_gps_ns(t_edge)
+        self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge,
+                        ptt_gps_ns=self._rounded(t_edge))
+        self._send_at(second + PTT_LATENCY_NS, ptt)
+        return [Output(t_ns, Port.PULSES, Edge(PulseLine.PPS, 0, t_edge))]
+
+    def _rounded(self, t_ns: int) -> int:
+        return (t_ns + self.tag_res_ns // 2) // self.tag_res_ns * self.tag_res_ns
+
+    # --- events ----------------------------------------------------------------------------
+
+    def on_edge(self, edge: Edge) -> None:
+        t = edge.t_ns
+        if self.in_outage(t):
+            self.events.append(t_edge_gps_ns=t, accepted=0, ttt_gps_ns=-1, reason="no lock")
+            return
+        if t < self._armed_at_ns:
+            self.events.append(t_edge_gps_ns=t, accepted=0, ttt_gps_ns=-1, reason="dead time")
+            return
+        self._armed_at_ns = t + self.dead_time_ns
+        ttt = ttt_from_gps_ns(t)
+        self.events.append(t_edge_gps_ns=t, accepted=1, ttt_gps_ns=self._rounded(t), reason="")
+        self._send_at(t + TTT_LATENCY_NS, ttt)
+
+    # --- NMEA ------------------------------------------------------------------------------
+
+    def _send(self, message: NmeaMessage, t_ns: int) -> list[Output]:
+        return [Output(t_ns, Port.GPS_SERIAL, encode(message))]
+
+    def _send_at(self, t_ns: int, message: NmeaMessage) -> None:
+        self._schedule.at(t_ns, partial(self._send, message))
+
+    def _nmea_epoch(self, t_ns: int) -> list[Output]:
+        epoch = t_ns - self._latency_ns
+        nxt = epoch + self._epoch_ns
+        if nxt <= self.traj.t_end_ns:
+            self._schedule.at(nxt + self._latency_ns, self._nmea_epoch)
+        lat, lon, h, speed, course = self._fix(epoch)
+        leap = self.scn.block.leap_seconds
+        lost = self.in_outage(epoch)
+        quality = FixQuality.INVALID if lost else self._quality
+        mode = ModeIndicator.NOT_VALID if lost else self._mode
+        gps = self.scn.gps
+        messages: list[NmeaMessage] = [
+            gga_from_fix(epoch, leap, lat, lon, h, gps.geoid_separation_m, quality, 9, 0.9),
+            rmc_from_fix(epoch, leap, lat, lon, speed, course, mode),
+        ]
+        if epoch % NS_PER_S == 0:
+            messages.append(zda_from_gps_ns(epoch, leap))
+        for k, msg in enumerate(messages[1:], start=1):
+            self._send_at(t_ns + k * SENTENCE_SPACING_NS, msg)
+        return self._send(messages[0], t_ns)
+
+    @property
+    def _quality(self) -> FixQuality:
+        if self.scn.gps.solution is GpsSolution.PHASE:
+            return FixQuality.RTK_FIXED
+        return FixQuality.DGPS
+
+    @property
+    def _mode(self) -> ModeIndicator:
+        if self.scn.gps.solution is GpsSolution.PHASE:
+            return ModeIndicator.RTK_FIXED
+        return ModeIndicator.DIFFERENTIAL
+
+    def _fix(self, epoch_ns: int) -> tuple[float, float, float, float, float]:
+        if epoch_ns not in self._fixes:
+            self._fixes = self._fix_chunk(epoch_ns)
+        return self._fixes.pop(epoch_ns)
+
+    def _fix_chunk(self, first_ns: int) -> dict[int, tuple[float, float, float, float, float]]:
+        """Antenna fixes for the next minute of epochs, computed in one vectorised pass."""
+        n = max(1, math.floor(FIX_CHUNK_S * NS_PER_S / self._epoch_ns))
+        t = first_ns + self._epoch_ns * np.arange(n, dtype=np.int64)
+        t = np.clip(t, self.traj.t_start_ns, self.traj.t_end_ns)
+        st = self.traj.state(t)
+        r_bn = body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
+        r_ne = ned_to_ecef_matrix(np.radians(st.lat_deg), np.radians(st.lon_deg))
+        lever_ned = r_bn @ np.asarray(self.scn.mounting.antenna_offset_m)
+        err_ned = self._position_errors(n)
+        ant_ecef = st.ecef_m + np.einsum("nij,nj->ni", r_ne, lever_ned + err_ned)
+        lat, lon, h = self.plane.ecef_to_geodetic(ant_ecef)
+        vn, ve = st.vel_ned_mps[:, 0], st.vel_ned_mps[:, 1]
+        speed = np.hypot(vn, ve)
+        course = np.mod(np.degrees(np.arctan2(ve, vn)), 360.0)
+        self.fixes.extend(t_gps_ns=t.tolist(), error_n_m=err_ned[:, 0].tolist(),
+                          error_e_m=err_ned[:, 1].tolist(), error_d_m=err_ned[:, 2].tolist(),
+                          quality=[int(self._quality)] * n)
+        return {int(ti): (float(a), float(b), float(c), float(d), float(e))
+                for ti, a, b, c, d, e in zip(t, lat, lon, h, speed, course, strict=True)}
+
+    def _position_errors(self, n: int) -> np.ndarray:
+        """First-order Gauss–Markov errors (N, E, D) with the scenario's σ and τ."""
+        gps = self.scn.gps
+        sigma = np.array([gps.horizontal_sigma_m, gps.horizontal_sigma_m, gps.vertical_sigma_m])
+        phi = math.exp(-self._epoch_ns / NS_PER_S / gps.noise_correlation_s)
+        state = self._gm_state
+        if state is None:
+            state = self.rng.normal(0.0, 1.0, 3) * sigma  # start in the stationary distribution
+        out = np.empty((n, 3))
+        drive = self.rng.normal(0.0, 1.0, (n, 3)) * sigma * math.sqrt(1.0 - phi * phi)
+        for k in range(n):
+            state = phi * state + drive[k]
+            out[k] = state
+        self._gm_state = state
+        return out

@@ -18,9 +18,11 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
     if out.exists():
         raise InputError(f"{out} already exists: choose a new output folder (runs are never "
                          "overwritten)")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{parent} is not a folder")
+    parent = out.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {parent}: {exc.strerror}") from None
     scratch = parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(scratch, ignore_errors=True)
     scratch.mkdir()

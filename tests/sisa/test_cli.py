@@ -129,3 +129,9 @@ def test_truth_with_a_bad_scenario_writes_nothing(tmp_path):
     out = tmp_path / "run"
     assert main(["truth", "--scenario", str(bad), "--out", str(out)]) == 2
     assert not out.exists()
+
+
+def test_truth_creates_missing_parent_folders(tmp_path):
+    out = tmp_path / "runs" / "deeper" / "run"
+    assert main(["truth", "--preset", "bench", "--out", str(out)]) == 0
+    assert (out / "terrain" / "dem.tif").is_file()

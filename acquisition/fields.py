@@ -21,6 +21,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
+from functools import cached_property
 
 from sisa.errors import DecodeError, EncodeError, SisaError
 
@@ -97,34 +98,34 @@ class Field:
             raise LayoutError(f"{self.name}: declared range [{self.low}, {self.high}] is empty or "
                               f"not representable in {self.length_bits} bits")
 
-    @property
+    @cached_property
     def wire_min(self) -> int:
         return -(1 << (self.length_bits - 1)) if self.signed else 0
 
-    @property
+    @cached_property
     def wire_max(self) -> int:
         return (1 << (self.length_bits - 1 if self.signed else self.length_bits)) - 1
 
-    @property
+    @cached_property
     def raw_min(self) -> int:
         """Smallest raw value inside the declared range."""
         if self.minimum is None:
             return self.wire_min
         return _raw_bound(self.minimum, self.offset, self.scale, upper=False)
 
-    @property
+    @cached_property
     def raw_max(self) -> int:
         """Largest raw value inside the declared range."""
         if self.maximum is None:
             return self.wire_max
         return _raw_bound(self.maximum, self.offset, self.scale, upper=True)
 
-    @property
+    @cached_property
     def low(self) -> float:
         """Smallest legal physical value."""
         return self.to_physical(self.wire_min) if self.minimum is None else self.minimum
 
-    @property
+    @cached_property
     def high(self) -> float:
         """Largest legal physical value."""
         return self.to_physical(self.wire_max) if self.maximum is None else self.maximum
@@ -179,7 +180,7 @@ class Layout:
         if len({f.name for f in self.fields}) != len(self.fields):
             raise LayoutError(f"{self.name}: duplicate field names")
 
-    @property
+    @cached_property
     def names(self) -> tuple[str, ...]:
         return tuple(f.name for f in self.fields)
 

@@ -48,7 +48,7 @@ def main() -> None:
           f"({len(system.traj.strips)} strips, images {'off' if args.no_images else 'on'})")
     print(f"  build (trajectory, terrain, scene): {t_build:6.1f} s")
     print(f"  run (all devices, virtual time):    {t_run:6.1f} s")
-    print(f"  outputs: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    print("  outputs: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
     print(f"  image data written: {image_bytes / 1e6:.0f} MB; peak RSS {peak_mb:.0f} MB")
     print(f"  speed-up over real time: {flight_s / wall_s:.1f}x (target >= 50x)")
 

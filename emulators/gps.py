@@ -113,6 +113,10 @@ class GpsReceiver(Device):
         self._schedule.at(first_epoch + self._latency_ns, self._nmea_epoch)
 
     @property
+    def tables(self) -> tuple[TruthTable, ...]:
+        return (self.pps, self.events, self.fixes)
+
+    @property
     def _latency_ns(self) -> int:
         return round(self.scn.gps.nmea_latency_ms * 1e6)
 

@@ -19,12 +19,14 @@ EPILOG = """examples:
   sisa scenario show garrotxa        resolved scenario and its derived figures
   sisa truth --preset bench --out runs/bench-truth
                                      trajectory, DEM, scene and ground points of a scenario
+  sisa emulate --preset bench --out runs/bench-emu
+                                     the three devices in real time on virtual ports
   sisa <command> --help              every command shows an example
 """
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from sisa.commands import Formatter, scenario, truth
+    from sisa.commands import Formatter, emulate, scenario, truth
 
     parser = argparse.ArgumentParser(
         prog="sisa", formatter_class=Formatter, epilog=EPILOG,
@@ -34,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     scenario.register(sub)
     truth.register(sub)
+    emulate.register(sub)
     return parser
 
 

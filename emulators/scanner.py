@@ -1,0 +1,397 @@
+"""The pushbroom scanner emulator (CASI-501 class): its frame clock, its wire outputs and its own
+recording.
+
+What it does, and why:
+- It records one segment per strip window of the trajectory, as an operator switches the CASI
+  on over each strip. Frames come from the scanner's own free-running line clock (not GPS):
+  period line_period_ms·(1 + drift), white jitter on every mid-exposure time. Post-processing
+  must find this clock from the pulses, so it is never aligned to anything.
+- Per frame it sends a PPF edge at mid-exposure, and, once the frame is read out (after the
+  second half of the integration and 1–3 ms of readout latency), a frame header on RS-232
+  (acquisition.scanner_header). The frame counter runs on across segments and wraps.
+- A dropped frame (fault `dropped_frame_fraction`) is exposed, so its PPF goes out and its
+  counter value is used, but it is not recorded: no header and no image line.
+- The recording (with `out_dir`) is what the CASI itself writes: per segment an ENVI BIL of
+  uint16 DN, its .hdr, and a CSV of the frame counter of every recorded line, which is the only
+  link between an image line and the pulse that timed it. It is written block by block, so
+  memory does not depend on the segment length. Lines are rendered by emulators.render from
+  the TRUE pose at the frame's true mid-exposure time.
+- Truth (table `frames`, and `faults` for dropped frames) stays beside the run: the recording
+  holds nothing a real scanner would not know.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from acquisition.pulses import Edge, PulseLine
+from acquisition.scanner_header import FrameHeader, ScannerMode, encode_header
+from emulators.render import LineRenderer
+from emulators.runtime import Device, Output, Port
+from emulators.scenario import Scenario
+from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
+from emulators.trajectory import TruthTrajectory
+from emulators.truth import TruthTable
+
+I64 = npt.NDArray[np.int64]
+U16 = npt.NDArray[np.uint16]
+
+READOUT_LATENCY_MS: Final = (1.0, 3.0)  # frame end → header on the wire, uniform
+JITTER_CLIP_SIGMA: Final = 8.0  # jitter is clipped here, so frame times have a hard bound
+DEFAULT_BLOCK_LINES: Final = 128  # frames scheduled (and lines rendered) at a time
+
+
+def frame_table() -> TruthTable:
+    return TruthTable("frames", {
+        "segment": "recording segment (0-based, one per strip window)",
+        "line_index": "line of the segment's BIL file, -1 if the frame was dropped",
+        "frame_counter": "the scanner's frame counter (wraps at 2^frame_counter_bits)",
+        "t_mid_gps_ns": "true mid-exposure time (GPS ns): the PPF edge time",
+        "dropped": "1 if the frame was exposed but not recorded, else 0",
+    }, "every frame the scanner exposed, in order")
+
+
+# ---------------------------------------------------------------------------------------------
+# The line clock
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LineClock:
+    """The scanner's free-running frame oscillator: tick k is at t0 + k·period (GPS ns)."""
+
+    t0_ns: int
+    period_ns: float
+
+    def time_of(self, tick: npt.ArrayLike) -> I64:
+        k = np.asarray(tick, dtype=np.int64)
+        return np.asarray(self.t0_ns + np.rint(k * self.period_ns).astype(np.int64))
+
+    def first_tick_at_or_after(self, t_ns: int) -> int:
+        k = math.ceil((t_ns - self.t0_ns) / self.period_ns)
+        while int(self.time_of(k)) < t_ns:
+            k += 1
+        while k > 0 and int(self.time_of(k - 1)) >= t_ns:
+            k -= 1
+        return k
+
+    def last_tick_at_or_before(self, t_ns: int) -> int:
+        return self.first_tick_at_or_after(t_ns + 1) - 1
+
+
+@dataclass(frozen=True)
+class _Segment:
+    number: int
+    first_tick: int
+    last_tick: int  # inclusive; last < first for a window shorter than a period
+
+
+def _plan_segments(clock: LineClock, traj: TruthTrajectory) -> list[_Segment]:
+    """One recording segment per strip window: the clock ticks that fall inside it."""
+    return [_Segment(i, clock.first_tick_at_or_after(s.t_start_ns),
+                     clock.last_tick_at_or_before(s.t_end_ns))
+            for i, s in enumerate(traj.strips)]
+
+
+# ---------------------------------------------------------------------------------------------
+# The recording
+# ---------------------------------------------------------------------------------------------
+
+
+class BilSegmentWriter:
+    """One recording segment as the scanner writes it: `segment_NNN.bil` (uint16 DN,
+    little-endian, band-interleaved by line), `segment_NNN.hdr` (ENVI) and
+    `segment_NNN.lines.csv` (frame counter of every line). Lines are appended in blocks and
+    the header is rewritten (atomically) after each, so an interrupted recording stays
+    readable up to its last block."""
+
+    def __init__(self, folder: Path, segment: int, pixels: int, bands: int,
+                 frame_counter_bits: int) -> None:
+        self.stem = Path(folder) / f"segment_{segment:03d}"
+        self.segment = segment
+        self.pixels = pixels
+        self.bands = bands
+        self.lines = 0
+        self._bil = open(self.bil_path, "wb")  # noqa: SIM115 - kept open across blocks
+        self._csv: TextIO = open(self.lines_csv_path, "w", encoding="utf-8")  # noqa: SIM115
+        self._csv.write(_lines_csv_doc(self.bil_path.name, frame_counter_bits))
+        self._csv.write("line_index,frame_counter\n")
+        self._write_header()
+
+    @property
+    def bil_path(self) -> Path:
+        return self.stem.with_suffix(".bil")
+
+    @property
+    def hdr_path(self) -> Path:
+        return self.stem.with_suffix(".hdr")
+
+    @property
+    def lines_csv_path(self) -> Path:
+        return self.stem.with_suffix(".lines.csv")
+
+    def append(self, dn: U16, frame_counters: npt.ArrayLike) -> None:
+        """Lines (lines, bands, pixels) and the frame counter of each."""
+        counters = np.asarray(frame_counters, dtype=np.int64)
+        if dn.shape != (counters.size, self.bands, self.pixels):
+            raise ValueError(f"expected ({counters.size}, {self.bands}, {self.pixels}) lines, "
+                             f"got {dn.shape}")
+        self._bil.write(np.ascontiguousarray(dn, dtype="<u2").tobytes())
+        index = np.arange(self.lines, self.lines + counters.size)
+        self._csv.write("".join(f"{i},{c}\n" for i, c in zip(index.tolist(), counters.tolist(),
+                                                              strict=True)))
+        self._bil.flush()
+        self._csv.flush()
+        self.lines += counters.size
+        self._write_header()
+
+    def close(self) -> None:
+        if not self._bil.closed:
+            self._bil.close()
+            self._csv.close()
+            self._write_header()
+
+    def _write_header(self) -> None:
+        tmp = self.hdr_path.with_suffix(".hdr.tmp")
+        tmp.write_text(envi_header(self.pixels, self.lines, self.bands, self.segment,
+                                   self.lines_csv_path.name), encoding="utf-8")
+        os.replace(tmp, self.hdr_path)
+
+
+def envi_header(pixels: int, lines: int, bands: int, segment: int, lines_csv: str) -> str:
+    """ENVI header of a raw-DN BIL segment (data type 12 = uint16, byte order 0 = little)."""
+    centres = band_centres_nm(bands)
+    fwhm = (WAVELENGTH_RANGE_NM[1] - WAVELENGTH_RANGE_NM[0]) / bands
+    fields = {
+        "description": f"{{SISA emulated pushbroom scanner (CASI-501 class), recording segment "
+                       f"{segment}: raw DN, one line per recorded frame, lines in recording "
+                       f"order; frame counter of every line in {lines_csv}}}",
+        "samples": str(pixels),
+        "lines": str(lines),
+        "bands": str(bands),
+        "header offset": "0",
+        "file type": "ENVI Standard",
+        "data type": "12",
+        "interleave": "bil",
+        "byte order": "0",
+        "data ignore value": "0",
+        "sensor type": "CASI-501 class (emulated)",
+        "wavelength units": "Nanometers",
+        "wavelength": "{" + ", ".join(f"{c:.2f}" for c in centres) + "}",
+        "fwhm": "{" + ", ".join(f"{fwhm:.2f}" for _ in centres) + "}",
+        "band names": "{" + ", ".join(f"band {i + 1} ({c:.1f} nm)"
+                                      for i, c in enumerate(centres)) + "}",
+    }
+    return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+
+
+def _lines_csv_doc(bil_name: str, frame_counter_bits: int) -> str:
+    return (f"# Frame counter of every line of {bil_name}, in file order: the scanner's own\n"
+            f"# record, written as it records. line_index: 0-based line of the BIL file.\n"
+            f"# frame_counter: counter of the frame the line came from; it wraps at\n"
+            f"# 2^{frame_counter_bits} and runs on across segments. A gap means frames that\n"
+            f"# were exposed (their PPF pulse went out) but not recorded.\n")
+
+
+# ---------------------------------------------------------------------------------------------
+# The device
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Block:
+    """A run of consecutive frames of one segment."""
+
+    segment: int
+    t_mid_ns: I64
+    t_header_ns: I64
+    counters: I64
+    dropped: npt.NDArray[np.bool_]
+
+
+class ScannerEmulator(Device):
+    """The scanner on the emulation timeline: PPF edges, frame headers and (with out_dir) its
+    recording. Terrain and scene are needed only to render, i.e. when out_dir is given.
+
+    Frames are scheduled, and their lines rendered, `block_lines` at a time, when the device
+    runs out of outputs (right after a frame's header, before the next PPF). Large blocks give
+    throughput in virtual time; in real time pass a block that renders within the gap between
+    a header and the next PPF (line period − integration/2 − 3 ms), e.g. 8–16 lines, so that
+    rendering never delays an output.
+    """
+
+    name = "scanner"
+
+    def __init__(self, scn: Scenario, traj: TruthTrajectory, terrain: Terrain | None,
+                 scene: Scene | None, rng: np.random.Generator, faults: TruthTable,
+                 out_dir: Path | None, *, block_lines: int = DEFAULT_BLOCK_LINES) -> None:
+        self.scn = scn
+        self.traj = traj
+        self.faults = faults
+        self.frames = frame_table()
+        self.block_lines = block_lines
+        timing_rng, noise_rng = rng.spawn(2)  # rendering never shifts the frame timing
+        self._rng = timing_rng
+        sc = scn.scanner
+        period_ns = sc.line_period_ms * 1e6 * (1.0 + sc.line_clock_drift_ppm * 1e-6)
+        self.clock = LineClock(traj.t_start_ns + int(timing_rng.uniform(0.0, period_ns)),
+                               period_ns)
+        self._segments = _plan_segments(self.clock, traj)
+        self._seg_pos = 0
+        self._next_tick = self._segments[0].first_tick if self._segments else 0
+        self._counter = 0
+        self._lines_in_segment = 0
+        self._pending: list[tuple[int, int, Output]] = []
+        self._order = 0
+        self._last_header_ns = -1
+        self._horizon_tick, self._horizon = -1, 0
+        self.out_dir = out_dir
+        self._writer: BilSegmentWriter | None = None
+        self.renderer: LineRenderer | None = None
+        if out_dir is not None:
+            if terrain is None or scene is None:
+                raise ValueError("rendering a recording needs the terrain and the scene")
+            Path(out_dir).mkdir(parents=True, exist_ok=True)
+            self.renderer = LineRenderer(sc, scn.mounting, terrain, scene, noise_rng)
+        self._skip_empty_segments()
+
+    # --- Device -------------------------------------------------------------------------------
+
+    def next_time_ns(self) -> int | None:
+        while self._seg_pos < len(self._segments) and (
+                not self._pending or self._pending[0][0] >= self._horizon_ns()):
+            self._schedule_block()
+        return self._pending[0][0] if self._pending else None
+
+    def emit(self, t_ns: int) -> list[Output]:
+        out = []
+        while self._pending and self._pending[0][0] <= t_ns:
+            out.append(heapq.heappop(self._pending)[2])
+        return out
+
+    def finish(self) -> None:
+        self._close_writer()
+
+    # --- truth and statistics -----------------------------------------------------------------
+
+    @property
+    def tables(self) -> tuple[TruthTable, ...]:
+        """Truth tables this device fills (the shared `faults` table is the caller's)."""
+        return (self.frames,)
+
+    @property
+    def frames_exposed(self) -> int:
+        return len(self.frames)
+
+    @property
+    def frames_dropped(self) -> int:
+        return int(self.frames.column("dropped").sum()) if len(self.frames) else 0
+
+    @property
+    def missed_pixels(self) -> int:
+        """Rendered pixels whose ray missed the DEM (recorded as DN 0)."""
+        return self.renderer.missed_rays if self.renderer is not None else 0
+
+    # --- scheduling ---------------------------------------------------------------------------
+
+    def _horizon_ns(self) -> int:
+        """No frame not yet scheduled can output anything before this time."""
+        if self._horizon_tick != self._next_tick:
+            jitter_bound = math.ceil(JITTER_CLIP_SIGMA * self.scn.scanner.line_clock_jitter_ns)
+            self._horizon_tick = self._next_tick
+            self._horizon = int(self.clock.time_of(self._next_tick)) - jitter_bound - 1
+        return self._horizon
+
+    def _skip_empty_segments(self) -> None:
+        while (self._seg_pos < len(self._segments)
+               and self._next_tick > self._segments[self._seg_pos].last_tick):
+            self._seg_pos += 1
+            self._lines_in_segment = 0
+            if self._seg_pos < len(self._segments):
+                self._next_tick = self._segments[self._seg_pos].first_tick
+
+    def _schedule_block(self) -> None:
+        seg = self._segments[self._seg_pos]
+        stop = min(self._next_tick + self.block_lines, seg.last_tick + 1)
+        block = self._draw_block(seg.number, np.arange(self._next_tick, stop, dtype=np.int64))
+        self._next_tick = stop
+        line_index = self._record(block)
+        self._log_truth(block, line_index)
+        self._queue(block)
+        if self._next_tick > seg.last_tick:
+            self._close_writer()
+            self._skip_empty_segments()
+
+    def _draw_block(self, segment: int, ticks: I64) -> _Block:
+        sc, n = self.scn.scanner, ticks.size
+        sigma = sc.line_clock_jitter_ns
+        jitter = np.clip(self._rng.normal(0.0, 1.0, n), -JITTER_CLIP_SIGMA, JITTER_CLIP_SIGMA)
+        t_mid = self.clock.time_of(ticks) + np.rint(jitter * sigma).astype(np.int64)
+        latency_ns = self._rng.uniform(*READOUT_LATENCY_MS, n) * 1e6
+        t_hdr = t_mid + round(sc.integration_time_ms * 5e5) + np.rint(latency_ns).astype(np.int64)
+        t_hdr = np.maximum.accumulate(np.maximum(t_hdr, self._last_header_ns + 1))
+        self._last_header_ns = int(t_hdr[-1])
+        counters = (self._counter + np.arange(n, dtype=np.int64)) % (1 << sc.frame_counter_bits)
+        self._counter = int(counters[-1]) + 1
+        dropped = self._rng.random(n) < self.scn.faults.dropped_frame_fraction
+        return _Block(segment, t_mid, t_hdr, counters, dropped)
+
+    def _record(self, block: _Block) -> I64:
+        """Render and write the recorded frames; their line indices (−1 for dropped)."""
+        kept = ~block.dropped
+        line_index = np.full(block.counters.size, -1, dtype=np.int64)
+        line_index[kept] = self._lines_in_segment + np.arange(int(kept.sum()))
+        self._lines_in_segment += int(kept.sum())
+        if self.renderer is not None and kept.any():
+            dn = self.renderer.render(self.traj.state(block.t_mid_ns[kept]))
+            self._writer_for(block.segment).append(dn, block.counters[kept])
+        return line_index
+
+    def _writer_for(self, segment: int) -> BilSegmentWriter:
+        if self._writer is None:
+            assert self.out_dir is not None
+            sc = self.scn.scanner
+            self._writer = BilSegmentWriter(Path(self.out_dir), segment, sc.pixels, sc.bands,
+                                            sc.frame_counter_bits)
+        return self._writer
+
+    def _close_writer(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def _log_truth(self, block: _Block, line_index: I64) -> None:
+        n = block.counters.size
+        self.frames.extend(segment=[block.segment] * n, line_index=line_index.tolist(),
+                           frame_counter=block.counters.tolist(),
+                           t_mid_gps_ns=block.t_mid_ns.tolist(),
+                           dropped=block.dropped.astype(int).tolist())
+        for i in np.flatnonzero(block.dropped):
+            self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
+                               target="scanner", detail=f"segment {block.segment} frame_counter "
+                               f"{int(block.counters[i])}")
+
+    def _queue(self, block: _Block) -> None:
+        sc = self.scn.scanner
+        integration_us = round(sc.integration_time_ms * 1000.0)
+        for i in range(block.counters.size):
+            self._push(Output(int(block.t_mid_ns[i]), Port.PULSES,
+                              Edge(PulseLine.PPF, 0, int(block.t_mid_ns[i]))))
+            if block.dropped[i]:
+                continue
+            header = FrameHeader(int(block.counters[i]), integration_us, ScannerMode.RECORDING,
+                                 block.segment, sc.bands)
+            self._push(Output(int(block.t_header_ns[i]), Port.SCANNER_SERIAL,
+                              encode_header(header, frame_counter_bits=sc.frame_counter_bits)))
+
+    def _push(self, out: Output) -> None:
+        heapq.heappush(self._pending, (out.t_ns, self._order, out))
+        self._order += 1

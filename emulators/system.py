@@ -1,0 +1,84 @@
+"""The three emulated devices of one scenario, wired together with the fault injector.
+
+Each device draws from its own random stream derived from the scenario seed, so adding a device or
+a fault never changes what another device does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+from acquisition.pulses import Edge, PulseLine
+from emulators.faults import SpuriousPulses, WireFaults, fault_table
+from emulators.gps import GpsReceiver
+from emulators.ins import InsEmulator
+from emulators.runtime import Device, Output, Sink
+from emulators.scanner import ScannerEmulator
+from emulators.scenario import Scenario
+from emulators.terrain import Scene, Terrain
+from emulators.trajectory import TruthTrajectory
+from emulators.truth import TruthTable
+
+
+class Stream(IntEnum):
+    """Random-stream tags, one per consumer."""
+
+    GPS = 1
+    INS = 2
+    SCANNER = 3
+    WIRE = 4
+    SPURIOUS = 5
+
+
+class EmulatedSystem:
+    """GPS receiver, INS and scanner of a scenario, plus wire faults; built once per run."""
+
+    def __init__(self, scn: Scenario, scanner_dir: Path | None, *,
+                 traj: TruthTrajectory | None = None, terrain: Terrain | None = None,
+                 real_time: bool = False) -> None:
+        self.scn = scn
+        self.traj = traj or TruthTrajectory.from_scenario(scn)
+        self.faults = fault_table()
+        self.gps = GpsReceiver(scn, self.traj, self._rng(Stream.GPS), self.faults)
+        self.ins = InsEmulator(scn, self.traj, self._rng(Stream.INS), self.faults)
+        scene: Scene | None = None
+        if scanner_dir is not None:
+            terrain = terrain or Terrain.from_scenario(scn)
+            scene = Scene.from_scenario(scn, terrain)
+        # in real time, render small blocks so a block fits between two frame pulses
+        self.scanner = ScannerEmulator(scn, self.traj, terrain, scene, self._rng(Stream.SCANNER),
+                                       self.faults, scanner_dir,
+                                       block_lines=8 if real_time else 128)
+        self.devices: list[Device] = [self.gps, self.ins, self.scanner]
+        if scn.faults.spurious_pulse_rate_hz > 0:
+            self.devices.append(SpuriousPulses(
+                scn.faults.spurious_pulse_rate_hz, (PulseLine.PPS, PulseLine.PPF),
+                self.traj.t_start_ns, self.traj.t_end_ns, self._rng(Stream.SPURIOUS),
+                self.faults))
+        self.wire = WireFaults(scn.faults, self._rng(Stream.WIRE), self.faults)
+
+    def _rng(self, stream: Stream) -> np.random.Generator:
+        return np.random.default_rng([self.scn.seed, int(stream)])
+
+    def faulty(self, sink: Sink) -> Sink:
+        """`sink` behind the wire faults of the scenario (a no-op when the profile is empty)."""
+        if not self.wire.active:
+            return sink
+
+        def wrapped(out: Output) -> Sequence[Edge]:
+            damaged = self.wire.apply(out)
+            return sink(damaged) if damaged is not None else ()
+
+        return wrapped
+
+    def truth_tables(self) -> list[TruthTable]:
+        return [*self.gps.tables, *self.ins.tables, *self.scanner.tables, self.faults]
+
+    def write_truth(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        for table in self.truth_tables():
+            table.write_csv(folder)

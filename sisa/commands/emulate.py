@@ -1,0 +1,90 @@
+"""`sisa emulate`: the three devices in real time on virtual ports, until Ctrl-C or the end of
+the scenario. The scanner's own recording and the truth tables go to the run folder."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+import time
+from pathlib import Path
+from types import FrameType
+
+from sisa.commands import SubParsers, add_command
+from sisa.errors import InputError
+
+
+def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "emulate", "run the GPS receiver, INS and scanner emulators in real "
+                         "time on virtual serial ports, CAN and pulse lines",
+                         "sisa emulate --preset bench --out runs/bench-emu   "
+                         "(then: sisa record ... on the printed ports)")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
+    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="new folder for the scanner's recording and the truth tables")
+    parser.add_argument("--speed", type=float, default=1.0,
+                        help="times real time (default 1.0)")
+    parser.add_argument("--can", default="slcan",
+                        help="'slcan' (an SLCAN adapter on a new pty, default) or "
+                             "INTERFACE:CHANNEL for python-can, e.g. socketcan:can0")
+    parser.add_argument("--pulses-port", type=int, default=0,
+                        help="loopback TCP port for pulse edges (default: any free port)")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="stop after this many seconds of emulation")
+    parser.add_argument("--no-images", action="store_true",
+                        help="do not render the scanner's image lines")
+    parser.add_argument("--endpoints", type=Path, default=None,
+                        help="also write the endpoints as JSON to this file")
+    parser.set_defaults(handler=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from emulators.bridge import CanTarget, RealTimeBridge
+    from emulators.runtime import Runner
+    from emulators.scenario import load_scenario
+    from emulators.system import EmulatedSystem
+
+    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    if args.speed <= 0:
+        raise InputError("--speed must be positive")
+    target = CanTarget.parse(args.can)
+    if args.out.exists():
+        raise InputError(f"{args.out} already exists: choose a new output folder")
+    args.out.mkdir(parents=True)
+    system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner", real_time=True)
+    runner = Runner(system.devices, lambda out: (), speed=args.speed)
+    bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port)
+    runner.sink = system.faulty(bridge)
+    stop = threading.Event()
+
+    def on_signal(_sig: int, _frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    _announce(bridge.endpoints(), scn.block.name, args)
+    if args.endpoints is not None:
+        bridge.write_endpoints(args.endpoints)
+    until = None
+    if args.duration is not None:
+        until = system.traj.t_start_ns + int(args.duration * 1e9)
+    started = time.monotonic()
+    try:
+        runner.run(until_ns=until, should_stop=stop.is_set)
+    finally:
+        bridge.close()
+        system.write_truth(args.out / "truth")
+    print(f"emulate: {runner.outputs} outputs in {time.monotonic() - started:.1f} s; "
+          f"latest emission {runner.late_ns_max / 1e6:.2f} ms behind schedule; "
+          f"truth in {args.out / 'truth'}", flush=True)
+    return 0
+
+
+def _announce(endpoints: dict[str, str], name: str, args: argparse.Namespace) -> None:
+    print(f"GPS receiver (NMEA + Ashtech, RS-232):  {endpoints['gps']}")
+    print(f"Scanner frame headers (RS-232):        {endpoints['scanner']}")
+    print(f"INS records (CAN):                     {endpoints['ins']}")
+    print(f"Pulse lines (timestamped edges, TCP):  {endpoints['pulses']}")
+    print(f"Running {name} at {args.speed:g}x real time; Ctrl-C to stop.", flush=True)

@@ -1,0 +1,79 @@
+"""`sisa emulate` as a separate process, read by real clients: pyserial on the GPS pty,
+python-can slcan on the INS adapter, a TCP socket on the pulse endpoint."""
+
+import itertools
+import json
+import socket
+import subprocess
+import sys
+import time
+
+import can
+import serial
+
+from acquisition.codec import ErrorPolicy
+from acquisition.ins_can import InsRecordAssembler, InsStatus
+from acquisition.nmea import Gga, NmeaStreamDecoder
+from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
+
+
+def _wait_for(path, timeout_s=30.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and path.stat().st_size:
+            return json.loads(path.read_text())
+        time.sleep(0.05)
+    raise AssertionError("emulator did not announce its endpoints")
+
+
+def test_emulate_serves_real_clients_and_takes_sync_pulses(tmp_path):
+    endpoints_file = tmp_path / "endpoints.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "emulate", "--preset", "bench", "--out",
+         str(tmp_path / "run"), "--duration", "8", "--no-images", "--endpoints",
+         str(endpoints_file)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ep = _wait_for(endpoints_file)
+        host, port = ep["pulses"].removeprefix("tcp://").split(":")
+        assert host == "127.0.0.1"
+        gps = serial.Serial(ep["gps"], 115200, timeout=0)
+        bus = can.Bus(interface="slcan", channel=ep["ins"].removeprefix("slcan:"))
+        pulses = socket.create_connection((host, int(port)), timeout=5)
+        pulses.settimeout(0.01)
+        nmea = NmeaStreamDecoder(ErrorPolicy.RAISE)
+        asm = InsRecordAssembler(ErrorPolicy.RAISE)
+        edge_dec = EdgeStreamDecoder(ErrorPolicy.RAISE)
+        fixes, records, pps = [], [], []
+        deadline = time.monotonic() + 6.0
+        while time.monotonic() < deadline:
+            fixes += [d.message for d in nmea.feed(gps.read(4096))
+                      if isinstance(d.message, Gga)]
+            while (msg := bus.recv(timeout=0.0)) is not None:
+                if (rec := asm.feed(msg)) is not None:
+                    records.append(rec.message)
+            try:
+                got = edge_dec.feed(pulses.recv(4096))
+            except TimeoutError:
+                got = []
+            except ConnectionResetError:
+                break
+            for item in got:
+                if item.message.line is PulseLine.PPS:
+                    pps.append(item.message)
+                    # answer like the sync unit: forward the PPS to the INS sync input
+                    pulses.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 0, item.message.t_ns)))
+        gps.close()
+        bus.shutdown()
+        pulses.close()
+    finally:
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "GPS receiver" in out
+    assert len(fixes) >= 3
+    assert len(pps) >= 3
+    assert len(records) > 64 * 3
+    counters = [r.counter for r in records]
+    assert all((b - a) % 2**16 == 1 for a, b in itertools.pairwise(counters))
+    synced = [r for r in records if r.status & InsStatus.SYNC_PULSE]
+    assert len(synced) >= 2  # our forwarded PPS came back inside INS records
+    assert (tmp_path / "run" / "truth" / "ins_records.csv").is_file()

@@ -86,6 +86,9 @@ class GpsReceiver(Device):
         self._outages = [(traj.t_start_ns + int(f.at_s * NS_PER_S),
                           traj.t_start_ns + int((f.at_s + f.duration_s) * NS_PER_S))
                          for f in scn.faults.pps_outages]
+        for (a, b), f in zip(self._outages, scn.faults.pps_outages, strict=True):
+            faults.append(t_gps_ns=a, kind="pps_outage", target="gps",
+                          detail=f"{f.duration_s:g} s, until {b}")
         self._armed_at_ns = traj.t_start_ns
         self._epoch_ns = round(NS_PER_S / scn.gps.nmea_rate_hz)
         self._fixes: dict[int, tuple[float, float, float, float, float]] = {}

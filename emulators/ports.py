@@ -123,6 +123,7 @@ class PulseEndpoint:
 
     def __init__(self, on_edge: Callable[[Edge], None], port: int = 0) -> None:
         self._server = socket.create_server((LOOPBACK, port))
+        self._server.settimeout(0.1)  # lets the accept loop notice close()
         self.address = f"tcp://{LOOPBACK}:{self._server.getsockname()[1]}"
         self._on_edge = on_edge
         self._client: socket.socket | None = None
@@ -148,7 +149,6 @@ class PulseEndpoint:
             self.edges_dropped += 1
 
     def _serve(self) -> None:
-        self._server.settimeout(0.1)
         while not self._stop.is_set():
             try:
                 conn, _ = self._server.accept()

@@ -69,3 +69,35 @@ def test_pulse_endpoint_both_ways_on_loopback():
         assert received == [Edge(PulseLine.INS_SYNC, 0, 7_000_000_000)]
     finally:
         endpoint.close()
+
+
+def test_bridge_sends_ins_frames_to_any_python_can_bus():
+    import queue
+
+    from emulators.bridge import CanTarget, RealTimeBridge
+    from emulators.runtime import Output, Port
+
+    bridge = RealTimeBridge(CanTarget.parse("virtual:sisa-test"), queue.SimpleQueue())
+    listener = can.Bus(interface="virtual", channel="sisa-test")
+    try:
+        frame = can.Message(arbitration_id=0x101, data=bytes(range(8)), is_extended_id=False)
+        bridge(Output(0, Port.INS_CAN, frame))
+        got = listener.recv(timeout=1.0)
+        assert got is not None
+        assert bytes(got.data) == bytes(range(8))
+        assert bridge.endpoints()["ins"] == "virtual:sisa-test"
+    finally:
+        listener.shutdown()
+        bridge.close()
+
+
+def test_can_target_refuses_udp_multicast_and_bad_forms():
+    import pytest
+
+    from emulators.bridge import CanTarget
+    from sisa.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="loopback"):
+        CanTarget.parse("udp_multicast:224.0.0.1")
+    with pytest.raises(ConfigError, match="INTERFACE:CHANNEL"):
+        CanTarget.parse("virtual")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import can
 
+from acquisition.canspec import parse_can_spec
 from acquisition.pulses import Edge
 from emulators.ports import PtyPort, PulseEndpoint, SlcanAdapter
 from emulators.runtime import Output, Port
@@ -34,13 +35,7 @@ class CanTarget:
     def parse(cls, text: str) -> CanTarget:
         if text == "slcan":
             return cls("slcan")
-        interface, sep, channel = text.partition(":")
-        if not sep or not interface or not channel:
-            raise ConfigError(f"--can {text!r}: use 'slcan' or INTERFACE:CHANNEL "
-                              "(e.g. virtual:sisa)")
-        if interface == "udp_multicast":
-            raise ConfigError("--can udp_multicast cannot be held to loopback; use slcan")
-        return cls(interface, channel)
+        return cls(*parse_can_spec(text))
 
 
 class RealTimeBridge:

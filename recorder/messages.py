@@ -38,6 +38,7 @@ class LoggedMessage:
 
     topic: ClassVar[Topic]
     schema_name: ClassVar[str]
+    t_host_ns: int  # every logged message has its host receive time
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)  # type: ignore[call-overload, no-any-return]
@@ -226,10 +227,14 @@ LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (
     SyncSession, SyncPps, SyncForward, SyncModeSwitch, StreamHealth,
 )
 
-_JSON_TYPES: dict[object, dict[str, Any]] = {int: {"type": "integer"}, float: {"type": "number"}, str: {"type": "string"},
-               bool: {"type": "boolean"},
-               bytes: {"type": "string", "contentEncoding": "base64"},
-               list[int]: {"type": "array", "items": {"type": "integer"}}}
+_JSON_TYPES: dict[object, dict[str, Any]] = {
+    int: {"type": "integer"},
+    float: {"type": ["number", "string"]},  # non-finite values travel as "NaN"/"Infinity"
+    str: {"type": "string"},
+    bool: {"type": "boolean"},
+    bytes: {"type": "string", "contentEncoding": "base64"},
+    list[int]: {"type": "array", "items": {"type": "integer"}},
+}
 
 
 def json_schema(cls: type[LoggedMessage]) -> dict[str, Any]:

@@ -19,6 +19,8 @@ EPILOG = """examples:
   sisa scenario show garrotxa        resolved scenario and its derived figures
   sisa truth --preset bench --out runs/bench-truth
                                      trajectory, DEM, scene and ground points of a scenario
+  sisa simulate --preset bench --out runs/bench
+                                     a whole flight in virtual time: flight.mcap + truth
   sisa emulate --preset bench --out runs/bench-emu
                                      the three devices in real time on virtual ports
   sisa <command> --help              every command shows an example
@@ -26,7 +28,7 @@ EPILOG = """examples:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from sisa.commands import Formatter, emulate, scenario, truth
+    from sisa.commands import Formatter, bench, emulate, log, record, scenario, simulate, truth
 
     parser = argparse.ArgumentParser(
         prog="sisa", formatter_class=Formatter, epilog=EPILOG,
@@ -36,7 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     scenario.register(sub)
     truth.register(sub)
+    simulate.register(sub)
     emulate.register(sub)
+    record.register(sub)
+    bench.register(sub)
+    log.register(sub)
     return parser
 
 
@@ -52,6 +58,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SisaError as exc:
         print(f"sisa {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `sisa ... | head`: the reader left, that is fine
+        sys.stderr.close()
+        return 0
     except KeyboardInterrupt:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -19,6 +19,10 @@ class EncodeError(SisaError, ValueError):
     """A value that cannot go on the wire: missing, not finite, or outside its declared range."""
 
 
+class RecorderError(SisaError):
+    """Writing the flight log failed (operation phase); what was on disk stays readable."""
+
+
 class DecodeError(SisaError):
     """Bytes that do not decode as the expected message (operation phase)."""
 

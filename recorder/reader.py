@@ -1,0 +1,560 @@
+"""The tolerant flight-log reader: every complete chunk of a file, even one cut short by a crash.
+
+Why it is built this way:
+- A log from a power cut has no summary and ends inside a record. It is read front to back with
+  mcap's non-seeking `StreamReader` (chunks emitted whole), over a source that returns a record
+  only when all its bytes are there, so a half-written tail ends the file instead of becoming
+  garbage. Each chunk is checked (length, CRC) before any of its messages is used; a bad chunk is
+  skipped and counted, a record longer than `record_size_limit` stops the file (a corrupt length
+  must not allocate gigabytes), unknown records are skipped.
+- Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
+  numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
+- `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the median
+  interval), messages lost by sequence number, whether each file ended cleanly.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+from array import array
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, BinaryIO, Final, TypeVar, cast
+
+import numpy as np
+import numpy.typing as npt
+from mcap.exceptions import EndOfFile, McapError
+from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from recorder.messages import LoggedMessage, Topic
+from recorder.writer import SCHEMAS, TOPIC_TYPES
+from sisa.errors import DecodeError, InputError
+
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+DEFAULT_RECORD_SIZE_LIMIT: Final = 256 * 2**20  # our chunks are 64 KiB; 256 MiB is corruption
+GAP_FACTOR: Final = 2.0
+MAX_GAPS_KEPT: Final = 1000
+MAX_PROBLEMS_KEPT: Final = 20
+_SEQUENCE_MOD: Final = 2**32
+_BATCH: Final = 4096
+_PARSE_ERRORS: Final = (McapError, ValueError, struct.error, UnicodeDecodeError, KeyError)
+
+PathArg = Path | str
+Paths = PathArg | Sequence[PathArg]
+M = TypeVar("M", bound=LoggedMessage)
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """A channel as declared in the file, with its schema."""
+
+    id: int
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A silence on one topic longer than `GAP_FACTOR` times its median interval."""
+
+    topic: str
+    start_ns: int  # log time of the last message before the gap
+    end_ns: int  # log time of the first message after it
+
+    @property
+    def duration_ns(self) -> int:
+        return self.end_ns - self.start_ns
+
+
+@dataclass
+class TopicStats:
+    topic: str
+    schema_name: str
+    count: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+    median_interval_ns: int = 0
+    gaps: list[Gap] = field(default_factory=list)  # the first MAX_GAPS_KEPT, in time order
+    gap_count: int = 0
+    lost_by_sequence: int = 0  # jumps in the writer's per-topic sequence numbers
+
+    @property
+    def span_ns(self) -> int:
+        return self.last_ns - self.first_ns
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.count - 1) * 1e9 / self.span_ns if self.count > 1 and self.span_ns else 0.0
+
+
+@dataclass
+class FileStats:
+    path: Path
+    size_bytes: int
+    library: str = ""
+    complete: bool = False  # the footer and the closing magic were read
+    has_summary: bool = False
+    chunks_read: int = 0
+    chunks_skipped: int = 0
+    bytes_readable: int = 0  # up to the end of the last complete record
+    problems: list[str] = field(default_factory=list)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    @property
+    def truncated(self) -> bool:
+        return not self.complete
+
+    @property
+    def bytes_unreadable(self) -> int:
+        return self.size_bytes - self.bytes_readable
+
+
+@dataclass
+class LogStats:
+    """What a pass over a log (one file or a split set) found. Complete once the pass ends."""
+
+    files: list[FileStats] = field(default_factory=list)
+    topics: dict[str, TopicStats] = field(default_factory=dict)
+    undecodable: int = 0
+
+    @property
+    def messages(self) -> int:
+        return sum(t.count for t in self.topics.values())
+
+    @property
+    def start_ns(self) -> int:
+        return min((t.first_ns for t in self.topics.values() if t.count), default=0)
+
+    @property
+    def end_ns(self) -> int:
+        return max((t.last_ns for t in self.topics.values() if t.count), default=0)
+
+    @property
+    def truncated(self) -> bool:
+        return any(f.truncated for f in self.files)
+
+    @property
+    def chunks_read(self) -> int:
+        return sum(f.chunks_read for f in self.files)
+
+    @property
+    def gaps(self) -> list[Gap]:
+        return sorted((g for t in self.topics.values() for g in t.gaps),
+                      key=lambda g: g.start_ns)
+
+
+class _WholeRecords:
+    """A file source that returns all the bytes asked for or none: a record cut by the end of
+    the file then reads as end-of-file, never as a short record. A length field beyond the file
+    or the size limit is refused before anything is allocated for it."""
+
+    def __init__(self, fh: BinaryIO, position: int, size: int, limit: int) -> None:
+        self._fh = fh
+        self.position = position
+        self._size = size
+        self._limit = limit
+
+    def read(self, n: int) -> bytes:
+        if n > self._limit:
+            raise ValueError(f"a field of {n} bytes exceeds the limit {self._limit}")
+        if n > self._size - self.position:
+            return b""
+        data = self._fh.read(n)
+        if len(data) < n:
+            return b""
+        self.position += n
+        return data
+
+
+def _paths(path_or_paths: Paths) -> list[Path]:
+    if isinstance(path_or_paths, str | Path):
+        return [Path(path_or_paths)]
+    return [Path(p) for p in path_or_paths]
+
+
+def open_log(path: Path) -> BinaryIO:
+    """Open an MCAP file for reading past its magic; InputError (one line) if it is not one."""
+    try:
+        fh = open(path, "rb")  # noqa: SIM115 - the caller closes it
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    magic = fh.read(len(MCAP_MAGIC))
+    if magic != MCAP_MAGIC:
+        fh.close()
+        what = "empty" if not magic else "no MCAP magic"
+        raise InputError(f"{path}: not an MCAP file ({what})")
+    return fh
+
+
+class LogReader:
+    """One pass over a flight log (a file or the parts of a split set, in order).
+
+    Iterate for `(topic, log_time_ns, dict)`; `raw()` for undecoded `(ChannelInfo, Message)`.
+    `stats` is filled during the pass. Files are checked to be MCAP before the pass starts.
+    """
+
+    def __init__(self, path_or_paths: Paths, *,
+                 record_size_limit: int = DEFAULT_RECORD_SIZE_LIMIT) -> None:
+        self.paths = _paths(path_or_paths)
+        if not self.paths:
+            raise InputError("no flight log given")
+        for path in self.paths:
+            open_log(path).close()
+        self.record_size_limit = record_size_limit
+        self.stats = LogStats()
+        self._times: dict[str, array[int]] = {}
+        self._next_seq: dict[str, int] = {}
+
+    def __iter__(self) -> Iterator[tuple[str, int, dict[str, Any]]]:
+        decoders = _Decoders()
+        for channel, msg in self.raw():
+            obj = decoders.decode(channel, msg.data)
+            if obj is None:
+                self.stats.undecodable += 1
+                continue
+            yield channel.topic, msg.log_time, obj
+
+    def raw(self) -> Iterator[tuple[ChannelInfo, Message]]:
+        """Every readable message, in file order, with its channel."""
+        for path in self.paths:
+            fstats = FileStats(path, path.stat().st_size)
+            self.stats.files.append(fstats)
+            for channel, msg in _FileScan(path, fstats, self.record_size_limit).messages():
+                self._account(channel, msg)
+                yield channel, msg
+        self._finish()
+
+    def _account(self, channel: ChannelInfo, msg: Message) -> None:
+        topic = channel.topic
+        ts = self.stats.topics.get(topic)
+        if ts is None:
+            ts = self.stats.topics[topic] = TopicStats(topic, channel.schema_name)
+            self._times[topic] = array("q")
+        ts.count += 1  # the rest of the timing is filled in at the end of the pass
+        self._times[topic].append(msg.log_time)
+        expected = self._next_seq.get(topic)
+        if expected is not None and msg.sequence != expected:
+            jump = (msg.sequence - expected) % _SEQUENCE_MOD
+            ts.lost_by_sequence += jump if jump < _SEQUENCE_MOD // 2 else 0
+        self._next_seq[topic] = (msg.sequence + 1) % _SEQUENCE_MOD
+
+    def _finish(self) -> None:
+        for topic, ts in self.stats.topics.items():
+            times = np.sort(np.frombuffer(self._times[topic], dtype=np.int64))
+            _fill_timing(ts, times)
+        self._times.clear()
+
+
+def _fill_timing(ts: TopicStats, times: npt.NDArray[np.int64]) -> None:
+    """Count, span, median interval and the gaps longer than GAP_FACTOR x the median."""
+    ts.count = len(times)
+    if not ts.count:
+        return
+    ts.first_ns, ts.last_ns = int(times[0]), int(times[-1])
+    if ts.count < 3:
+        return
+    intervals = np.diff(times)
+    ts.median_interval_ns = int(np.median(intervals))
+    if ts.median_interval_ns <= 0:
+        return
+    (idx,) = np.nonzero(intervals > GAP_FACTOR * ts.median_interval_ns)
+    ts.gap_count = len(idx)
+    ts.gaps = [Gap(ts.topic, int(times[i]), int(times[i + 1])) for i in idx[:MAX_GAPS_KEPT]]
+
+
+class _FileScan:
+    """Reads one file record by record; what it could not read goes into `fstats`."""
+
+    def __init__(self, path: Path, fstats: FileStats, record_size_limit: int) -> None:
+        self.path = path
+        self.fstats = fstats
+        self.limit = record_size_limit
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, ChannelInfo] = {}
+
+    def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
+        fs = self.fstats
+        with open_log(self.path) as fh:
+            source = _WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
+            fs.bytes_readable = source.position
+            reader = StreamReader(cast(IO[bytes], source), skip_magic=True, emit_chunks=True,
+                                  record_size_limit=self.limit)
+            footer_seen = False
+            try:
+                for record in reader.records:
+                    batch = self._on_record(record, source.position)
+                    fs.bytes_readable = source.position
+                    footer_seen = footer_seen or isinstance(record, Footer)
+                    yield from batch
+                fs.complete = True
+                fs.bytes_readable = source.position
+            except EndOfFile:
+                if footer_seen:
+                    self._problem("no closing magic after the footer")
+            except _PARSE_ERRORS as exc:
+                self._problem(f"unreadable record after byte {fs.bytes_readable}: {exc}")
+
+    def _on_record(self, record: object, end: int) -> list[tuple[ChannelInfo, Message]]:
+        if isinstance(record, Chunk):
+            return self._chunk(record, end)
+        if isinstance(record, Message):
+            return self._message(record)
+        self._declare(record)
+        if isinstance(record, Header):
+            self.fstats.library = record.library
+        elif isinstance(record, Metadata):
+            self.fstats.metadata[record.name] = dict(record.metadata)
+        elif isinstance(record, Footer):
+            self.fstats.has_summary = record.summary_start != 0
+        return []
+
+    def _declare(self, record: object) -> None:
+        if isinstance(record, Schema):
+            self.schemas[record.id] = record
+        elif isinstance(record, Channel) and record.id not in self.channels:
+            schema = self.schemas.get(record.schema_id)
+            self.channels[record.id] = ChannelInfo(
+                record.id, record.topic, record.message_encoding,
+                schema.name if schema else "", schema.encoding if schema else "",
+                schema.data if schema else b"")
+
+    def _chunk(self, chunk: Chunk, end: int) -> list[tuple[ChannelInfo, Message]]:
+        """All the chunk's messages, or none if the chunk is damaged."""
+        try:
+            if chunk.compression == "" and len(chunk.data) != chunk.uncompressed_size:
+                raise ValueError("size does not match its header")
+            records = breakup_chunk(chunk, validate_crc=True)
+        except _PARSE_ERRORS as exc:
+            self.fstats.chunks_skipped += 1
+            self._problem(f"chunk ending at byte {end} skipped: {exc}")
+            return []
+        self.fstats.chunks_read += 1
+        out: list[tuple[ChannelInfo, Message]] = []
+        for record in records:
+            if isinstance(record, Message):
+                out.extend(self._message(record))
+            else:
+                self._declare(record)
+        return out
+
+    def _message(self, msg: Message) -> list[tuple[ChannelInfo, Message]]:
+        channel = self.channels.get(msg.channel_id)
+        if channel is None:
+            self._problem(f"message on undeclared channel {msg.channel_id} skipped")
+            return []
+        return [(channel, msg)]
+
+    def _problem(self, text: str) -> None:
+        if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:
+            self.fstats.problems.append(text)
+
+
+# --- decoding -----------------------------------------------------------------------------------
+
+def _schema_properties(channel: ChannelInfo) -> dict[str, Any] | None:
+    if channel.schema_encoding != "jsonschema":
+        return None
+    try:
+        props = json.loads(channel.schema_data).get("properties")
+    except (ValueError, AttributeError):
+        return None
+    return props if isinstance(props, dict) else None
+
+
+class _Decoder:
+    """JSON message → dict, with base64 fields as bytes and "NaN"/"Infinity" back as floats."""
+
+    def __init__(self, props: dict[str, Any]) -> None:
+        self.b64 = tuple(k for k, p in props.items() if p.get("contentEncoding") == "base64")
+        self.numbers = tuple(k for k, p in props.items() if p.get("type") == "number")
+
+    @classmethod
+    def for_channel(cls, channel: ChannelInfo) -> _Decoder | None:
+        if channel.message_encoding != "json":
+            return None
+        return cls(_schema_properties(channel) or {})
+
+    def __call__(self, data: bytes) -> dict[str, Any] | None:
+        try:
+            obj = json.loads(data)
+            for name in self.b64:
+                obj[name] = base64.b64decode(obj[name])
+        except (ValueError, KeyError, TypeError):
+            return None
+        if not isinstance(obj, dict):
+            return None
+        if self.numbers and (b'"NaN"' in data or b'Infinity"' in data):
+            for name in self.numbers:
+                if isinstance(obj.get(name), str):
+                    obj[name] = float(obj[name])
+        return obj
+
+
+class _Decoders:
+    """One decoder per (encoding, schema): what a decoder needs depends on nothing else."""
+
+    def __init__(self) -> None:
+        self._by_schema: dict[tuple[str, str, bytes], _Decoder | None] = {}
+
+    def decode(self, channel: ChannelInfo, data: bytes) -> dict[str, Any] | None:
+        key = (channel.message_encoding, channel.schema_encoding, channel.schema_data)
+        if key not in self._by_schema:
+            self._by_schema[key] = _Decoder.for_channel(channel)
+        decoder = self._by_schema[key]
+        return decoder(data) if decoder is not None else None
+
+
+def read_log(path_or_paths: Paths) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """Every readable message as (topic, log_time_ns, fields); bytes fields as bytes."""
+    return iter(LogReader(path_or_paths))
+
+
+def scan_log(path_or_paths: Paths) -> LogStats:
+    """Read a whole log without decoding messages, for its statistics."""
+    reader = LogReader(path_or_paths)
+    for _ in reader.raw():
+        pass
+    return reader.stats
+
+
+def read_messages(path_or_paths: Paths, cls: type[M], topic: Topic | str | None = None
+                  ) -> Iterator[M]:
+    """Every readable message of type `cls` (on every topic carrying it, or only `topic`)."""
+    decoders = _Decoders()
+    for channel, msg in LogReader(path_or_paths).raw():
+        if channel.schema_name != cls.schema_name or (topic is not None and channel.topic != topic):
+            continue
+        obj = decoders.decode(channel, msg.data)
+        if obj is None:
+            raise DecodeError(f"{channel.topic}: message at log time {msg.log_time} is not "
+                              f"valid {cls.schema_name} JSON", raw=msg.data)
+        try:
+            item = cls(**obj)
+        except TypeError as exc:
+            raise DecodeError(f"{channel.topic}: fields do not match {cls.schema_name}: {exc}",
+                              raw=msg.data) from None
+        yield item
+
+
+# --- columns ------------------------------------------------------------------------------------
+
+Column = tuple[str, tuple[str, ...], Any]  # column name, path into the JSON object, numpy dtype
+
+
+def _columns(props: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[Column]:
+    """Flatten a JSON Schema's properties into typed columns ("timestamp.sec", ...)."""
+    out: list[Column] = []
+    for name, prop in props.items():
+        path = (*prefix, name)
+        kind = prop.get("type")
+        if kind == "object" and isinstance(prop.get("properties"), dict):
+            out.extend(_columns(prop["properties"], path))
+            continue
+        dtype: Any = {"integer": np.int64, "number": np.float64, "boolean": np.bool_,
+                      "string": np.str_}.get(kind, object)
+        if prop.get("contentEncoding") == "base64":
+            dtype = object
+        out.append((".".join(path), path, dtype))
+    return out
+
+
+def _column_values(objs: list[dict[str, Any]], path: tuple[str, ...]) -> list[Any]:
+    if len(path) == 1:
+        return [o[path[0]] for o in objs]
+    values = []
+    for o in objs:
+        v: Any = o
+        for key in path:
+            v = v[key]
+        values.append(v)
+    return values
+
+
+def _to_array(values: list[Any], dtype: Any, b64: bool) -> npt.NDArray[Any]:
+    if b64 or dtype is object:
+        arr = np.empty(len(values), dtype=object)
+        arr[:] = [base64.b64decode(v) for v in values] if b64 else values
+        return arr
+    if dtype is np.str_:
+        return np.array(values, dtype=np.str_) if values else np.array([], dtype=np.str_)
+    return np.fromiter(values, dtype=dtype, count=len(values))
+
+
+class _ColumnBuilder:
+    """Accumulates one topic's messages in numpy arrays, one JSON batch at a time."""
+
+    def __init__(self, props: dict[str, Any]) -> None:
+        self.columns = _columns(props)
+        self.b64 = {name for name, p in props.items() if p.get("contentEncoding") == "base64"}
+        self.parts: dict[str, list[npt.NDArray[Any]]] = {"log_time_ns": []}
+        self.parts.update({name: [] for name, _, _ in self.columns})
+
+    def add_batch(self, log_times: list[int], datas: list[bytes]) -> None:
+        try:
+            objs = json.loads(b"[" + b",".join(datas) + b"]")
+            arrays = {name: _to_array(_column_values(objs, path), dtype, path[0] in self.b64)
+                      for name, path, dtype in self.columns}
+        except (ValueError, KeyError, TypeError) as exc:
+            raise DecodeError(f"a message does not match its schema: {exc}") from None
+        self.parts["log_time_ns"].append(np.array(log_times, dtype=np.int64))
+        for name, arr in arrays.items():
+            self.parts[name].append(arr)
+
+    def result(self) -> dict[str, npt.NDArray[Any]]:
+        out: dict[str, npt.NDArray[Any]] = {}
+        dtypes = {name: dtype for name, _, dtype in self.columns} | {"log_time_ns": np.int64}
+        for name, parts in self.parts.items():
+            out[name] = np.concatenate(parts) if parts else np.array([], dtype=dtypes[name])
+        return out
+
+
+def _known_props(topic: str) -> dict[str, Any]:
+    """The schema SISA writes on `topic`, for a log where the topic never appeared."""
+    if topic == Topic.GPS_LOCATION:
+        return dict(SCHEMAS["foxglove.LocationFix"]["properties"])
+    try:
+        cls = TOPIC_TYPES[Topic(topic)]
+    except (ValueError, KeyError):
+        return {}
+    return dict(SCHEMAS[cls.schema_name]["properties"])
+
+
+def read_columns(path_or_paths: Paths, topic: Topic | str) -> dict[str, npt.NDArray[Any]]:
+    """One topic as numpy arrays, one per field (plus `log_time_ns`), in file order.
+
+    integer → int64, number → float64 (NaN kept), boolean → bool, string → str, bytes and
+    arrays → object; nested objects flatten to "parent.child".
+    """
+    builder: _ColumnBuilder | None = None
+    times: list[int] = []
+    datas: list[bytes] = []
+    for channel, msg in LogReader(path_or_paths).raw():
+        if channel.topic != topic:
+            continue
+        if builder is None:
+            builder = _ColumnBuilder(_schema_properties(channel) or {})
+        times.append(msg.log_time)
+        datas.append(msg.data)
+        if len(datas) >= _BATCH:
+            builder.add_batch(times, datas)
+            times, datas = [], []
+    if builder is None:
+        builder = _ColumnBuilder(_known_props(str(topic)))
+    if datas:
+        builder.add_batch(times, datas)
+    return builder.result()
+
+
+def topics_in(stats: LogStats) -> Iterable[str]:
+    """Topics of a log in a stable order (as declared by SISA's Topic enum, then the rest)."""
+    order = {str(t): i for i, t in enumerate(Topic)}
+    return sorted(stats.topics, key=lambda t: (order.get(t, len(order)), t))

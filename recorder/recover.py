@@ -1,0 +1,139 @@
+"""Recover a flight log: every readable message of a truncated or damaged file, into a new
+complete MCAP (summary, indexes, statistics) that any tool opens.
+
+Why: a log cut by a power loss has no summary, so indexed readers (Foxglove, `mcap info`,
+McapIndexedReader) refuse it or read it slowly. The copy is written to a hidden temporary file
+beside the output and appears under its name only when complete (a hard link, which never replaces
+an existing file): an interrupted recover leaves nothing half-written, and nothing is overwritten.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import BinaryIO
+
+from mcap.records import Message
+from mcap.writer import CompressionType, Writer
+
+from recorder.reader import ChannelInfo, LogReader, LogStats
+from recorder.writer import DEFAULT_CHUNK_SIZE, RECORDER_ID
+from sisa.errors import InputError, RecorderError
+
+
+@dataclass(frozen=True)
+class RecoverReport:
+    in_path: Path
+    out_path: Path
+    messages: int
+    topics: dict[str, int]
+    chunks_read: int
+    chunks_skipped: int
+    input_complete: bool
+    bytes_unreadable: int  # bytes of the input after its last complete record
+    problems: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """One line for the terminal."""
+        state = "complete" if self.input_complete else "truncated (no summary)"
+        skipped = f", {self.chunks_skipped} damaged chunks skipped" if self.chunks_skipped else ""
+        tail = f", {self.bytes_unreadable} bytes unreadable" if self.bytes_unreadable else ""
+        return (f"{self.out_path}: {self.messages} messages on {len(self.topics)} topics from "
+                f"{self.chunks_read} chunks of {self.in_path} ({state}{skipped}{tail})")
+
+
+class _Copier:
+    """Re-declares each schema and channel once in the new file and copies messages verbatim."""
+
+    def __init__(self, fh: BinaryIO) -> None:
+        self.mcap = Writer(fh, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.NONE)
+        self.mcap.start(profile="", library=f"{RECORDER_ID} (recover)")
+        self.schemas: dict[tuple[str, str, bytes], int] = {}
+        self.channels: dict[tuple[str, str, int], int] = {}
+
+    def add(self, channel: ChannelInfo, msg: Message) -> None:
+        channel_id = self._channel(channel)
+        self.mcap.add_message(channel_id, msg.log_time, msg.data, msg.publish_time, msg.sequence)
+
+    def _channel(self, channel: ChannelInfo) -> int:
+        skey = (channel.schema_name, channel.schema_encoding, channel.schema_data)
+        schema_id = self.schemas.get(skey)
+        if schema_id is None:
+            schema_id = 0 if not channel.schema_name else self.mcap.register_schema(*skey)
+            self.schemas[skey] = schema_id
+        ckey = (channel.topic, channel.message_encoding, schema_id)
+        channel_id = self.channels.get(ckey)
+        if channel_id is None:
+            channel_id = self.mcap.register_channel(channel.topic, channel.message_encoding,
+                                                    schema_id)
+            self.channels[ckey] = channel_id
+        return channel_id
+
+    def finish(self, in_path: Path, stats: LogStats) -> None:
+        for name, meta in stats.files[0].metadata.items():
+            self.mcap.add_metadata(name, meta)
+        fs = stats.files[0]
+        self.mcap.add_metadata("sisa.recovered", {
+            "source": in_path.name, "source_complete": str(fs.complete).lower(),
+            "chunks_read": str(fs.chunks_read), "chunks_skipped": str(fs.chunks_skipped),
+            "bytes_unreadable": str(fs.bytes_unreadable), "by": RECORDER_ID})
+        self.mcap.finish()  # type: ignore[no-untyped-call]
+
+
+def _publish(tmp: Path, out: Path) -> None:
+    """Give `tmp` the name `out` without ever replacing an existing file."""
+    try:
+        os.link(tmp, out)
+    except FileExistsError:
+        raise InputError(f"{out} already exists: recover never overwrites") from None
+    except OSError as exc:  # a file system without hard links
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV) or out.exists():
+            raise
+        os.replace(tmp, out)
+        return
+    tmp.unlink()
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
+    """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`."""
+    src, out = Path(in_path), Path(out_path)
+    if out.exists():
+        raise InputError(f"{out} already exists: recover never overwrites")
+    if not out.parent.is_dir():
+        raise InputError(f"{out.parent} is not a folder")
+    reader = LogReader(src)  # InputError if missing or not MCAP
+    tmp = out.with_name(f".{out.name}.partial-{os.getpid()}")
+    try:
+        with open(tmp, "xb") as fh:
+            copier = _Copier(fh)
+            for channel, msg in reader.raw():
+                copier.add(channel, msg)
+            copier.finish(src, reader.stats)
+            fh.flush()
+            os.fsync(fh.fileno())
+        _publish(tmp, out)
+    except OSError as exc:
+        raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from exc
+    finally:
+        tmp.unlink(missing_ok=True)
+    _fsync_dir(out.parent)
+    return _report(src, out, reader.stats)
+
+
+def _report(src: Path, out: Path, stats: LogStats) -> RecoverReport:
+    fs = stats.files[0]
+    return RecoverReport(src, out, stats.messages,
+                         {t: s.count for t, s in stats.topics.items()}, fs.chunks_read,
+                         fs.chunks_skipped, fs.complete, fs.bytes_unreadable, list(fs.problems))

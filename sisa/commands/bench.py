@@ -1,0 +1,106 @@
+"""`sisa bench`: the desk test. `sisa emulate` and `sisa record` run as separate processes on
+virtual ports (ptys), CAN (SLCAN on a pty) and the pulse link, in real time; both are stopped
+cleanly at the end. The run folder has the same layout as `sisa simulate`'s."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from sisa.commands import SubParsers, add_command
+from sisa.errors import SisaError
+from sisa.outdir import staged_output_dir
+
+ANNOUNCE_TIMEOUT_S = 60.0
+
+
+def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "bench", "desk test: sisa emulate and sisa record as separate "
+                         "processes on virtual ports, in real time",
+                         "sisa bench --preset bench --out runs/bench-rt --duration 120")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
+    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    parser.add_argument("--out", type=Path, required=True, help="new run folder")
+    parser.add_argument("--speed", type=float, default=1.0, help="times real time")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="seconds of flight to run (default: the whole scenario)")
+    parser.add_argument("--no-images", action="store_true", help="do not render image lines")
+    parser.set_defaults(handler=_run)
+
+
+def _scenario_args(args: argparse.Namespace) -> list[str]:
+    if args.scenario is not None:
+        return ["--scenario", str(args.scenario.resolve())]
+    return ["--preset", args.preset]
+
+
+def _wait_for_endpoints(path: Path, proc: subprocess.Popen[bytes]) -> dict[str, str]:
+    deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if path.exists() and path.stat().st_size:
+            endpoints: dict[str, str] = json.loads(path.read_text())
+            return endpoints
+        if proc.poll() is not None:
+            raise SisaError(f"sisa emulate exited early with code {proc.returncode}")
+        time.sleep(0.05)
+    raise SisaError("sisa emulate did not announce its ports in time")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from emulators.scenario import load_scenario
+    from sisa.commands.scenario import scenario_toml
+
+    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    sisa = [sys.executable, "-m", "sisa.cli"]
+    with staged_output_dir(args.out) as run:
+        (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
+        endpoints_file = run / "endpoints.json"
+        emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),
+                   "--speed", str(args.speed), "--endpoints", str(endpoints_file)]
+        if args.duration is not None:
+            emu_cmd += ["--duration", str(args.duration)]
+        if args.no_images:
+            emu_cmd.append("--no-images")
+        emu = subprocess.Popen(emu_cmd, stdout=subprocess.DEVNULL)
+        rec: subprocess.Popen[bytes] | None = None
+        try:
+            ep = _wait_for_endpoints(endpoints_file, emu)
+            rec = subprocess.Popen([*sisa, "record", *_scenario_args(args), "--quiet",
+                                    "--gps", ep["gps"], "--scanner", ep["scanner"],
+                                    "--ins", ep["ins"], "--pulses", ep["pulses"],
+                                    "--out", str(run / "flight.mcap")])
+            emu_code = emu.wait()
+            rec_code = _stop(rec)
+        finally:
+            _stop(emu)
+            if rec is not None:
+                _stop(rec)
+        if emu_code != 0 or rec_code != 0:
+            raise SisaError(f"sisa emulate exited {emu_code}, sisa record exited {rec_code}")
+        for part in ("scanner", "truth"):
+            if (run / "emulator" / part).exists():
+                os.replace(run / "emulator" / part, run / part)
+        shutil.rmtree(run / "emulator", ignore_errors=True)
+    print(f"{args.out}: flight.mcap, scanner/, truth/ from a real-time run of {scn.block.name}")
+    return 0
+
+
+def _stop(proc: subprocess.Popen[bytes], grace_s: float = 15.0) -> int:
+    """Wait for a process that should end by itself; then ask it (SIGINT), then insist."""
+    try:
+        return proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait()

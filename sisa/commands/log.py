@@ -1,0 +1,129 @@
+"""`sisa log`: look inside a flight log and repair one cut short.
+
+  sisa log info FILE...       per-topic counts, rates, time span and gaps; works on truncated files
+  sisa log recover IN OUT     every readable message of IN into a new, complete MCAP file OUT
+"""
+
+from __future__ import annotations
+
+import argparse
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from sisa.commands import add_command
+
+if TYPE_CHECKING:
+    from recorder.reader import FileStats, LogStats
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "log", "inspect and recover flight logs (MCAP)",
+                         "sisa log info runs/bench-sim/flight.mcap")
+    actions = parser.add_subparsers(dest="log_command", metavar="ACTION")
+    info = add_command(actions, "info", "per-topic counts, rates, time span and gaps of a "
+                       "flight log (also a truncated one)",
+                       "sisa log info runs/flight.mcap runs/flight_001.mcap")
+    info.add_argument("files", nargs="+", type=Path, metavar="FILE",
+                      help="an MCAP file, or every part of a split recording in order")
+    info.add_argument("--gaps", type=int, default=10, metavar="N",
+                      help="list at most N gaps, largest first (default: 10)")
+    info.set_defaults(handler=_info)
+    recover = add_command(actions, "recover", "copy every readable message of a truncated or "
+                          "damaged flight log into a new, complete MCAP file",
+                          "sisa log recover crashed.mcap recovered.mcap")
+    recover.add_argument("input", type=Path, metavar="IN", help="the damaged MCAP file")
+    recover.add_argument("output", type=Path, metavar="OUT", help="new file (never overwritten)")
+    recover.set_defaults(handler=_recover)
+    parser.set_defaults(handler=lambda _args: _usage(parser))
+
+
+def _usage(parser: argparse.ArgumentParser) -> int:
+    parser.print_help()
+    return 2
+
+
+def _info(args: argparse.Namespace) -> int:
+    from recorder.reader import scan_log
+
+    stats = scan_log(args.files)
+    for fs in stats.files:
+        print(_file_line(fs))
+    for line in _summary_lines(stats):
+        print(line)
+    for line in _topic_table(stats):
+        print(line)
+    for line in _gap_lines(stats, args.gaps):
+        print(line)
+    return 0
+
+
+def _recover(args: argparse.Namespace) -> int:
+    from recorder.recover import recover
+
+    report = recover(args.input, args.output)
+    print(report.summary())
+    return 0
+
+
+def _file_line(fs: FileStats) -> str:
+    size = f"{fs.size_bytes / 1e6:.1f} MB" if fs.size_bytes >= 100_000 else f"{fs.size_bytes} B"
+    if fs.complete:
+        state = "complete (summary present)" if fs.has_summary else "complete (no summary)"
+    else:
+        state = f"truncated (no summary): read {fs.chunks_read} complete chunks"
+        if fs.bytes_unreadable:
+            state += f", last {fs.bytes_unreadable} bytes unreadable"
+    if fs.chunks_skipped:
+        state += f"; {fs.chunks_skipped} damaged chunks skipped"
+    meta = fs.metadata.get("sisa.recording", {})
+    extra = ", ".join(f"{k}={v}" for k, v in meta.items() if k not in ("first_part",))
+    lines = [f"{fs.path}: {size}, {state}"] + ([f"  {extra}"] if extra else [])
+    lines += [f"  problem: {p}" for p in fs.problems]
+    return "\n".join(lines)
+
+
+def _utc(t_ns: int) -> str:
+    return datetime.fromtimestamp(t_ns / 1e9, UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def _summary_lines(stats: LogStats) -> list[str]:
+    if not stats.messages:
+        return ["no readable messages"]
+    span_s = (stats.end_ns - stats.start_ns) / 1e9
+    lines = [f"{stats.messages} messages on {len(stats.topics)} topics, log time "
+             f"{_utc(stats.start_ns)} .. {_utc(stats.end_ns)} ({span_s:.3f} s, host clock)"]
+    if stats.undecodable:
+        lines.append(f"{stats.undecodable} messages could not be decoded")
+    return lines
+
+
+def _topic_table(stats: LogStats) -> list[str]:
+    from recorder.reader import topics_in
+
+    if not stats.topics:
+        return []
+    head = (f"{'topic':<20} {'schema':<22} {'count':>9} {'rate_hz':>9} {'first_s':>9} "
+            f"{'last_s':>9} {'median_ms':>9} {'gaps':>5} {'lost':>5}")
+    lines = [head]
+    for topic in topics_in(stats):
+        t = stats.topics[topic]
+        first_s, last_s = ((t.first_ns - stats.start_ns) / 1e9, (t.last_ns - stats.start_ns) / 1e9)
+        lines.append(
+            f"{topic:<20} {t.schema_name:<22} {t.count:>9} {t.rate_hz:>9.2f} {first_s:>9.3f} "
+            f"{last_s:>9.3f} {t.median_interval_ns / 1e6:>9.3f} {t.gap_count:>5} "
+            f"{t.lost_by_sequence:>5}")
+    return lines
+
+
+def _gap_lines(stats: LogStats, limit: int) -> list[str]:
+    total = sum(t.gap_count for t in stats.topics.values())
+    if not total or limit <= 0:
+        return []
+    gaps = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:limit]
+    lines = [f"gaps longer than 2x the topic's median interval: {total} (largest {len(gaps)})"]
+    for g in gaps:
+        median = stats.topics[g.topic].median_interval_ns
+        lines.append(f"  {g.topic:<20} at +{(g.start_ns - stats.start_ns) / 1e9:.3f} s: "
+                     f"{g.duration_ns / 1e9:.3f} s (median {median / 1e9:.4f} s)")
+    return lines

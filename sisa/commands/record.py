@@ -1,0 +1,218 @@
+"""`sisa record`: the real-time acquisition against real devices or the emulators: decode every
+stream, run the sync filter, record everything to MCAP, show live status."""
+
+from __future__ import annotations
+
+import argparse
+import queue
+import shutil
+import signal
+import time
+from pathlib import Path
+from types import FrameType
+from typing import TYPE_CHECKING
+
+from sisa.commands import SubParsers, add_command
+from sisa.errors import InputError
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from acquisition.live import Arrival, LiveSources
+    from acquisition.runner import Acquisition
+
+STATUS_PERIOD_S = 1.0
+TICK_S = 0.1
+IDLE_STOP_S = 3.0
+
+
+def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "record", "record a flight in real time: GPS, scanner and INS "
+                         "streams, pulse lines, sync filter, to MCAP",
+                         "sisa record --gps /dev/pts/4 --scanner /dev/pts/5 "
+                         "--ins slcan:/dev/pts/6 --pulses tcp://127.0.0.1:40211 "
+                         "--out runs/flight.mcap")
+    parser.add_argument("--gps", help="GPS receiver serial port")
+    parser.add_argument("--scanner", help="scanner frame-header serial port")
+    parser.add_argument("--ins", help="INS CAN bus as INTERFACE:CHANNEL (slcan:/dev/pts/6, "
+                        "socketcan:can0, virtual:sisa)")
+    parser.add_argument("--pulses", help="timing-board edge link, tcp://127.0.0.1:PORT")
+    parser.add_argument("--out", type=Path, required=True, help="new MCAP file")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--preset", default="bench",
+                       help="settings (rates, leap seconds, sync unit) from this preset")
+    group.add_argument("--scenario", type=Path, help="settings from this scenario file")
+    parser.add_argument("--split-minutes", type=float, default=None,
+                        help="start a new file every N minutes of log time")
+    parser.add_argument("--split-mb", type=float, default=None,
+                        help="start a new file every N MB")
+    parser.add_argument("--duration", type=float, default=None, help="stop after N seconds")
+    parser.add_argument("--quiet", action="store_true", help="no live status, summary only")
+    parser.set_defaults(handler=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from acquisition.live import LiveSources
+    from acquisition.runner import Acquisition
+    from emulators.scenario import load_scenario
+    from recorder.writer import FlightRecorder
+    from sisa.simulation import acquisition_config
+
+    if not any((args.gps, args.scanner, args.ins, args.pulses)):
+        raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
+                         "--pulses")
+    if args.out.exists():
+        raise InputError(f"{args.out} already exists: recordings are never overwritten")
+    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    config = acquisition_config(scn)
+    sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses)
+    stop = _install_stop_handlers()
+    split_s = args.split_minutes * 60 if args.split_minutes else None
+    split_b = int(args.split_mb * 1e6) if args.split_mb else None
+    try:
+        with FlightRecorder(args.out, split_duration_s=split_s, split_size_bytes=split_b,
+                            metadata={"settings": scn.block.name}) as rec:
+            acq = Acquisition(config, rec.write, sources.send_edge)
+            _loop(acq, sources, stop, args)
+    finally:
+        sources.close()
+    _summary(acq, args.out)
+    return 0
+
+
+def _install_stop_handlers() -> list[bool]:
+    stop = [False]
+
+    def on_signal(_sig: int, _frame: FrameType | None) -> None:
+        stop[0] = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    return stop
+
+
+class _EdgeClock:
+    """The edge timeline's 'now', extrapolated from the last edge by the host clock."""
+
+    def __init__(self) -> None:
+        self.t_edge_ns: int | None = None
+        self.t_host_ns = 0
+
+    def seen(self, t_host_ns: int, t_edge_ns: int) -> None:
+        self.t_edge_ns, self.t_host_ns = t_edge_ns, t_host_ns
+
+    def now(self, t_host_ns: int) -> int | None:
+        if self.t_edge_ns is None:
+            return None
+        return self.t_edge_ns + (t_host_ns - self.t_host_ns)
+
+
+def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
+          args: argparse.Namespace) -> None:
+    from acquisition.clocks import wall_clock_ns
+    from acquisition.live import Source
+
+    status = _Status(acq, args.out, quiet=args.quiet)
+    edge_clock = _EdgeClock()
+    started = time.monotonic()
+    next_tick = next_status = started
+    closed: set[Source] = set()
+    last_arrival = started
+    while not stop[0]:
+        try:
+            item = sources.arrivals.get(timeout=TICK_S / 2)
+        except queue.Empty:
+            item = None
+        now = time.monotonic()
+        if item is not None:
+            last_arrival = now
+            if item.payload is None:
+                closed.add(item.source)
+            else:
+                _dispatch(acq, item, edge_clock)
+        if now >= next_tick:
+            t_host = wall_clock_ns()
+            t_edge = edge_clock.now(t_host)
+            if t_edge is not None:
+                acq.tick(t_host, t_edge)
+            next_tick = now + TICK_S
+        if now >= next_status:
+            status.show()
+            next_status = now + STATUS_PERIOD_S
+        if args.duration is not None and now - started >= args.duration:
+            break
+        if closed >= sources.open_sources and now - last_arrival > IDLE_STOP_S:
+            break  # every source has gone away: the flight (or the emulator) is over
+    acq.finish(wall_clock_ns())
+    status.close()
+
+
+def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
+    import can
+
+    from acquisition.live import Source
+    from acquisition.pulses import Edge
+
+    payload = item.payload
+    if isinstance(payload, Edge):
+        edge_clock.seen(item.t_host_ns, payload.t_ns)
+        acq.on_edge(item.t_host_ns, payload)
+    elif isinstance(payload, can.Message):
+        acq.on_can_frame(item.t_host_ns, payload)
+    elif isinstance(payload, bytes) and item.source is Source.GPS:
+        acq.on_gps_bytes(item.t_host_ns, payload)
+    elif isinstance(payload, bytes):
+        acq.on_scanner_bytes(item.t_host_ns, payload)
+
+
+class _Status:
+    """Live status (rich): per-stream rate vs expected, errors, drops, sync mode, last PPS,
+    free disk space."""
+
+    def __init__(self, acq: Acquisition, out: Path, quiet: bool) -> None:
+        from rich.console import Console
+        from rich.live import Live
+
+        self.acq = acq
+        self.out = out
+        self.console = Console(stderr=True)
+        self.live: Live | None = None
+        if not quiet and self.console.is_terminal:
+            self.live = Live(self._table(), console=self.console, auto_refresh=False)
+            self.live.start()
+
+    def _table(self) -> Table:
+        from rich.table import Table
+
+        table = Table(title=f"sisa record → {self.out}", expand=False)
+        for col in ("stream", "messages", "rate Hz", "expected Hz", "gaps", "errors", "drops",
+                    "late"):
+            table.add_column(col, justify="right")
+        for name, c in self.acq.streams.items():
+            table.add_row(name, str(c.messages), f"{c.rate_hz:.1f}", f"{c.expected_hz:.1f}",
+                          str(c.gaps), str(c.stats.errors), str(c.drops), str(c.deadline_misses))
+        free_gb = shutil.disk_usage(self.out.parent).free / 1e9
+        pps = self.acq.last_pps_gps_ns
+        table.caption = (f"sync mode {self.acq.filter.mode}, session {self.acq.session}, "
+                         f"last PPS {'-' if pps is None else pps // 1_000_000_000} s GPS, "
+                         f"disk free {free_gb:.1f} GB")
+        return table
+
+    def show(self) -> None:
+        if self.live is not None:
+            self.live.update(self._table(), refresh=True)
+
+    def close(self) -> None:
+        if self.live is not None:
+            self.live.stop()
+
+
+def _summary(acq: Acquisition, out: Path) -> None:
+    s = acq.streams
+    errors = sum(c.stats.errors for c in s.values())
+    drops = sum(c.drops for c in s.values())
+    late = sum(c.deadline_misses for c in s.values())
+    print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
+          f"frame headers {s['scanner'].messages}, PPS {s['pps'].messages}, ppf "
+          f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
+          f"{acq.session + 1} sync session(s)", flush=True)

@@ -1,0 +1,47 @@
+"""Tests of the flight recorder: writer, tolerant reader, recover, crashes, an independent reader.
+
+`sample_messages()` gives one message of every logged type on every topic, with the awkward
+values a real log holds (bytes with NULs, empty bytes, NaN, infinities, negative numbers).
+"""
+
+from __future__ import annotations
+
+from recorder.messages import (
+    FrameHeaderLog,
+    GpsFix,
+    GpsTimeTag,
+    InsRecordLog,
+    LoggedMessage,
+    PulseEdgeLog,
+    RawBytes,
+    RawCanFrame,
+    StreamHealth,
+    SyncForward,
+    SyncModeSwitch,
+    SyncPps,
+    SyncSession,
+    Topic,
+)
+
+T0_NS = 1_700_000_000 * 10**9  # host clock (Unix ns)
+
+
+def sample_messages(t0_ns: int = T0_NS) -> list[tuple[LoggedMessage, Topic | None]]:
+    t = t0_ns
+    return [
+        (RawBytes(t, "gps", b"$GPGGA,1*00\r\n\x00\xff"), Topic.GPS_RAW),
+        (RawBytes(t + 1, "scanner", b""), Topic.SCANNER_RAW),
+        (RawCanFrame(t + 2, 0x18FF1234, True, bytes(range(8))), None),
+        (GpsFix(t + 3, 1_300_000_000 * 10**9, 42.123456789, -2.5, 612.25, 2, 9, 0.8), None),
+        (GpsTimeTag(t + 4, "TTT", 345_600_123_456_789, 1_300_000_000 * 10**9 + 1), None),
+        (InsRecordLog(t + 5, 65535, 2**48 - 1, 0.01, -0.02, 3.14, 1e-5, float("nan"), -1e-5,
+                      60.0, float("inf"), float("-inf"), 7, True, 123), None),
+        (FrameHeaderLog(t + 6, 4_000_000_000, 48_000, 1, 0, 19), None),
+        (PulseEdgeLog(t + 7, "PPS", -5, 0), Topic.PULSE_IN),
+        (PulseEdgeLog(t + 8, "INS_SYNC", 10**15, 1), Topic.PULSE_OUT),
+        (SyncSession(t + 9, 0, 10**12, 4, [4, 3], 1, 20, 1_000_000_000, True), None),
+        (SyncPps(t + 10, 0, 10**12, 1_300_000_001 * 10**9, 1, 9, 1, True), None),
+        (SyncForward(t + 11, 0, 0, 10**12, 1, "PPS", True, -1, -1, "n/a"), None),
+        (SyncModeSwitch(t + 12, 0, 10**12, 1, 2, "scanner on: ppf seen"), None),
+        (StreamHealth(t + 13, "gps", 100, 10.0, 10.0, 0, 1, 0, 5, 0, 0), None),
+    ]

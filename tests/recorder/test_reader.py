@@ -1,0 +1,318 @@
+"""The tolerant reader: cut files, damaged chunks, unknown records, huge lengths, columns, stats;
+and an independent reader (@mcap/core under node) that must count what the Python reader counts."""
+
+import fcntl
+import hashlib
+import json
+import math
+import shutil
+import struct
+import subprocess
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from recorder.messages import GpsFix, InsRecordLog, PulseEdgeLog, RawBytes, Topic
+from recorder.reader import LogReader, read_columns, read_log, scan_log
+from recorder.writer import FlightRecorder, split_parts
+from sisa.cli import main
+from sisa.errors import InputError
+from tests.recorder import T0_NS, sample_messages
+from tests.recorder.crash_child import kill_many
+
+JS_DIR = Path(__file__).resolve().parent / "js"
+
+
+def _ins(i, t_ns=None):
+    t = T0_NS + i * 10_000_000 if t_ns is None else t_ns
+    return InsRecordLog(t, i, i * 100_000, 0.01, -0.02, 1.5, 1e-4, 2e-4, -3e-4, 60.0, 1.0, -0.5, 0,
+                        False, 0)
+
+
+def _flight(path, n=3000, **kwargs):
+    """n INS records at 100 Hz, a GpsFix every 10th, scanner bytes every 5th."""
+    with FlightRecorder(path, chunk_size=4096, **kwargs) as rec:
+        for i in range(n):
+            rec.write(_ins(i))
+            if i % 10 == 0:
+                rec.write(GpsFix(T0_NS + i * 10_000_000, 10**18 + i, 41.0, 2.0, 600.0, 1, 8, 0.9))
+            if i % 5 == 0:
+                rec.write(RawBytes(T0_NS + i * 10_000_000, "scanner", bytes([i % 256]) * 20),
+                          Topic.SCANNER_RAW)
+    return path
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    return _flight(tmp_path_factory.mktemp("flight") / "flight.mcap")
+
+
+def _keys(path):
+    return [(topic, t, obj.get("counter", obj.get("t_gps_ns"))) for topic, t, obj in read_log(path)]
+
+
+# --- truncation and damage ----------------------------------------------------------------------
+
+def test_every_cut_reads_a_prefix_of_the_messages(flight, tmp_path):
+    full = _keys(flight)
+    data = flight.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    previous = 0
+    for size in np.linspace(8, len(data), 97).astype(int):
+        cut.unlink(missing_ok=True)
+        cut.write_bytes(data[:size])
+        got = _keys(cut)
+        assert got == full[:len(got)]
+        assert len(got) >= previous
+        previous = len(got)
+        stats = scan_log(cut)
+        assert stats.truncated == (size < len(data))
+    assert previous == len(full)
+
+
+def test_a_truncated_file_says_so_and_counts_its_chunks(flight, tmp_path):
+    data = flight.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:len(data) // 2 + 3])
+    fs = scan_log(cut).files[0]
+    assert fs.truncated
+    assert not fs.has_summary
+    assert fs.chunks_read > 10
+    assert 0 < fs.bytes_unreadable < 8192
+
+
+def _chunk_offsets(data):
+    """Offsets of top-level Chunk records (opcode 0x06), walking the record framing."""
+    pos, out = 8, []
+    while pos + 9 <= len(data):
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        if opcode == 0x06:
+            out.append(pos)
+        if opcode == 0x02:
+            break
+        pos += 9 + length
+    return out
+
+
+def test_a_damaged_chunk_is_skipped_and_its_messages_counted_as_lost(flight, tmp_path):
+    data = bytearray(flight.read_bytes())
+    victim = _chunk_offsets(data)[5]
+    data[victim + 9 + 40 + 60] ^= 0xFF  # a byte inside the chunk's records: CRC mismatch
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    full, stats = scan_log(flight), scan_log(bad)
+    fs = stats.files[0]
+    assert fs.chunks_skipped == 1
+    assert fs.complete
+    assert "crc" in fs.problems[0].lower()
+    lost = full.messages - stats.messages
+    assert lost > 0
+    assert sum(t.lost_by_sequence for t in stats.topics.values()) == lost
+
+
+def test_unknown_records_are_skipped(flight, tmp_path):
+    data = flight.read_bytes()
+    first_chunk = _chunk_offsets(data)[0]
+    unknown = struct.pack("<BQ", 0x81, 5) + b"hello"
+    odd = tmp_path / "odd.mcap"
+    odd.write_bytes(data[:first_chunk] + unknown + data[first_chunk:])
+    assert scan_log(odd).messages == scan_log(flight).messages
+
+
+def test_a_huge_record_length_stops_the_file_without_allocating_it(flight, tmp_path):
+    data = bytearray(flight.read_bytes())
+    victim = _chunk_offsets(data)[3]
+    struct.pack_into("<Q", data, victim + 1, 2**62)
+    bad = tmp_path / "huge.mcap"
+    bad.write_bytes(bytes(data))
+    fs = scan_log(bad).files[0]
+    assert fs.chunks_read == 3
+    assert "exceeds limit" in fs.problems[0]
+    assert fs.truncated
+
+
+def test_a_huge_length_inside_a_chunk_header_is_refused_too(flight, tmp_path):
+    data = bytearray(flight.read_bytes())
+    victim = _chunk_offsets(data)[4]
+    (compression_len,) = struct.unpack_from("<I", data, victim + 9 + 28)
+    struct.pack_into("<Q", data, victim + 9 + 32 + compression_len, 2**62)  # records length
+    bad = tmp_path / "huge2.mcap"
+    bad.write_bytes(bytes(data))
+    fs = scan_log(bad).files[0]
+    assert fs.chunks_read == 4
+    assert "exceeds the limit" in fs.problems[0]
+
+
+def test_garbage_after_the_magic_reads_as_nothing(tmp_path):
+    rng = np.random.default_rng(5)
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"\x89MCAP0\r\n" + rng.bytes(50_000))
+    stats = scan_log(junk)
+    assert stats.messages == 0
+    assert stats.truncated
+
+
+@pytest.mark.parametrize(("content", "match"), [(None, "no such file"), (b"", "empty"),
+                                                (b"PK\x03\x04 a zip", "not an MCAP file")])
+def test_what_is_not_an_mcap_file_is_an_input_error(tmp_path, content, match):
+    path = tmp_path / "x.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(InputError, match=match):
+        LogReader(path)
+
+
+# --- statistics and columns ---------------------------------------------------------------------
+
+def test_stats_find_the_gap_and_the_rates(tmp_path):
+    path = tmp_path / "gap.mcap"
+    with FlightRecorder(path) as rec:
+        for i in [*range(0, 500), *range(530, 1000)]:  # 0.3 s missing at 100 Hz
+            rec.write(_ins(i))
+    stats = scan_log(path)
+    ins = stats.topics["/ins/record"]
+    assert ins.count == 970
+    assert ins.median_interval_ns == 10_000_000
+    assert ins.gap_count == 1
+    assert ins.gaps[0].start_ns == T0_NS + 499 * 10_000_000
+    assert ins.gaps[0].duration_ns == 31 * 10_000_000
+    assert ins.rate_hz == pytest.approx(969 / 9.99)
+    assert ins.lost_by_sequence == 0  # the writer never saw them: a gap, not a loss
+
+
+def test_columns_are_numpy_arrays_of_the_declared_types(flight):
+    cols = read_columns(flight, Topic.INS_RECORD)
+    assert cols["counter"].dtype == np.int64
+    assert np.array_equal(cols["counter"], np.arange(3000))
+    assert np.array_equal(cols["log_time_ns"], T0_NS + np.arange(3000) * 10_000_000)
+    assert cols["roll_rad"].dtype == np.float64
+    assert cols["sync_flag"].dtype == np.bool_
+    raw = read_columns(flight, Topic.SCANNER_RAW)
+    assert raw["data"][1] == bytes([5]) * 20
+    assert raw["port"].dtype.kind == "U"
+    assert raw["port"][0] == "scanner"
+    loc = read_columns(flight, Topic.GPS_LOCATION)
+    assert loc["timestamp.sec"].dtype == np.int64
+    assert len(loc["latitude"]) == 300
+
+
+def test_columns_keep_nan_and_infinity(tmp_path):
+    path = tmp_path / "nan.mcap"
+    with FlightRecorder(path) as rec:
+        for msg, topic in sample_messages():
+            rec.write(msg, topic)
+    cols = read_columns(path, Topic.INS_RECORD)
+    assert math.isnan(cols["rate_y_rps"][0])
+    assert cols["vel_e_mps"][0] == math.inf
+    assert cols["vel_d_mps"][0] == -math.inf
+    assert read_columns(path, Topic.SYNC_SESSION)["lfsr_taps"][0] == [4, 3]
+
+
+def test_columns_of_an_absent_topic_are_empty_but_typed(flight):
+    cols = read_columns(flight, Topic.SYNC_PPS)
+    assert cols["gps_second_ns"].dtype == np.int64
+    assert len(cols["gps_second_ns"]) == 0
+
+
+# --- sisa log info ------------------------------------------------------------------------------
+
+def test_log_info_on_a_truncated_file(flight, tmp_path, capsys):
+    data = flight.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    chunks = scan_log(cut).files[0].chunks_read
+    assert main(["log", "info", str(cut)]) == 0
+    out = capsys.readouterr().out
+    assert f"truncated (no summary): read {chunks} complete chunks" in out
+    assert "/ins/record" in out
+    assert "/gps/location_fix" in out
+
+
+@pytest.mark.parametrize("content", [None, b"", b"not an mcap at all"])
+def test_log_info_on_bad_input_is_one_line_and_exit_2(tmp_path, capsys, content):
+    path = tmp_path / "x.mcap"
+    if content is not None:
+        path.write_bytes(content)
+    assert main(["log", "info", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.count("\n") == 1
+    assert "x.mcap" in captured.err
+
+
+# --- the independent reader ---------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def node_reader():
+    """`node read_mcap.mjs`, with @mcap/core installed by `npm ci` from the committed lock."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.fail("node and npm are needed for the independent MCAP reader (Node >= 18)")
+    lock = Path(tempfile.gettempdir()) / (
+        "sisa-npm-" + hashlib.sha1(str(JS_DIR).encode()).hexdigest()[:12] + ".lock")
+    with lock.open("w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # pytest-xdist workers install once, not at once
+        if not (JS_DIR / "node_modules" / "@mcap" / "core").is_dir():
+            proc = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=JS_DIR,
+                                  capture_output=True, text=True, check=False)
+            if proc.returncode != 0:
+                pytest.fail(f"`npm ci` in {JS_DIR} failed (exit {proc.returncode}): "
+                            f"{proc.stderr.strip()[-1500:]}")
+
+    def run(path):
+        proc = subprocess.run([node, str(JS_DIR / "read_mcap.mjs"), str(path)],
+                              capture_output=True, text=True, check=False, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return json.loads(proc.stdout)
+
+    return run
+
+
+def _python_counts(paths):
+    return Counter(topic for topic, _, _ in read_log(paths))
+
+
+def test_node_reads_a_complete_file_like_python(node_reader, tmp_path):
+    path = tmp_path / "all.mcap"
+    with FlightRecorder(path) as rec:
+        for k in range(50):
+            for msg, topic in sample_messages(T0_NS + k * 10**6):
+                rec.write(msg, topic)
+    js = node_reader(path)
+    assert js["stream"]["complete"]
+    assert js["stream"]["error"] is None
+    assert js["stream"]["invalid_json"] == 0  # NaN and infinities are valid JSON in the log
+    assert js["stream"]["topics"] == dict(_python_counts(path))
+    assert js["indexed"]["topics"] == js["stream"]["topics"]
+
+
+def test_node_reads_each_part_of_a_split_set_like_python(node_reader, tmp_path):
+    path = tmp_path / "split.mcap"
+    with FlightRecorder(path, split_duration_s=8.0) as rec:
+        for i in range(3000):
+            rec.write(_ins(i))
+            rec.write(PulseEdgeLog(T0_NS + i * 10_000_000, "PPF", i, i), Topic.PULSE_OUT)
+    parts = split_parts(path)
+    assert len(parts) == 4
+    total: Counter[str] = Counter()
+    for part in parts:
+        js = node_reader(part)
+        assert js["stream"]["complete"]
+        assert js["indexed"]["topics"] == js["stream"]["topics"] == dict(_python_counts(part))
+        total.update(js["stream"]["topics"])
+    assert total == _python_counts(parts) == {"/ins/record": 3000, "/pulses/out": 3000}
+
+
+def test_node_reads_a_killed_recording_like_python(node_reader, tmp_path):
+    (killed,) = kill_many(tmp_path, [(1.3, 2000.0)])
+    js = node_reader(killed.path)
+    stats = scan_log(killed.path)
+    assert not js["stream"]["complete"]
+    assert stats.truncated
+    assert js["stream"]["error"] is None
+    assert js["stream"]["topics"] == dict(_python_counts(killed.path))
+    assert js["stream"]["bytes_remaining"] == stats.files[0].bytes_unreadable
+    assert int(js["stream"]["last_log_time_ns"]) == stats.end_ns

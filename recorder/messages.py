@@ -229,7 +229,7 @@ LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (
 
 _JSON_TYPES: dict[object, dict[str, Any]] = {
     int: {"type": "integer"},
-    float: {"type": ["number", "string"]},  # non-finite values travel as "NaN"/"Infinity"
+    float: {"type": "number"},  # a non-finite value travels as the string "NaN"/"Infinity"
     str: {"type": "string"},
     bool: {"type": "boolean"},
     bytes: {"type": "string", "contentEncoding": "base64"},

@@ -9,8 +9,9 @@ Outputs, on the emulation timeline:
 - `$PASHR,TTT` for every accepted pulse on the event input, tagged at the pulse's own time.
 
 Maximum event rate, the way the receiver enforces it: after an accepted event the input is blind
-for 1 / max_event_rate_hz (a dead time that re-arms when the tag has been output); a pulse in the
-dead time is ignored (no TTT) and written to the truth as rejected. Pulses are never queued.
+for 0.98 / max_event_rate_hz (a dead time that re-arms just before the next period, so pulses one
+period apart ± jitter are all tagged); a pulse in the dead time is ignored (no TTT) and written to
+the truth as rejected. Pulses are never queued.
 
 During a PPS outage (fault profile) the receiver has lost lock: no PPS, no PTT, GGA quality 0 and
 RMC void, and events are not tagged.
@@ -82,7 +83,8 @@ class GpsReceiver(Device):
         self.scn, self.traj, self.rng, self.faults = scn, traj, rng, faults
         self.plane = LocalPlane.for_scenario(scn)
         self.tag_res_ns = scn.gps.event_tag_resolution_ns
-        self.dead_time_ns = round(NS_PER_S / scn.gps.max_event_rate_hz)
+        # re-arms 2 % early, so pulses exactly one period apart (PPS ± jitter) all get tagged
+        self.dead_time_ns = round(0.98 * NS_PER_S / scn.gps.max_event_rate_hz)
         self._outages = [(traj.t_start_ns + int(f.at_s * NS_PER_S),
                           traj.t_start_ns + int((f.at_s + f.duration_s) * NS_PER_S))
                          for f in scn.faults.pps_outages]

@@ -168,8 +168,8 @@ class SyncPps(LoggedMessage):
     board_ns: int
     gps_second_ns: int  # from PTT (or ZDA); -1 if the receiver did not say
     mode: int  # 1 or 2
-    lfsr_state: int  # register state after stepping on this PPS (-1 in mode 2)
-    lfsr_bit: int  # output bit (-1 in mode 2)
+    lfsr_state: int  # register state after stepping on this PPS (-1: rejected as spurious)
+    lfsr_bit: int  # output bit; the register steps in both modes (-1: rejected as spurious)
     forwarded: bool
 
 

@@ -1,0 +1,289 @@
+"""The acquisition: every device stream decoded, the sync filter run, everything recorded.
+
+One `Acquisition` object is fed events in arrival order by a transport layer (in-process for a
+virtual-time simulation, threads on ptys/CAN/TCP in real time). It is single-threaded by design:
+the sync filter sees one ordered stream of events. Raw bytes are always logged before decoding, so
+nothing the devices said is lost even when a decoder rejects it.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import can
+
+from acquisition.clocks import TimingBoard
+from acquisition.codec import DecodeStats, ErrorPolicy
+from acquisition.ins_can import InsRecord, InsRecordAssembler
+from acquisition.nmea import (
+    Gga,
+    NmeaStreamDecoder,
+    PashrPtt,
+    PashrTtt,
+    Rmc,
+    Zda,
+    gps_ns_from_time_of_week,
+    gps_ns_from_utc,
+)
+from acquisition.pulses import Edge, PulseLine
+from acquisition.scanner_header import HeaderStreamDecoder
+from acquisition.syncfilter import Forward, Log, SyncFilter, SyncFilterConfig
+from recorder.messages import (
+    FrameHeaderLog,
+    GpsFix,
+    GpsTimeTag,
+    InsRecordLog,
+    LoggedMessage,
+    PulseEdgeLog,
+    RawBytes,
+    RawCanFrame,
+    StreamHealth,
+    Topic,
+)
+from sisa.timescale import NS_PER_S
+
+LogSink = Callable[[LoggedMessage, Topic | None], None]
+GATE_DELAY_NS = 1_000  # the box's input → output propagation
+
+
+@dataclass
+class StreamCounters:
+    """What the health channel reports for one stream."""
+
+    expected_hz: float
+    messages: int = 0
+    gaps: int = 0
+    drops: int = 0
+    deadline_misses: int = 0
+    last_t_host_ns: int | None = None
+    window_messages: int = 0
+    rate_hz: float = 0.0
+    stats: DecodeStats = field(default_factory=DecodeStats)
+
+    def seen(self, t_host_ns: int, gap_ns: int) -> None:
+        if self.last_t_host_ns is not None and t_host_ns - self.last_t_host_ns > gap_ns:
+            self.gaps += 1
+        self.last_t_host_ns = t_host_ns
+        self.messages += 1
+        self.window_messages += 1
+
+
+@dataclass(frozen=True)
+class AcquisitionConfig:
+    leap_s: int
+    sync: SyncFilterConfig
+    ins_rate_hz: float
+    nmea_rate_hz: float
+    line_rate_hz: float
+    health_interval_ns: int = NS_PER_S
+    edge_deadline_ns: int = 20_000_000  # an edge later than this (beyond the link's best) is a miss
+
+
+class Acquisition:
+    """Decoders + sync filter + recorder, fed one event at a time."""
+
+    def __init__(self, config: AcquisitionConfig, log: LogSink,
+                 send_edge: Callable[[Edge], None], board: TimingBoard | None = None) -> None:
+        self.config = config
+        self.log = log
+        self.send_edge = send_edge
+        self.board = board or TimingBoard()
+        self.session = 0
+        self.filter = SyncFilter(config.sync, session=0, board_ns=self.board.start_count_ns,
+                                 t_host_ns=0)  # replaced by the first event's times in _start
+        self._started = False
+        self.nmea = NmeaStreamDecoder(ErrorPolicy.COUNT)
+        self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
+        self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
+        self.streams = {
+            "gps": StreamCounters(config.nmea_rate_hz * 2 + 2),
+            "ins": StreamCounters(config.ins_rate_hz),
+            "scanner": StreamCounters(config.line_rate_hz),
+            "pps": StreamCounters(1.0),
+            "ppf": StreamCounters(config.line_rate_hz),
+        }
+        self._utc_date: dt.date | None = None
+        self._last_fix_gps_ns: int | None = None
+        self._last_in: dict[PulseLine, tuple[int, int]] = {}  # line → (board_ns, t_edge_ns)
+        self._next_health_ns: int | None = None
+        self.last_pps_gps_ns: int | None = None
+        self.down_until_board_ns: int | None = None
+        self._edge_offset_min_ns: int | None = None
+
+    # --- serial ports ----------------------------------------------------------------------
+
+    def on_gps_bytes(self, t_host_ns: int, data: bytes) -> None:
+        self._start(t_host_ns)
+        self.log(RawBytes(t_host_ns, "gps", data), Topic.GPS_RAW)
+        for item in self.nmea.feed(data):
+            self.streams["gps"].seen(t_host_ns, 3 * NS_PER_S)
+            self._on_nmea(t_host_ns, item.message)
+        self.streams["gps"].stats = self.nmea.stats
+
+    def _on_nmea(self, t_host_ns: int, msg: object) -> None:
+        if isinstance(msg, Rmc | Zda):
+            self._utc_date = msg.utc_date
+        if isinstance(msg, Gga) and self._utc_date is not None and msg.lat_deg is not None:
+            self._log_fix(t_host_ns, msg, self._utc_date)
+        elif isinstance(msg, PashrPtt | PashrTtt):
+            kind = "PTT" if isinstance(msg, PashrPtt) else "TTT"
+            t_gps = gps_ns_from_time_of_week(msg.gps_time_of_week_ns, self._gps_estimate(t_host_ns))
+            self.log(GpsTimeTag(t_host_ns, kind, msg.gps_time_of_week_ns, t_gps), None)
+            if isinstance(msg, PashrPtt):
+                second = (t_gps + NS_PER_S // 2) // NS_PER_S * NS_PER_S
+                self.last_pps_gps_ns = second
+                self._apply(self.filter.on_gps_time(second, t_host_ns))
+
+    def _log_fix(self, t_host_ns: int, gga: Gga, utc_date: dt.date) -> None:
+        t_gps = gps_ns_from_utc(utc_date, gga.utc_time_of_day_ns, self.config.leap_s)
+        if self._last_fix_gps_ns is not None and t_gps < self._last_fix_gps_ns - 43_200 * NS_PER_S:
+            t_gps += 86_400 * NS_PER_S  # GGA after midnight before the next RMC/ZDA date
+        self._last_fix_gps_ns = t_gps
+        height = gga.height_ellipsoidal_m
+        self.log(GpsFix(t_host_ns, t_gps, gga.lat_deg or 0.0, gga.lon_deg or 0.0,
+                        height if height is not None else float("nan"), int(gga.quality),
+                        gga.satellites, gga.hdop if gga.hdop is not None else float("nan")), None)
+
+    def _gps_estimate(self, t_host_ns: int) -> int:
+        """Best guess of GPS time now, to pick the GPS week of a time-of-week tag."""
+        if self._last_fix_gps_ns is not None:
+            return self._last_fix_gps_ns
+        return t_host_ns + self.config.leap_s * NS_PER_S
+
+    def on_scanner_bytes(self, t_host_ns: int, data: bytes) -> None:
+        self._start(t_host_ns)
+        self.log(RawBytes(t_host_ns, "scanner", data), Topic.SCANNER_RAW)
+        for item in self.headers.feed(data):
+            h = item.message
+            self.streams["scanner"].seen(t_host_ns, NS_PER_S)
+            self.log(FrameHeaderLog(t_host_ns, h.frame_counter, h.integration_time_us,
+                                    int(h.mode), h.segment, h.bands), None)
+            self._apply(self.filter.on_header(h, t_host_ns))
+        self.streams["scanner"].stats = self.headers.stats
+
+    # --- CAN -------------------------------------------------------------------------------
+
+    def on_can_frame(self, t_host_ns: int, msg: can.Message) -> None:
+        self._start(t_host_ns)
+        self.log(RawCanFrame(t_host_ns, msg.arbitration_id, msg.is_extended_id,
+                             bytes(msg.data)), None)
+        item = self.ins.feed(msg)
+        if item is not None:
+            self.streams["ins"].seen(t_host_ns, NS_PER_S // 4)
+            self.log(_ins_log(t_host_ns, item.message), None)
+        counters = self.streams["ins"]
+        counters.stats = self.ins.stats
+        counters.drops = self.ins.frames.lost
+
+    # --- pulse lines -----------------------------------------------------------------------
+
+    def on_edge(self, t_host_ns: int, edge: Edge) -> None:
+        """An input edge (PPS, ppf), acted on at its own timestamp."""
+        self._start(t_host_ns)
+        board_ns = self.board.counter_ns(edge.t_ns)
+        self.log(PulseEdgeLog(t_host_ns, edge.line.name, board_ns, edge.seq), Topic.PULSE_IN)
+        self._last_in[edge.line] = (board_ns, edge.t_ns)
+        self._check_deadline(t_host_ns, edge)
+        if self.down_until_board_ns is not None:
+            if board_ns < self.down_until_board_ns:
+                return
+            self.restart_filter(board_ns, t_host_ns)
+        if edge.line is PulseLine.PPS:
+            self.streams["pps"].seen(t_host_ns, 2 * NS_PER_S)
+            self._apply(self.filter.on_pps(board_ns, t_host_ns))
+        elif edge.line is PulseLine.PPF:
+            self.streams["ppf"].seen(t_host_ns, NS_PER_S)
+            self._apply(self.filter.on_ppf(board_ns, t_host_ns))
+
+    def _check_deadline(self, t_host_ns: int, edge: Edge) -> None:
+        """Edge lateness = arrival delay beyond the smallest delay seen so far on the link (the
+        link's own latency); later than the deadline is a miss, counted in the health channel."""
+        offset = t_host_ns - edge.t_ns
+        if self._edge_offset_min_ns is None or offset < self._edge_offset_min_ns:
+            self._edge_offset_min_ns = offset
+        if offset - self._edge_offset_min_ns > self.config.edge_deadline_ns:
+            name = "pps" if edge.line is PulseLine.PPS else "ppf"
+            self.streams[name].deadline_misses += 1
+
+    def tick(self, t_host_ns: int, t_edge_clock_ns: int) -> None:
+        """Time passes with nothing arriving: scanner-off detection and health reports."""
+        if not self._started:
+            return
+        board_ns = self.board.counter_ns(t_edge_clock_ns)
+        self._apply(self.filter.tick(board_ns))
+        self._health(t_host_ns)
+
+    def _apply(self, actions: list[Forward | Log]) -> None:
+        for action in actions:
+            if isinstance(action, Log):
+                self.log(action.message, None)
+            else:
+                self._forward(action)
+
+    def _forward(self, fwd: Forward) -> None:
+        line = PulseLine.PPS if fwd.source == "PPS" else PulseLine.PPF
+        board_in, t_in = self._last_in[line]
+        t_out = t_in + (fwd.board_ns - board_in)
+        targets = [PulseLine.INS_SYNC] if fwd.to_ins else []
+        if fwd.to_gps_event:
+            targets.append(PulseLine.GPS_EVENT)
+        for target in targets:
+            self.send_edge(Edge(target, 0, t_out))
+            self.log(PulseEdgeLog(self._host_now(), target.name, fwd.board_ns, 0),
+                     Topic.PULSE_OUT)
+
+    def _host_now(self) -> int:
+        counters = [c.last_t_host_ns for c in self.streams.values() if c.last_t_host_ns]
+        return max(counters) if counters else 0
+
+    # --- lifecycle -------------------------------------------------------------------------
+
+    def _start(self, t_host_ns: int) -> None:
+        if not self._started:
+            self._started = True
+            self._next_health_ns = t_host_ns + self.config.health_interval_ns
+            self.filter = SyncFilter(self.config.sync, session=0,
+                                     board_ns=self.board.start_count_ns, t_host_ns=t_host_ns)
+            self._apply(self.filter.start_actions())
+        elif self._next_health_ns is not None and t_host_ns >= self._next_health_ns:
+            self._health(t_host_ns)
+
+    def restart_filter(self, board_ns: int, t_host_ns: int) -> None:
+        """The sync program came back after a crash: a new session from the initial state."""
+        self.down_until_board_ns = None
+        self.session += 1
+        self.filter = SyncFilter(self.config.sync, session=self.session, board_ns=board_ns,
+                                 t_host_ns=t_host_ns)
+        self._apply(self.filter.start_actions())
+
+    def crash_filter(self, until_board_ns: int) -> None:
+        """The sync program died: nothing is forwarded or logged by it until it restarts."""
+        self.down_until_board_ns = until_board_ns
+
+    def _health(self, t_host_ns: int) -> None:
+        if self._next_health_ns is None or t_host_ns < self._next_health_ns:
+            return
+        window_s = self.config.health_interval_ns / NS_PER_S
+        for name, c in self.streams.items():
+            s = c.stats
+            c.rate_hz = c.window_messages / window_s
+            self.log(StreamHealth(t_host_ns, name, c.messages, c.rate_hz,
+                                  c.expected_hz, c.gaps, s.checksum_errors, s.framing_errors,
+                                  s.bytes_skipped, c.drops, c.deadline_misses), None)
+            c.window_messages = 0
+        self._next_health_ns = t_host_ns + self.config.health_interval_ns
+
+    def finish(self, t_host_ns: int) -> None:
+        self._apply(self.filter.flush())
+        self._next_health_ns = t_host_ns
+        self._health(t_host_ns)
+
+
+def _ins_log(t_host_ns: int, rec: InsRecord) -> InsRecordLog:
+    rx, ry, rz = rec.body_rate_rps
+    vn, ve, vd = rec.vel_ned_mps
+    return InsRecordLog(t_host_ns, rec.counter, rec.ins_time_ticks, rec.roll_rad, rec.pitch_rad,
+                        rec.heading_rad, rx, ry, rz, vn, ve, vd, int(rec.status), rec.sync_flag,
+                        rec.sync_time_ticks)

@@ -94,8 +94,11 @@ class LiveSources:
 
     def _can(self, spec: str) -> None:
         interface, channel = parse_can_spec(spec)
+        options: dict[str, float] = {}
+        if interface == "slcan" and channel.startswith("/dev/pts/"):
+            options["sleep_after_open"] = 0.0  # an adapter on a pty does not reset when opened
         try:
-            bus = can.Bus(interface=interface, channel=channel)
+            bus = can.Bus(interface=interface, channel=channel, **options)
         except (can.CanError, ValueError, OSError, ImportError) as exc:
             raise InputError(f"cannot open CAN {spec}: {exc}") from None
         self._closers.append(bus.shutdown)

@@ -15,37 +15,19 @@ import numpy as np
 
 from acquisition.clocks import SimulatedHostClock, TimingBoard
 from acquisition.pulses import Edge
-from acquisition.runner import Acquisition, AcquisitionConfig
-from acquisition.syncfilter import SyncFilterConfig
-from emulators.block import resolve_one_of_n
+from acquisition.runner import Acquisition
 from emulators.runtime import Output, Port, Runner
 from emulators.scenario import Scenario
 from emulators.system import EmulatedSystem
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import FlightRecorder
+from sisa.acqconfig import acquisition_config
 from sisa.timescale import NS_PER_S
 
 SERIAL_BAUD = 115_200
 USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
 CAN_LATENCY_NS = (100_000, 400_000)
 TICK_NS = 100_000_000
-
-
-def acquisition_config(scn: Scenario) -> AcquisitionConfig:
-    """What the acquisition is told by its operator: rates, leap seconds, sync settings."""
-    line_period_ns = round(scn.scanner.line_period_ms * 1e6)
-    sync = SyncFilterConfig(
-        lfsr_bits=scn.sisa.lfsr_bits,
-        lfsr_taps=scn.sisa.lfsr_taps,
-        one_of_n=resolve_one_of_n(scn),
-        max_event_rate_hz=scn.gps.max_event_rate_hz,
-        event_input_in_mode1=scn.sisa.event_input_in_mode1,
-        line_period_ns=line_period_ns,
-        frame_counter_bits=scn.scanner.frame_counter_bits,
-    )
-    return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
-                             ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
-                             line_rate_hz=1e9 / line_period_ns)
 
 
 class VirtualWiring:

@@ -56,7 +56,7 @@ def _run(args: argparse.Namespace) -> int:
     from acquisition.runner import Acquisition
     from emulators.scenario import load_scenario
     from recorder.writer import FlightRecorder
-    from sisa.simulation import acquisition_config
+    from sisa.acqconfig import acquisition_config
 
     if not any((args.gps, args.scanner, args.ins, args.pulses)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "

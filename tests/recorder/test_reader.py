@@ -1,14 +1,8 @@
 """The tolerant reader: cut files, damaged chunks, unknown records, huge lengths, columns, stats;
 and an independent reader (@mcap/core under node) that must count what the Python reader counts."""
 
-import fcntl
-import hashlib
-import json
 import math
-import shutil
 import struct
-import subprocess
-import tempfile
 from collections import Counter
 from pathlib import Path
 
@@ -244,32 +238,6 @@ def test_log_info_on_bad_input_is_one_line_and_exit_2(tmp_path, capsys, content)
 
 
 # --- the independent reader ---------------------------------------------------------------------
-
-@pytest.fixture(scope="session")
-def node_reader():
-    """`node read_mcap.mjs`, with @mcap/core installed by `npm ci` from the committed lock."""
-    node, npm = shutil.which("node"), shutil.which("npm")
-    if node is None or npm is None:
-        pytest.fail("node and npm are needed for the independent MCAP reader (Node >= 18)")
-    lock = Path(tempfile.gettempdir()) / (
-        "sisa-npm-" + hashlib.sha1(str(JS_DIR).encode()).hexdigest()[:12] + ".lock")
-    with lock.open("w") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)  # pytest-xdist workers install once, not at once
-        if not (JS_DIR / "node_modules" / "@mcap" / "core").is_dir():
-            proc = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=JS_DIR,
-                                  capture_output=True, text=True, check=False)
-            if proc.returncode != 0:
-                pytest.fail(f"`npm ci` in {JS_DIR} failed (exit {proc.returncode}): "
-                            f"{proc.stderr.strip()[-1500:]}")
-
-    def run(path):
-        proc = subprocess.run([node, str(JS_DIR / "read_mcap.mjs"), str(path)],
-                              capture_output=True, text=True, check=False, timeout=60)
-        assert proc.returncode == 0, proc.stderr
-        return json.loads(proc.stdout)
-
-    return run
-
 
 def _python_counts(paths):
     return Counter(topic for topic, _, _ in read_log(paths))

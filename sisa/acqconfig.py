@@ -1,0 +1,27 @@
+"""The acquisition's settings from a scenario file: what an operator tells the logging computer
+(rates, leap seconds, the sync unit's register and 1-of-n). Light on imports: `sisa record` starts
+fast."""
+
+from __future__ import annotations
+
+from acquisition.runner import AcquisitionConfig
+from acquisition.syncfilter import SyncFilterConfig
+from emulators.block import resolve_one_of_n
+from emulators.scenario import Scenario
+
+
+def acquisition_config(scn: Scenario) -> AcquisitionConfig:
+    """What the acquisition is told by its operator: rates, leap seconds, sync settings."""
+    line_period_ns = round(scn.scanner.line_period_ms * 1e6)
+    sync = SyncFilterConfig(
+        lfsr_bits=scn.sisa.lfsr_bits,
+        lfsr_taps=scn.sisa.lfsr_taps,
+        one_of_n=resolve_one_of_n(scn),
+        max_event_rate_hz=scn.gps.max_event_rate_hz,
+        event_input_in_mode1=scn.sisa.event_input_in_mode1,
+        line_period_ns=line_period_ns,
+        frame_counter_bits=scn.scanner.frame_counter_bits,
+    )
+    return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
+                             ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
+                             line_rate_hz=1e9 / line_period_ns)

@@ -14,6 +14,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 import can
 import serial
@@ -94,7 +95,7 @@ class LiveSources:
 
     def _can(self, spec: str) -> None:
         interface, channel = parse_can_spec(spec)
-        options: dict[str, float] = {}
+        options: dict[str, Any] = {}
         if interface == "slcan" and channel.startswith("/dev/pts/"):
             options["sleep_after_open"] = 0.0  # an adapter on a pty does not reset when opened
         try:

@@ -97,33 +97,42 @@ class Runner:
         # edges from another process (real time): drained before every emission
         self.inbox: queue.SimpleQueue[Edge] = queue.SimpleQueue()
 
-    def run(self, until_ns: int | None = None, should_stop: Callable[[], bool] | None = None
-            ) -> None:
+    def run(self, until_ns: int | None = None, should_stop: Callable[[], bool] | None = None,
+            skip_until_ns: int | None = None) -> None:
+        """Emit in time order until `until_ns`. Outputs before `skip_until_ns` are produced as
+        fast as possible and dropped (a start offset: the devices' state runs on)."""
         heap = [(t, i) for i, d in enumerate(self.devices) if (t := d.next_time_ns()) is not None]
         heapq.heapify(heap)
+        skip = skip_until_ns if skip_until_ns is not None else -(2**63)
         wall0 = time.perf_counter_ns()
-        t0 = heap[0][0] if heap else 0
+        t0 = max(heap[0][0] if heap else 0, skip)
         try:
             while heap:
                 t_ns, i = heapq.heappop(heap)
                 if until_ns is not None and t_ns > until_ns:
                     break
-                if self.speed is not None:
-                    self._pace(wall0 + int((t_ns - t0) / self.speed))
-                    if should_stop is not None and should_stop():
-                        break
-                self._drain_inbox()
+                if should_stop is not None and should_stop():
+                    break
                 dev = self.devices[i]
-                for out in dev.emit(t_ns):
-                    self.outputs += 1
-                    for edge in self.sink(out):
-                        self.router.deliver(edge)
+                if t_ns < skip:
+                    dev.emit(t_ns)
+                else:
+                    if self.speed is not None:
+                        self._pace(wall0 + int((t_ns - t0) / self.speed))
+                    self._drain_inbox()
+                    self._deliver(dev.emit(t_ns))
                 nxt = dev.next_time_ns()
                 if nxt is not None:
                     heapq.heappush(heap, (nxt, i))
         finally:
             for dev in self.devices:
                 dev.finish()
+
+    def _deliver(self, outputs: list[Output]) -> None:
+        for out in outputs:
+            self.outputs += 1
+            for edge in self.sink(out):
+                self.router.deliver(edge)
 
     def _drain_inbox(self) -> None:
         while True:

@@ -30,6 +30,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     group.add_argument("--scenario", type=Path, help="scenario TOML file")
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
     parser.add_argument("--speed", type=float, default=1.0, help="times real time")
+    parser.add_argument("--start", type=float, default=0.0,
+                        help="start this many seconds into the scenario")
     parser.add_argument("--duration", type=float, default=None,
                         help="seconds of flight to run (default: the whole scenario)")
     parser.add_argument("--no-images", action="store_true", help="do not render image lines")
@@ -64,7 +66,8 @@ def _run(args: argparse.Namespace) -> int:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
         endpoints_file = run / "endpoints.json"
         emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),
-                   "--speed", str(args.speed), "--endpoints", str(endpoints_file)]
+                   "--speed", str(args.speed), "--start", str(args.start),
+                   "--endpoints", str(endpoints_file)]
         if args.duration is not None:
             emu_cmd += ["--duration", str(args.duration)]
         if args.no_images:

@@ -31,6 +31,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                              "INTERFACE:CHANNEL for python-can, e.g. socketcan:can0")
     parser.add_argument("--pulses-port", type=int, default=0,
                         help="loopback TCP port for pulse edges (default: any free port)")
+    parser.add_argument("--start", type=float, default=0.0,
+                        help="start this many seconds into the scenario (the devices run "
+                             "through the skipped part silently, as fast as they can)")
     parser.add_argument("--duration", type=float, default=None,
                         help="stop after this many seconds of emulation")
     parser.add_argument("--no-images", action="store_true",
@@ -67,12 +70,13 @@ def _run(args: argparse.Namespace) -> int:
     _announce(bridge.endpoints(), scn.block.name, args)
     if args.endpoints is not None:
         bridge.write_endpoints(args.endpoints)
+    start = system.traj.t_start_ns + int(args.start * 1e9)
     until = None
     if args.duration is not None:
-        until = system.traj.t_start_ns + int(args.duration * 1e9)
+        until = start + int(args.duration * 1e9)
     started = time.monotonic()
     try:
-        runner.run(until_ns=until, should_stop=stop.is_set)
+        runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
     finally:
         bridge.close()
         system.write_truth(args.out / "truth")

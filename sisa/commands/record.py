@@ -69,6 +69,7 @@ def _run(args: argparse.Namespace) -> int:
     stop = _install_stop_handlers()
     split_s = args.split_minutes * 60 if args.split_minutes else None
     split_b = int(args.split_mb * 1e6) if args.split_mb else None
+    wall0, cpu0 = time.monotonic(), time.process_time()
     try:
         with FlightRecorder(args.out, split_duration_s=split_s, split_size_bytes=split_b,
                             metadata={"settings": scn.block.name}) as rec:
@@ -76,7 +77,7 @@ def _run(args: argparse.Namespace) -> int:
             _loop(acq, sources, stop, args)
     finally:
         sources.close()
-    _summary(acq, args.out)
+    _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)
     return 0
 
 
@@ -207,7 +208,7 @@ class _Status:
             self.live.stop()
 
 
-def _summary(acq: Acquisition, out: Path) -> None:
+def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
     s = acq.streams
     errors = sum(c.stats.errors for c in s.values())
     drops = sum(c.drops for c in s.values())
@@ -215,4 +216,5 @@ def _summary(acq: Acquisition, out: Path) -> None:
     print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
           f"frame headers {s['scanner'].messages}, PPS {s['pps'].messages}, ppf "
           f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
-          f"{acq.session + 1} sync session(s)", flush=True)
+          f"{acq.session + 1} sync session(s); cpu {cpu_s:.2f} s in {wall_s:.1f} s "
+          f"({100 * cpu_s / max(wall_s, 1e-9):.1f}% of a core)", flush=True)

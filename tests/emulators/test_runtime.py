@@ -56,3 +56,18 @@ def test_until_stops_early():
     seen = []
     Runner([dev], lambda o: seen.append(o.t_ns) or []).run(until_ns=95)
     assert seen[-1] == 90
+
+
+def test_skip_until_runs_devices_silently_then_paces():
+    dev = Ticker(10_000_000, 20)  # 200 ms of emulation
+    seen = []
+    stamps = []
+
+    def sink(out):
+        seen.append(out.t_ns)
+        stamps.append(time.perf_counter())
+        return []
+
+    Runner([dev], sink, speed=1.0).run(skip_until_ns=150_000_000)
+    assert seen == list(range(150_000_000, 200_000_000, 10_000_000))
+    assert stamps[-1] - stamps[0] < 0.06  # only the last 50 ms were paced

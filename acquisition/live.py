@@ -23,6 +23,7 @@ from acquisition.canspec import parse_can_spec
 from acquisition.clocks import wall_clock_ns
 from acquisition.codec import ErrorPolicy
 from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
+from acquisition.slcan_bulk import BulkSlcanBus
 from sisa.errors import InputError
 
 READ_TIMEOUT_S = 0.05
@@ -96,10 +97,16 @@ class LiveSources:
     def _can(self, spec: str) -> None:
         interface, channel = parse_can_spec(spec)
         options: dict[str, Any] = {}
-        if interface == "slcan" and channel.startswith("/dev/pts/"):
-            options["sleep_after_open"] = 0.0  # an adapter on a pty does not reset when opened
+        if interface == "slcan":
+            options["timeout"] = READ_TIMEOUT_S  # the port's read timeout: block, don't spin
+            if channel.startswith("/dev/pts/"):
+                options["sleep_after_open"] = 0.0  # an adapter on a pty does not reset on open
+        bus: can.BusABC
         try:
-            bus = can.Bus(interface=interface, channel=channel, **options)
+            if interface == "slcan":
+                bus = BulkSlcanBus(channel=channel, **options)
+            else:
+                bus = can.Bus(interface=interface, channel=channel, **options)
         except (can.CanError, ValueError, OSError, ImportError) as exc:
             raise InputError(f"cannot open CAN {spec}: {exc}") from None
         self._closers.append(bus.shutdown)

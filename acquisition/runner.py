@@ -31,6 +31,7 @@ from acquisition.pulses import Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
 from acquisition.syncfilter import Forward, Log, SyncFilter, SyncFilterConfig
 from recorder.messages import (
+    CAN_EXTENDED_FLAG,
     FrameHeaderLog,
     GpsFix,
     GpsTimeTag,
@@ -38,7 +39,7 @@ from recorder.messages import (
     LoggedMessage,
     PulseEdgeLog,
     RawBytes,
-    RawCanFrame,
+    RawCanFrames,
     StreamHealth,
     Topic,
 )
@@ -111,6 +112,7 @@ class Acquisition:
         self.last_pps_gps_ns: int | None = None
         self.down_until_board_ns: int | None = None
         self._edge_offset_min_ns: int | None = None
+        self._can_batch = _CanBatch()
 
     # --- serial ports ----------------------------------------------------------------------
 
@@ -167,8 +169,9 @@ class Acquisition:
 
     def on_can_frame(self, t_host_ns: int, msg: can.Message) -> None:
         self._start(t_host_ns)
-        self.log(RawCanFrame(t_host_ns, msg.arbitration_id, msg.is_extended_id,
-                             bytes(msg.data)), None)
+        self._can_batch.add(t_host_ns, msg)
+        if self._can_batch.full(t_host_ns):
+            self._flush_can()
         item = self.ins.feed(msg)
         if item is not None:
             self.streams["ins"].seen(t_host_ns, NS_PER_S // 4)
@@ -211,6 +214,8 @@ class Acquisition:
         """Time passes with nothing arriving: scanner-off detection and health reports."""
         if not self._started:
             return
+        if self._can_batch.full(t_host_ns):
+            self._flush_can()
         board_ns = self.board.counter_ns(t_edge_clock_ns)
         self._apply(self.filter.tick(board_ns))
         self._health(t_host_ns)
@@ -275,10 +280,52 @@ class Acquisition:
             c.window_messages = 0
         self._next_health_ns = t_host_ns + self.config.health_interval_ns
 
+    def _flush_can(self) -> None:
+        batch = self._can_batch.take()
+        if batch is not None:
+            self.log(batch, None)
+
     def finish(self, t_host_ns: int) -> None:
+        self._flush_can()
         self._apply(self.filter.flush())
         self._next_health_ns = t_host_ns
         self._health(t_host_ns)
+
+
+class _CanBatch:
+    """Raw CAN frames waiting to be logged together."""
+
+    MAX_FRAMES = 16
+    MAX_AGE_NS = 50_000_000
+
+    def __init__(self) -> None:
+        self.times: list[int] = []
+        self.ids: list[int] = []
+        self.dlcs: list[int] = []
+        self.data = bytearray()
+
+    def _clear(self) -> None:
+        self.times, self.ids, self.dlcs, self.data = [], [], [], bytearray()
+
+    def add(self, t_host_ns: int, msg: can.Message) -> None:
+        self.times.append(t_host_ns)
+        self.ids.append(msg.arbitration_id | (CAN_EXTENDED_FLAG if msg.is_extended_id else 0))
+        payload = bytes(msg.data)
+        self.dlcs.append(len(payload))
+        self.data += payload
+
+    def full(self, t_host_ns: int) -> bool:
+        return bool(self.times) and (len(self.times) >= self.MAX_FRAMES
+                                     or t_host_ns - self.times[0] >= self.MAX_AGE_NS)
+
+    def take(self) -> RawCanFrames | None:
+        if not self.times:
+            return None
+        t0 = self.times[0]
+        batch = RawCanFrames(t0, [t - t0 for t in self.times], self.ids, self.dlcs,
+                             bytes(self.data))
+        self._clear()
+        return batch
 
 
 def _ins_log(t_host_ns: int, rec: InsRecord) -> InsRecordLog:

@@ -104,7 +104,7 @@ class Runner:
         heap = [(t, i) for i, d in enumerate(self.devices) if (t := d.next_time_ns()) is not None]
         heapq.heapify(heap)
         skip = skip_until_ns if skip_until_ns is not None else -(2**63)
-        wall0 = time.perf_counter_ns()
+        wall0: int | None = None  # the wall clock is anchored at the first paced emission
         t0 = max(heap[0][0] if heap else 0, skip)
         try:
             while heap:
@@ -118,6 +118,8 @@ class Runner:
                     dev.emit(t_ns)
                 else:
                     if self.speed is not None:
+                        if wall0 is None:
+                            wall0 = time.perf_counter_ns() - int((t_ns - t0) / self.speed)
                         self._pace(wall0 + int((t_ns - t0) / self.speed))
                     self._drain_inbox()
                     self._deliver(dev.emit(t_ns))

@@ -55,14 +55,21 @@ class RawBytes(LoggedMessage):
     data: bytes
 
 
+CAN_EXTENDED_FLAG = 0x8000_0000  # set in an arbitration id when the frame uses 29-bit ids
+
+
 @dataclass(frozen=True)
-class RawCanFrame(LoggedMessage):
+class RawCanFrames(LoggedMessage):
+    """CAN frames exactly as received, batched (up to ~16 frames or 50 ms) to keep the log's
+    per-message cost low; every frame keeps its own host receive time."""
+
     topic: ClassVar[Topic] = Topic.INS_RAW
-    schema_name: ClassVar[str] = "sisa.RawCanFrame"
-    t_host_ns: int
-    arbitration_id: int
-    is_extended_id: bool
-    data: bytes
+    schema_name: ClassVar[str] = "sisa.RawCanFrames"
+    t_host_ns: int  # receive time of the first frame
+    t_offsets_ns: list[int]  # each frame's receive time minus t_host_ns
+    arbitration_ids: list[int]  # with CAN_EXTENDED_FLAG for 29-bit ids
+    dlcs: list[int]
+    data: bytes  # the frames' data bytes, concatenated (lengths in dlcs)
 
 
 @dataclass(frozen=True)
@@ -223,7 +230,7 @@ class StreamHealth(LoggedMessage):
 
 
 LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (
-    RawBytes, RawCanFrame, GpsFix, GpsTimeTag, InsRecordLog, FrameHeaderLog, PulseEdgeLog,
+    RawBytes, RawCanFrames, GpsFix, GpsTimeTag, InsRecordLog, FrameHeaderLog, PulseEdgeLog,
     SyncSession, SyncPps, SyncForward, SyncModeSwitch, StreamHealth,
 )
 

@@ -14,7 +14,7 @@ from recorder.messages import (
     LoggedMessage,
     PulseEdgeLog,
     RawBytes,
-    RawCanFrame,
+    RawCanFrames,
     StreamHealth,
     SyncForward,
     SyncModeSwitch,
@@ -31,7 +31,8 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[LoggedMessage, Topic | Non
     return [
         (RawBytes(t, "gps", b"$GPGGA,1*00\r\n\x00\xff"), Topic.GPS_RAW),
         (RawBytes(t + 1, "scanner", b""), Topic.SCANNER_RAW),
-        (RawCanFrame(t + 2, 0x18FF1234, True, bytes(range(8))), None),
+        (RawCanFrames(t + 2, [0, 250_000], [0x18FF1234 | 0x8000_0000, 0x100], [8, 3],
+                      bytes(range(11))), None),
         (GpsFix(t + 3, 1_300_000_000 * 10**9, 42.123456789, -2.5, 612.25, 2, 9, 0.8), None),
         (GpsTimeTag(t + 4, "TTT", 345_600_123_456_789, 1_300_000_000 * 10**9 + 1), None),
         (InsRecordLog(t + 5, 65535, 2**48 - 1, 0.01, -0.02, 3.14, 1e-5, float("nan"), -1e-5,

@@ -1,0 +1,97 @@
+"""Acquisition headroom in a real-time desk test: `sisa emulate` and `sisa record` as separate
+processes on ptys, SLCAN and the pulse link, with every device rate scaled up by k until the
+first loss (a decode error, a dropped CAN frame, a late edge, or fewer records than the emulator
+sent), plus the recorder's CPU use at nominal rates.
+
+    .venv/bin/python bench/acquisition_headroom.py [--seconds 20] [--scales 1,2,5,10,20,30,40]
+
+The window starts 30 s into the bench strip, so the scanner, the frame pulses and the sync
+filter's mode 2 are all running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import tomli_w
+
+from emulators.scenario import load_scenario
+from emulators.trajectory import TruthTrajectory
+
+SUMMARY = re.compile(
+    r"INS (\d+), GPS sentences (\d+), frame headers (\d+), PPS (\d+), ppf (\d+); (\d+) decode "
+    r"errors, (\d+) drops, (\d+) late edges.*cpu ([\d.]+) s in ([\d.]+) s")
+
+
+def scaled_scenario(k: float, folder: Path) -> Path:
+    """bench with every rate times k (the scanner's integration time shrinks with its period)."""
+    base = load_scenario("bench")
+    table = {"base": "bench",
+             "ins": {"rate_hz": base.ins.rate_hz * k},
+             "gps": {"nmea_rate_hz": min(20.0, base.gps.nmea_rate_hz * k)},
+             "scanner": {"line_period_ms": base.scanner.line_period_ms / k,
+                         "integration_time_ms": base.scanner.integration_time_ms / k}}
+    path = folder / f"scale{k:g}.toml"
+    path.write_text(tomli_w.dumps(table), encoding="utf-8")
+    return path
+
+
+def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[str, float]:
+    scenario = scaled_scenario(k, folder)
+    run = folder / f"run{k:g}"
+    ep = folder / f"ep{k:g}.json"
+    emu = subprocess.Popen([sys.executable, "-m", "sisa.cli", "emulate", "--scenario",
+                            str(scenario), "--no-images", "--out", str(run), "--start",
+                            str(start_s - 3), "--duration", str(seconds + 3), "--endpoints",
+                            str(ep)], stdout=subprocess.PIPE, text=True)
+    while not (ep.exists() and ep.stat().st_size):
+        time.sleep(0.05)
+    e = json.loads(ep.read_text())
+    rec = subprocess.run([sys.executable, "-m", "sisa.cli", "record", "--quiet", "--scenario",
+                          str(scenario), "--gps", e["gps"], "--scanner", e["scanner"], "--ins",
+                          e["ins"], "--pulses", e["pulses"], "--out", str(folder / f"f{k:g}.mcap")],
+                         capture_output=True, text=True)  # ends when the emulator's ports close
+    emu_out, _ = emu.communicate()
+    m = SUMMARY.search(rec.stdout)
+    if m is None:
+        raise SystemExit(f"scale {k}: no summary from sisa record: {rec.stderr[-500:]}")
+    ins, _gps, headers, _pps, ppf, errors, drops, late, cpu, wall = map(float, m.groups())
+    late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
+    return {"k": k, "ins_recorded": ins, "headers": headers, "ppf": ppf, "errors": errors,
+            "drops": drops, "late": late, "cpu_pct": 100 * cpu / wall, "emulator_late_ms": late_ms}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--scales", default="1,2,5,10,20,30,40")
+    args = parser.parse_args()
+    traj = TruthTrajectory.from_scenario(load_scenario("bench"))
+    start_s = (traj.strips[0].t_start_ns - traj.t_start_ns) / 1e9 + 5
+    print(f"window: {args.seconds:g} s from {start_s:.0f} s into bench (strip 0 recording)")
+    print(f"{'scale':>5} {'INS Hz':>7} {'line Hz':>7} {'INS rec':>8} {'headers':>8} "
+          f"{'errors':>6} {'drops':>5} {'late':>4} {'rec CPU':>8} {'emu lag ms':>10}")
+    headroom = 0.0
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in (float(x) for x in args.scales.split(",")):
+            r = run_level(k, args.seconds, start_s, Path(tmp))
+            clean = r["errors"] == 0 and r["drops"] == 0 and r["late"] == 0
+            print(f"{k:5g} {64 * k:7.0f} {62.5 * k:7.0f} {r['ins_recorded']:8.0f} "
+                  f"{r['headers']:8.0f} {r['errors']:6.0f} {r['drops']:5.0f} {r['late']:4.0f} "
+                  f"{r['cpu_pct']:7.1f}% {r['emulator_late_ms']:10.1f}"
+                  f"{'' if clean else '   <- first loss'}")
+            if not clean:
+                break
+            headroom = k
+    print(f"headroom over nominal rates: {headroom:g}x with no loss (target >= 20x)")
+
+
+if __name__ == "__main__":
+    main()

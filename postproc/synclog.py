@@ -1,0 +1,133 @@
+"""What time synchronisation reads from a flight log, as typed numpy columns.
+
+Only what a real flight log holds: host receive times, the INS's own clock, the timing board's
+counter, and GPS time only where the receiver stated it (fixes, PTT, TTT). Nothing here knows
+the simulation truth. `read_sync_input` reads the log in one streaming pass; the dataclasses can
+also be built directly (tests, the speed benchmark).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from postproc.logcolumns import Columns, FieldSpec, read_topic_columns
+from recorder.messages import Topic
+from recorder.reader import Paths
+
+I64 = npt.NDArray[np.int64]
+Bool = npt.NDArray[np.bool_]
+
+WANTED: Final[dict[str, tuple[FieldSpec, ...]]] = {
+    Topic.INS_RECORD: (("t_host_ns", "int"), ("counter", "int"), ("ins_time_ticks", "int"),
+                       ("status", "int"), ("sync_flag", "bool"), ("sync_time_ticks", "int")),
+    Topic.SCANNER_HEADER: (("t_host_ns", "int"), ("frame_counter", "int"), ("segment", "int")),
+    Topic.GPS_FIX: (("t_host_ns", "int"), ("t_gps_ns", "int")),
+    Topic.GPS_TIME_TAG: (("t_host_ns", "int"), ("kind", "str"), ("t_gps_ns", "int")),
+    Topic.SYNC_SESSION: (("session", "int"), ("lfsr_bits", "int")),
+    Topic.SYNC_PPS: (("t_host_ns", "int"), ("board_ns", "int"), ("gps_second_ns", "int"),
+                     ("lfsr_bit", "int")),
+    Topic.SYNC_FORWARD: (("t_host_ns", "int"), ("session", "int"), ("board_ns", "int"),
+                         ("mode", "int"), ("source", "str"), ("to_gps_event", "bool"),
+                         ("gps_second_ns", "int"), ("frame_counter", "int")),
+    Topic.SYNC_MODE: (("to_mode", "int"),),
+}
+
+
+def _i64(cols: Columns, name: str) -> I64:
+    return np.asarray(cols[name], dtype=np.int64)
+
+
+def _bool(cols: Columns, name: str) -> Bool:
+    return np.asarray(cols[name], dtype=np.bool_)
+
+
+@dataclass(frozen=True)
+class InsColumns:
+    """Every logged INS record, in log order."""
+
+    t_host_ns: I64
+    counter: I64
+    ins_time_ticks: I64  # 100 ns ticks of the INS clock, 48-bit, wraps
+    status: I64
+    sync_flag: Bool
+    sync_time_ticks: I64  # INS clock at the latched pulse (new only where sync_flag)
+
+
+@dataclass(frozen=True)
+class GpsTimes:
+    """Where the receiver stated GPS time: fixes (host ↔ GPS pairs) and PTT/TTT tags."""
+
+    fix_t_host_ns: I64
+    fix_t_gps_ns: I64
+    tag_t_host_ns: I64
+    tag_t_gps_ns: I64
+    tag_is_ptt: Bool  # PTT (the PPS edge) or TTT (an event-input pulse)
+
+
+@dataclass(frozen=True)
+class SisaColumns:
+    """The sync unit's own log: every PPS it saw and every pulse it forwarded."""
+
+    pps_t_host_ns: I64
+    pps_board_ns: I64  # input edge on the timing board
+    pps_gps_second_ns: I64  # -1: the receiver did not say
+    pps_spurious: Bool  # rejected by the box (not whole seconds after the PPS train)
+    fwd_t_host_ns: I64
+    fwd_session: I64
+    fwd_board_ns: I64  # output edge on the timing board
+    fwd_mode: I64
+    fwd_is_ppf: Bool
+    fwd_to_gps_event: Bool
+    fwd_gps_second_ns: I64  # mode 1: GPS second of the forwarded PPS, -1 unknown
+    fwd_frame_counter: I64  # mode 2: frame counter of the forwarded frame, -1 unknown
+    session_lfsr_bits: I64  # per SyncSession record
+    mode_switches: int
+
+
+@dataclass(frozen=True)
+class HeaderColumns:
+    """Every logged scanner frame header, in log order."""
+
+    t_host_ns: I64
+    frame_counter: I64
+    segment: I64
+
+
+@dataclass(frozen=True)
+class SyncInput:
+    ins: InsColumns
+    gps: GpsTimes
+    sisa: SisaColumns
+    headers: HeaderColumns
+
+
+def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
+    """The typed bundle from `read_topic_columns(paths, WANTED)`."""
+    ins, tags = cols[Topic.INS_RECORD], cols[Topic.GPS_TIME_TAG]
+    fix, pps, fwd = cols[Topic.GPS_FIX], cols[Topic.SYNC_PPS], cols[Topic.SYNC_FORWARD]
+    hdr = cols[Topic.SCANNER_HEADER]
+    return SyncInput(
+        InsColumns(_i64(ins, "t_host_ns"), _i64(ins, "counter"), _i64(ins, "ins_time_ticks"),
+                   _i64(ins, "status"), _bool(ins, "sync_flag"), _i64(ins, "sync_time_ticks")),
+        GpsTimes(_i64(fix, "t_host_ns"), _i64(fix, "t_gps_ns"), _i64(tags, "t_host_ns"),
+                 _i64(tags, "t_gps_ns"), np.asarray(tags["kind"] == "PTT", dtype=np.bool_)),
+        SisaColumns(
+            _i64(pps, "t_host_ns"), _i64(pps, "board_ns"), _i64(pps, "gps_second_ns"),
+            np.asarray(_i64(pps, "lfsr_bit") < 0, dtype=np.bool_),
+            _i64(fwd, "t_host_ns"), _i64(fwd, "session"), _i64(fwd, "board_ns"),
+            _i64(fwd, "mode"), np.asarray(fwd["source"] == "PPF", dtype=np.bool_),
+            _bool(fwd, "to_gps_event"), _i64(fwd, "gps_second_ns"),
+            _i64(fwd, "frame_counter"), _i64(cols[Topic.SYNC_SESSION], "lfsr_bits"),
+            len(cols[Topic.SYNC_MODE]["to_mode"])),
+        HeaderColumns(_i64(hdr, "t_host_ns"), _i64(hdr, "frame_counter"),
+                      _i64(hdr, "segment")))
+
+
+def read_sync_input(paths: Paths) -> SyncInput:
+    """Everything time synchronisation needs from a log (one file or the parts of a split one),
+    in one streaming pass."""
+    return sync_input_from_columns(read_topic_columns(paths, WANTED))

@@ -99,7 +99,8 @@ class Acquisition:
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
         self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
         self.streams = {
-            "gps": StreamCounters(config.nmea_rate_hz * 2 + 2),
+            # GGA + RMC per epoch, ZDA and PTT per second, up to one TTT per second
+            "gps": StreamCounters(config.nmea_rate_hz * 2 + 3),
             "ins": StreamCounters(config.ins_rate_hz),
             "scanner": StreamCounters(config.line_rate_hz),
             "pps": StreamCounters(1.0),

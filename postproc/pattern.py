@@ -94,17 +94,16 @@ def score_shifts(u: F64, y: F64, window_s: float, tol_s: float) -> ShiftScore:
 
 
 def block_ranges(x_s: F64, piece: I64, block_s: float) -> list[tuple[int, int]]:
-    """[first, stop) latch ranges: consecutive latches of one piece within block_s of clock."""
+    """[first, stop) latch ranges: latches of one piece in the same block_s of its clock,
+    counted from the piece's first latch (latches in clock order within a piece)."""
     if x_s.size == 0:
         return []
+    idx = np.arange(x_s.size)
     new_piece = np.concatenate([[True], piece[1:] != piece[:-1]])
-    starts: list[int] = []
-    begin_x = 0.0
-    for i in range(x_s.size):  # one pass; blocks are few, latches ~1 per second
-        if new_piece[i] or x_s[i] - begin_x >= block_s:
-            starts.append(i)
-            begin_x = float(x_s[i])
-    bounds = [*starts, x_s.size]
+    piece_first = np.maximum.accumulate(np.where(new_piece, idx, 0))
+    block = np.floor((x_s - x_s[piece_first]) / block_s).astype(np.int64)
+    starts = np.flatnonzero(new_piece | np.concatenate([[True], block[1:] != block[:-1]]))
+    bounds = [*starts.tolist(), x_s.size]
     return list(zip(bounds[:-1], bounds[1:], strict=True))
 
 

@@ -36,7 +36,7 @@ from pyproj import Transformer
 from rasterio.errors import NotGeoreferencedWarning
 
 from emulators.scenario import ScannerSettings
-from emulators.terrain import Scene, Terrain
+from emulators.terrain import Scene, Terrain, bilinear_at
 from emulators.trajectory import TrajectoryState
 from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.sensor import Mounting
@@ -159,26 +159,6 @@ class _ExactMap:
 
 
 @_jit()
-def _dem_height(dem: Any, geo: Any, e: float, n: float) -> float:
-    """Bilinear between cell centres, constant over the outer half cell, NaN outside: the
-    convention of Terrain.height_at (pinned against it by the tests)."""
-    rows, cols = dem.shape
-    x = (e - geo[0]) / geo[2] - 0.5
-    y = (geo[1] - n) / geo[2] - 0.5
-    if not (-0.5 <= x <= cols - 0.5 and -0.5 <= y <= rows - 0.5):
-        return np.nan
-    x = min(max(x, 0.0), cols - 1.0)
-    y = min(max(y, 0.0), rows - 1.0)
-    c0 = min(int(x), cols - 2)
-    r0 = min(int(y), rows - 2)
-    fx = x - c0
-    fy = y - r0
-    top = dem[r0, c0] * (1.0 - fx) + dem[r0, c0 + 1] * fx
-    bottom = dem[r0 + 1, c0] * (1.0 - fx) + dem[r0 + 1, c0 + 1] * fx
-    return float(top * (1.0 - fy) + bottom * fy)
-
-
-@_jit()
 def _map_at(x: float, y: float, z: float, exps: Any, coef: Any, box: Any, powers: Any
             ) -> tuple[float, float, float]:
     """(E, N, h) at an ENU point from the fitted polynomial; `powers` is (3, degree + 1)
@@ -263,7 +243,7 @@ def _along(q: _Quad, t: float) -> tuple[float, float, float]:
 def _gap(q: _Quad, t: float, dem: Any, geo: Any) -> float:
     """Height of the ray above the DEM at t along it (NaN off the DEM)."""
     e, n, h = _along(q, t)
-    return h - _dem_height(dem, geo, e, n)
+    return h - bilinear_at(dem, geo[0], geo[1], geo[2], e, n)
 
 
 @_jit()

@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from emulators.scenario import Scenario
 
 SubParsers = argparse._SubParsersAction  # the type argparse gives subcommand registries
 
@@ -16,3 +21,16 @@ def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: 
     """A subcommand parser whose --help ends with a worked example."""
     return sub.add_parser(name, help=help_text, description=help_text,
                           epilog=f"example:\n  {example}", formatter_class=Formatter)
+
+
+def add_scenario_args(parser: argparse.ArgumentParser, what: str = "scenario") -> None:
+    """--preset NAME | --scenario FILE, the way every command names its scenario."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--preset", default="bench", help=f"{what} preset (default: bench)")
+    group.add_argument("--scenario", type=Path, help=f"{what} TOML file")
+
+
+def scenario_from_args(args: argparse.Namespace) -> Scenario:
+    from emulators.scenario import load_scenario
+
+    return load_scenario(args.scenario if args.scenario is not None else args.preset)

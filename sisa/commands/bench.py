@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import SisaError
 from sisa.outdir import staged_output_dir
 
@@ -25,9 +25,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "bench", "desk test: sisa emulate and sisa record as separate "
                          "processes on virtual ports, in real time",
                          "sisa bench --preset bench --out runs/bench-rt --duration 120")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
-    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
     parser.add_argument("--speed", type=float, default=1.0, help="times real time")
     parser.add_argument("--start", type=float, default=0.0,
@@ -57,10 +55,9 @@ def _wait_for_endpoints(path: Path, proc: subprocess.Popen[bytes]) -> dict[str, 
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
     from sisa.commands.scenario import scenario_toml
 
-    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    scn = scenario_from_args(args)
     sisa = [sys.executable, "-m", "sisa.cli"]
     with staged_output_dir(args.out) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from types import FrameType
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import InputError
 
 
@@ -19,9 +19,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "time on virtual serial ports, CAN and pulse lines",
                          "sisa emulate --preset bench --out runs/bench-emu   "
                          "(then: sisa record ... on the printed ports)")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
-    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True,
                         help="new folder for the scanner's recording and the truth tables")
     parser.add_argument("--speed", type=float, default=1.0,
@@ -46,10 +44,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 def _run(args: argparse.Namespace) -> int:
     from emulators.bridge import CanTarget, RealTimeBridge
     from emulators.runtime import Runner
-    from emulators.scenario import load_scenario
     from emulators.system import EmulatedSystem
 
-    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    scn = scenario_from_args(args)
     if args.speed <= 0:
         raise InputError("--speed must be positive")
     target = CanTarget.parse(args.can)

@@ -12,7 +12,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import InputError
 
 if TYPE_CHECKING:
@@ -38,10 +38,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         "socketcan:can0, virtual:sisa)")
     parser.add_argument("--pulses", help="timing-board edge link, tcp://127.0.0.1:PORT")
     parser.add_argument("--out", type=Path, required=True, help="new MCAP file")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--preset", default="bench",
-                       help="settings (rates, leap seconds, sync unit) from this preset")
-    group.add_argument("--scenario", type=Path, help="settings from this scenario file")
+    add_scenario_args(parser, "settings (rates, leap seconds, sync unit) from this")
     parser.add_argument("--split-minutes", type=float, default=None,
                         help="start a new file every N minutes of log time")
     parser.add_argument("--split-mb", type=float, default=None,
@@ -54,7 +51,6 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 def _run(args: argparse.Namespace) -> int:
     from acquisition.live import LiveSources
     from acquisition.runner import Acquisition
-    from emulators.scenario import load_scenario
     from recorder.writer import FlightRecorder
     from sisa.acqconfig import acquisition_config
 
@@ -63,7 +59,7 @@ def _run(args: argparse.Namespace) -> int:
                          "--pulses")
     if args.out.exists():
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
-    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    scn = scenario_from_args(args)
     config = acquisition_config(scn)
     sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses)
     stop = _install_stop_handlers()

@@ -8,7 +8,7 @@ import argparse
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.outdir import staged_output_dir
 
 
@@ -16,9 +16,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "simulate", "simulate a whole flight in virtual time: devices, "
                          "sync filter and flight recorder in one process",
                          "sisa simulate --preset bench --out runs/bench --seed 7")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
-    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--no-images", action="store_true",
@@ -27,11 +25,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
     from sisa.commands.scenario import scenario_toml
     from sisa.simulation import simulate
 
-    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    scn = scenario_from_args(args)
     if args.seed is not None:
         scn = scn.model_copy(update={"seed": args.seed})
     started = time.perf_counter()

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import add_command
+from sisa.commands import add_command, add_scenario_args, scenario_from_args
 from sisa.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -28,9 +28,7 @@ if TYPE_CHECKING:
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "truth", "write a scenario's ground truth: trajectory, DEM, scene "
                          "and ground points", "sisa truth --preset bench --out runs/bench-truth")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--preset", default="bench", help="preset name (default: bench)")
-    group.add_argument("--scenario", type=Path, help="scenario TOML file")
+    add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new folder to create")
     parser.set_defaults(handler=_run)
 
@@ -49,12 +47,11 @@ def write_timeline_csvs(traj: TruthTrajectory, folder: Path) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
     from emulators.terrain import Scene, Terrain, ground_points, write_ground_points_csv
     from emulators.trajectory import TruthTrajectory
     from sisa.commands.scenario import scenario_toml
 
-    scn = load_scenario(args.scenario if args.scenario is not None else args.preset)
+    scn = scenario_from_args(args)
     started = time.perf_counter()
     with staged_output_dir(args.out) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import errno
 import inspect
 import json
 import math
@@ -257,11 +258,17 @@ class _Part:
     def size(self) -> int:
         return self.file.tell()
 
-    def sync(self) -> None:
-        """Close the open chunk, hand everything to the OS and fsync it."""
+    def hand_over(self) -> int:
+        """Close the open chunk and hand everything to the OS (a SIGKILL no longer loses it);
+        returns the descriptor to fsync for power loss, which the caller does outside its lock."""
         self.mcap.flush()  # type: ignore[no-untyped-call]
-        os.fsync(self.file.fileno())
+        self.file.flush()
         self.dirty = False
+        return self.file.fileno()
+
+    def sync(self) -> None:
+        """hand_over() and fsync."""
+        os.fsync(self.hand_over())
 
     def finish(self) -> None:
         """Write the summary and footer, fsync and close."""
@@ -338,8 +345,6 @@ class FlightRecorder:
                 self._add(topic, cls.schema_name, log_ns, data)
                 if extra is not None:
                     self._add(Topic.GPS_LOCATION, LOCATION_FIX_SCHEMA_NAME, log_ns, extra)
-                if time.monotonic() >= self._next_sync:
-                    self._sync()
             except (OSError, InputError) as exc:  # InputError: a part name taken mid-flight
                 self._fail(exc)
                 self._check_open()
@@ -411,17 +416,27 @@ class FlightRecorder:
         self._next_sync = time.monotonic() + self._flush_interval_s
 
     def _flush_loop(self) -> None:
-        """Sync on time even when no message arrives (a quiet stream must not stay in memory)."""
-        while not self._stop.wait(self._flush_interval_s / 4):
+        """Hand chunks to the OS on time (writers never wait for it), then fsync outside the
+        lock: a slow disk must not stall the acquisition."""
+        while not self._stop.wait(self._flush_interval_s / 10):
             with self._lock:
                 if self._closed:
                     return
-                if time.monotonic() >= self._next_sync:
-                    try:
-                        self._sync()
-                    except OSError as exc:
+                if time.monotonic() < self._next_sync or not self._part.dirty:
+                    continue
+                try:
+                    fd = self._part.hand_over()
+                except OSError as exc:
+                    self._fail(exc)
+                    return
+                self._next_sync = time.monotonic() + self._flush_interval_s
+            try:
+                os.fsync(fd)
+            except OSError as exc:
+                if exc.errno != errno.EBADF:  # EBADF: the part was closed meanwhile (fsync'd)
+                    with self._lock:
                         self._fail(exc)
-                        return
+                    return
 
     def _fail(self, exc: OSError | InputError) -> None:
         """Stop on a disk error: keep what is on disk; every later call raises the one error."""

@@ -13,7 +13,8 @@ What the records tell by themselves (no GPS time yet):
   pulse fit finds it.
 - A latched pulse (sync_flag) holds the clock at the pulse, read down to the clock's resolution
   (truncated), so the pulse came on average half a resolution step later. The resolution is the
-  greatest common divisor of the latched values.
+  greatest common divisor of the latched values (from MIN_LATCHES_FOR_GCD of them: fewer could
+  share a factor by chance), unless the caller states it.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ REBOOTED_BIT: Final = 0x08  # status: first records after power-up (docs/protoco
 MIN_COUNTER_BITS: Final = 8
 MAX_CONTINUE: Final = 1024  # a counter step larger than this, with the clock gone back: restart
 MAX_LATCH_AGE_PERIODS: Final = 4  # a latch older than this before its record is not its pulse
+MIN_LATCHES_FOR_GCD: Final = 16  # k latches share a spurious factor p with probability p^-k
 
 
 class PieceStart(IntEnum):
@@ -93,15 +95,16 @@ def _period_ticks(d: I64, dc: I64) -> float:
 def _resolution_ticks(ins: InsColumns) -> int:
     latched = ins.sync_time_ticks[ins.sync_flag]
     latched = latched[latched > 0]
-    return int(np.gcd.reduce(latched)) if latched.size else 1
+    return int(np.gcd.reduce(latched)) if latched.size >= MIN_LATCHES_FOR_GCD else 1
 
 
-def _transitions(ins: InsColumns, modulus: int) -> tuple[I64, I64, I64, float]:
+def _transitions(ins: InsColumns, modulus: int, resolution: int
+                 ) -> tuple[I64, I64, I64, float]:
     """Per step i−1 → i: clock step (signed ticks), counter step, PieceStart (−1: none)."""
     d = _signed_ticks(np.diff(ins.ins_time_ticks))
     dc = np.mod(np.diff(ins.counter), modulus)
     period = _period_ticks(d, dc)
-    tol = 2.0 * _resolution_ticks(ins) + 1.0
+    tol = 2.0 * resolution + 1.0
     k = np.rint(d / period)
     rebooted = (ins.status & REBOOTED_BIT) != 0
     newly = rebooted[1:] & ~rebooted[:-1]
@@ -118,7 +121,7 @@ def _unwrap_clock(ticks: I64, d: I64, first: I64, piece: I64) -> I64:
     """Clock of each record: the raw value of its piece's first record plus the steps since."""
     cum = np.concatenate([[0], np.cumsum(d)])
     start = first[piece]
-    return ticks[start] + cum - cum[start]
+    return np.asarray(ticks[start] + cum - cum[start], dtype=np.int64)
 
 
 def _latches(ins: InsColumns, clock: I64, period: float, resolution: int
@@ -132,11 +135,13 @@ def _latches(ins: InsColumns, clock: I64, period: float, resolution: int
     return rec, latch, int(np.count_nonzero(~ok))
 
 
-def ins_timeline(ins: InsColumns) -> InsTimeline:
-    """Unwrap counters and clock, split clock pieces, extract the latched pulses."""
+def ins_timeline(ins: InsColumns, resolution_ticks: int | None = None) -> InsTimeline:
+    """Unwrap counters and clock, split clock pieces, extract the latched pulses.
+    `resolution_ticks`: the clock's resolution if known (else from the latches)."""
     n = ins.counter.size
     modulus = _counter_modulus(ins.counter)
-    d, dc, kind, period = _transitions(ins, modulus)
+    resolution = resolution_ticks or _resolution_ticks(ins)
+    d, dc, kind, period = _transitions(ins, modulus, resolution)
     boundary = np.concatenate([[True], kind >= 0]) if n else np.zeros(0, dtype=np.bool_)
     piece = np.cumsum(boundary) - 1
     first = np.flatnonzero(boundary)
@@ -144,7 +149,6 @@ def ins_timeline(ins: InsColumns) -> InsTimeline:
     step = np.where(kind == PieceStart.REBOOT, 1, dc)
     seq = np.concatenate([[0], np.cumsum(step)]).astype(np.int64) if n else np.zeros(0, np.int64)
     clock = _unwrap_clock(ins.ins_time_ticks, d, first, piece) if n else np.zeros(0, np.int64)
-    resolution = _resolution_ticks(ins)
     rec, latch, stale = _latches(ins, clock, period, resolution)
     counts = {
         "records": n,

@@ -97,3 +97,21 @@ def robust_line(x: F64, y: F64, *, sigma_floor: float, k: float = 5.0,
             break
         inliers = new
     return line, inliers
+
+
+def prediction_rms(x_fit: F64, sigma_fit: F64, x: F64) -> float:
+    """RMS over the points x of the error of a least-squares line through (x_fit, y_fit) whose
+    y_fit have independent errors of standard deviation sigma_fit (one each, or one for all).
+
+    The prediction at x is Σ w_i(x)·y_i with w_i = 1/n + (x − x̄)(x_i − x̄)/Sxx, so its variance
+    is Σ w_i² σ_i²: expanded in powers of (x − x̄) and averaged over x.
+    """
+    n = x_fit.size
+    s2 = np.broadcast_to(np.asarray(sigma_fit, dtype=np.float64) ** 2, x_fit.shape)
+    d = x_fit - x_fit.mean()
+    sxx = float(d @ d)
+    a = float(s2.sum()) / n**2
+    b = float((d * s2).sum()) / (n * sxx) if sxx > 0 else 0.0
+    c = float((d * d * s2).sum()) / sxx**2 if sxx > 0 else 0.0
+    dx = x - x_fit.mean()
+    return float(np.sqrt(np.mean(a + 2.0 * b * dx + c * dx * dx)))

@@ -19,6 +19,7 @@ shift beats every other shift (further than 2·tol from it) by `min_margin` latc
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +59,7 @@ class BlockMatch:
     resolved: bool
 
 
-def _nearest(y: F64, t: F64) -> tuple[I64, F64]:
+def nearest(y: F64, t: F64) -> tuple[I64, F64]:
     """Index of the nearest y (sorted) to each t, and the distance."""
     j = np.searchsorted(y, t)
     lo = np.clip(j - 1, 0, y.size - 1)
@@ -83,11 +84,11 @@ def score_shifts(u: F64, y: F64, window_s: float, tol_s: float) -> ShiftScore:
         return none
     _, first = np.unique(np.rint(cand / (0.5 * tol_s)), return_index=True)
     cand = cand[first]
-    _, dist = _nearest(y[lo:hi], u[None, :] + cand[:, None])
+    _, dist = nearest(y[lo:hi], u[None, :] + cand[:, None])
     scores = np.count_nonzero(dist <= tol_s, axis=1)
     b = int(np.argmax(scores))
     others = scores[np.abs(cand - cand[b]) > 2.0 * tol_s]
-    idx, d = _nearest(y, u + cand[b])
+    idx, d = nearest(y, u + cand[b])
     matched = np.where(d <= tol_s, idx, -1).astype(np.int64)
     return ShiftScore(float(cand[b]), int(scores[b]), int(others.max()) if others.size else 0,
                       matched)
@@ -104,7 +105,7 @@ def block_ranges(x_s: F64, piece: I64, block_s: float) -> list[tuple[int, int]]:
     block = np.floor((x_s - x_s[piece_first]) / block_s).astype(np.int64)
     starts = np.flatnonzero(new_piece | np.concatenate([[True], block[1:] != block[:-1]]))
     bounds = [*starts.tolist(), x_s.size]
-    return list(zip(bounds[:-1], bounds[1:], strict=True))
+    return list(itertools.pairwise(bounds))
 
 
 def match_blocks(u_s: F64, x_s: F64, piece: I64, y_s: F64, cfg: PatternConfig

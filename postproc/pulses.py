@@ -81,9 +81,19 @@ def _ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64
     return out
 
 
+def _tags(sisa: SisaColumns, ttt: I64, board: ClockMap | None, by_board: I64,
+          board_ok: Bool, host: ClockMap, window_ns: int) -> I64:
+    """The TTT tag of each forward sent to the event input: through the board map, or on host
+    time (a wider window) when the log has no PTT to build one."""
+    if board is not None:
+        return _ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, window_ns)
+    return _ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
+                      HOST_TTT_WINDOW_NS)
+
+
 def sisa_pulses(sisa: SisaColumns, gps: GpsTimes, board: ClockMap | None, host: ClockMap, *,
                 ttt_window_ns: int, max_board_gap_s: float) -> tuple[SisaPulses, dict[str, int]]:
-    """GPS time of every forwarded pulse, and how many TTT tags no forward claimed."""
+    """GPS time of every forwarded pulse, and counts of tags and rejections."""
     n = sisa.fwd_board_ns.size
     t = np.full(n, -1, dtype=np.int64)
     source = np.full(n, int(PulseSource.NONE), dtype=np.int64)
@@ -94,20 +104,15 @@ def sisa_pulses(sisa: SisaColumns, gps: GpsTimes, board: ClockMap | None, host: 
     t[from_ptt], source[from_ptt] = ptt[from_ptt] + GATE_DELAY_NS, PulseSource.PTT
     disagree = from_ptt & board_ok & (np.abs(t - by_board) > ttt_window_ns)
     ttt = np.sort(gps.tag_t_gps_ns[~gps.tag_is_ptt])
-    if board is not None:
-        tagged = _ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, ttt_window_ns)
-    else:
-        tagged = _ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
-                            HOST_TTT_WINDOW_NS)
+    tagged = _tags(sisa, ttt, board, by_board, board_ok, host, ttt_window_ns)
     has_ttt = (tagged >= 0) & ~from_ptt
     t[has_ttt], source[has_ttt] = tagged[has_ttt], PulseSource.TTT
     rest = (source == PulseSource.NONE) & board_ok
     t[rest], source[rest] = by_board[rest], PulseSource.BOARD
     second = (source == PulseSource.NONE) & mode1 & (sisa.fwd_gps_second_ns >= 0)
-    t[second] = sisa.fwd_gps_second_ns[second] + GATE_DELAY_NS
-    source[second] = PulseSource.SECOND
+    t[second], source[second] = sisa.fwd_gps_second_ns[second] + GATE_DELAY_NS, PulseSource.SECOND
     t[disagree], source[disagree] = -1, PulseSource.NONE
-    pulses = SisaPulses(t, source, sisa.fwd_mode, sisa.fwd_session, sisa.fwd_frame_counter)
-    stats = {"ttt_tags": int(ttt.size), "ttt_unclaimed": int(ttt.size - np.count_nonzero(tagged >= 0)),
+    stats = {"ttt_tags": int(ttt.size),
+             "ttt_unclaimed": int(ttt.size - np.count_nonzero(tagged >= 0)),
              "rejected_ptt_board_disagree": int(np.count_nonzero(disagree))}
-    return pulses, stats
+    return SisaPulses(t, source, sisa.fwd_mode, sisa.fwd_session, sisa.fwd_frame_counter), stats

@@ -25,14 +25,16 @@ class SyncConfig:
     """Tolerances of the solver. Times in seconds unless the name says otherwise."""
 
     pattern: PatternConfig = field(default_factory=PatternConfig)
-    assoc_tol_s: float = 20e-6  # latch ↔ pulse, once a clock fit predicts it
+    assoc_tol_s: float = 2e-6  # latch ↔ pulse, once a clock fit predicts it (+ resolution)
     max_extrapolation_s: float = 30.0  # INS records beyond the first/last fitted latch
+    max_time_sigma_s: float = 1e-6  # predicted error (1 σ) of a time from its fit
     line_max_extrapolation_s: float = 2.0  # scan lines beyond the first/last timed frame
     ttt_window_ns: int = 50_000  # forward ↔ TTT tag through the timing board
     max_board_gap_s: float = 120.0  # timing-board time of an untagged pulse: PPS this close
     step_min_s: float = 1e-6  # smallest INS clock step the pulse fit splits at
     step_z: float = 10.0  # ... and its significance (step / its standard error)
     tag_lsb_ns: int = 100  # PTT/TTT resolution (7 decimals of a second)
+    ins_clock_resolution_ns: int | None = None  # None: from the latched values
 
     def __post_init__(self) -> None:
         p = self.pattern
@@ -45,11 +47,14 @@ class SyncConfig:
             "0 < assoc_tol_s < pattern.tol_s": 0 < self.assoc_tol_s < p.tol_s,
             "max_extrapolation_s ≥ 0": self.max_extrapolation_s >= 0,
             "line_max_extrapolation_s ≥ 0": self.line_max_extrapolation_s >= 0,
+            "max_time_sigma_s > 0": self.max_time_sigma_s > 0,
             "ttt_window_ns > 0": self.ttt_window_ns > 0,
             "max_board_gap_s ≥ 0": self.max_board_gap_s >= 0,
             "step_min_s > 0": self.step_min_s > 0,
             "step_z > 0": self.step_z > 0,
             "tag_lsb_ns ≥ 1": self.tag_lsb_ns >= 1,
+            "ins_clock_resolution_ns: a multiple of 100": self.ins_clock_resolution_ns is None
+            or (self.ins_clock_resolution_ns > 0 and self.ins_clock_resolution_ns % 100 == 0),
         }
         failed = [name for name, ok in checks.items() if not ok]
         if failed:

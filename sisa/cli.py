@@ -28,7 +28,17 @@ EPILOG = """examples:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from sisa.commands import Formatter, bench, emulate, log, record, scenario, simulate, truth
+    from sisa.commands import (
+        Formatter,
+        bench,
+        emulate,
+        log,
+        record,
+        scenario,
+        simulate,
+        sync,
+        truth,
+    )
 
     parser = argparse.ArgumentParser(
         prog="sisa", formatter_class=Formatter, epilog=EPILOG,
@@ -43,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     record.register(sub)
     bench.register(sub)
     log.register(sub)
+    sync.register(sub)
     return parser
 
 

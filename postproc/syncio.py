@@ -1,0 +1,136 @@
+"""Files of time synchronisation: the scanner's lines files in, the time tables and report out.
+
+Outputs are CSV with a commented header naming every column and its unit, and one JSON report.
+The tables are written with numpy in blocks, so a million lines never become Python rows.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+from typing import Any, Final, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from postproc.lines import LineTable
+from postproc.syncconfig import TimeStatus
+from sisa.errors import InputError
+
+I64 = npt.NDArray[np.int64]
+
+LINES_GLOB: Final = "segment_*.lines.csv"
+_SEGMENT_RE: Final = re.compile(r"segment_(\d+)\.lines\.csv$")
+WRITE_BLOCK: Final = 100_000
+
+STATUS_DOC: Final = ("status: " + " | ".join(s.name.lower() for s in TimeStatus)
+                     + " (only ok rows carry a time; see docs/sync.md)")
+
+INS_HEADER: Final = (
+    "# SISA time synchronisation: the GPS time of every INS record of the flight log, in log\n"
+    "# order (sisa sync; docs/sync.md).\n"
+    "# seq: record index from 0, the record counter unwrapped (a gap = records missing from the\n"
+    "#   log); after an INS reboot it continues from the last record before it\n"
+    "# counter: the record counter as logged (wraps)\n"
+    "# t_gps_ns: GPS time of the record's measurement epoch, int64 ns since\n"
+    "#   1980-01-06T00:00:00 on the GPS scale (no leap seconds); -1 unless status is ok\n"
+    f"# {STATUS_DOC}\n"
+    "seq,counter,t_gps_ns,status\n")
+
+LINE_HEADER: Final = (
+    "# SISA time synchronisation: the GPS time of every scan line (sisa sync; docs/sync.md).\n"
+    "# segment: recording segment (segment_NNN files of the scanner)\n"
+    "# line: 0-based line of the segment's BIL file (without the scanner's lines files: the\n"
+    "#   order of the frame headers of the segment in the log)\n"
+    "# frame_counter: the scanner's frame counter of the line, as recorded (wraps)\n"
+    "# t_gps_ns: GPS time of the line's mid-exposure, int64 ns since 1980-01-06T00:00:00 on\n"
+    "#   the GPS scale (no leap seconds); -1 unless status is ok\n"
+    f"# {STATUS_DOC}\n"
+    "segment,line,frame_counter,t_gps_ns,status\n")
+
+
+def _read_lines_csv(path: Path, segment: int) -> LineTable:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: unreadable: {exc}") from None
+    body = [row for row in text.splitlines() if row.strip() and not row.startswith("#")]
+    if not body or body[0].strip() != "line_index,frame_counter":
+        raise InputError(f"{path}: expected the header line 'line_index,frame_counter'")
+    try:
+        data = np.loadtxt(io.StringIO("\n".join(body[1:])), delimiter=",", dtype=np.int64,
+                          ndmin=2) if len(body) > 1 else np.zeros((0, 2), dtype=np.int64)
+    except ValueError as exc:
+        raise InputError(f"{path}: not two integer columns: {exc}") from None
+    if data.shape[1] != 2:
+        raise InputError(f"{path}: expected two columns, line_index,frame_counter")
+    line, counter = data[:, 0], data[:, 1]
+    if not np.array_equal(line, np.arange(line.size)):
+        raise InputError(f"{path}: line_index must run 0, 1, 2, ... in file order")
+    return LineTable(np.full(line.size, segment, dtype=np.int64), line, counter)
+
+
+def read_scanner_lines(folder: Path) -> LineTable:
+    """Every `segment_NNN.lines.csv` of a scanner recording folder, in segment order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: no such scanner folder")
+    files = sorted(folder.glob(LINES_GLOB))
+    if not files:
+        raise InputError(f"{folder}: no {LINES_GLOB} files (the scanner's line → frame "
+                         "counter records)")
+    tables = []
+    for path in files:
+        m = _SEGMENT_RE.search(path.name)
+        if m is None:
+            raise InputError(f"{path}: cannot read the segment number from the name")
+        tables.append(_read_lines_csv(path, int(m.group(1))))
+    return LineTable(*(np.concatenate([getattr(t, f) for t in tables])
+                       for f in ("segment", "line", "frame_counter")))
+
+
+def _status_names(status: I64) -> npt.NDArray[np.str_]:
+    names = np.array([s.name.lower() for s in TimeStatus])
+    return np.asarray(names[status], dtype=np.str_)
+
+
+def _write_table(fh: TextIO, columns: list[npt.NDArray[Any]]) -> None:
+    n = columns[0].size
+    for lo in range(0, n, WRITE_BLOCK):
+        block = [c[lo:lo + WRITE_BLOCK].astype(str) for c in columns]
+        rows = block[0]
+        for col in block[1:]:
+            rows = np.char.add(np.char.add(rows, ","), col)
+        fh.write("\n".join(rows.tolist()))
+        fh.write("\n")
+
+
+def write_ins_times(path: Path, seq: I64, counter: I64, t_gps_ns: I64, status: I64) -> None:
+    with Path(path).open("w", encoding="utf-8", newline="") as fh:
+        fh.write(INS_HEADER)
+        _write_table(fh, [seq, counter, t_gps_ns, _status_names(status)])
+
+
+def write_line_times(path: Path, segment: I64, line: I64, frame_counter: I64, t_gps_ns: I64,
+                     status: I64) -> None:
+    with Path(path).open("w", encoding="utf-8", newline="") as fh:
+        fh.write(LINE_HEADER)
+        _write_table(fh, [segment, line, frame_counter, t_gps_ns, _status_names(status)])
+
+
+def _finite(value: Any) -> Any:
+    """JSON has no NaN: a figure that could not be computed is null."""
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def write_report(path: Path, report: dict[str, Any]) -> None:
+    Path(path).write_text(json.dumps(_finite(report), indent=1, allow_nan=False) + "\n",
+                          encoding="utf-8")

@@ -1,0 +1,128 @@
+"""Time synchronisation under faults: a short bench flight per fault profile and seed.
+
+Each case: never a wrong tag (an OK time off by more than 10 µs), everything resolvable timed,
+the rest flagged with a reason, and the report showing the fault. The flight is cut short
+(150 m above ground, 600 m strips, 20 s alignment, no figure-eight: ~230 s, two scanner
+segments) so the matrix runs in well under two minutes on two cores.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from emulators.scenario import scenario_from_table
+from emulators.truth import read_truth_csv
+from postproc.sync import TimeStatus, read_sync_input, synchronise
+from sisa.simulation import simulate
+from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
+
+SHORT: dict[str, Any] = {
+    "block": {"strip_length_m": 600.0, "flying_height_agl_m": 150.0},
+    "flight": {"static_alignment_s": 20.0, "figure_eights": 0, "run_in_s": 5.0},
+}
+JUMPS = ({"at_s": 80.0, "jump_ms": 1000.0}, {"at_s": 170.0, "jump_ms": 0.05})
+PROFILES: dict[str, dict[str, Any]] = {
+    "lost_pulses_1pct": {"faults": {"lost_pulse_fraction": 0.01}},
+    "lost_pulses_10pct": {"faults": {"lost_pulse_fraction": 0.10}},
+    "spurious_pulses": {"faults": {"spurious_pulse_rate_hz": 0.5}},
+    "pps_outage_60s": {"faults": {"pps_outages": [{"at_s": 100.0, "duration_s": 60.0}]}},
+    "ins_clock_jump": {"faults": {"ins_clock_jumps": list(JUMPS)}},
+    "ins_reboot": {"faults": {"ins_reboots": [{"at_s": 125.0, "duration_s": 5.0}]}},
+    "sync_restart": {"faults": {"sync_restarts": [{"at_s": 126.0, "duration_s": 3.0}]}},
+    "frames_dropped": {"faults": {"dropped_frame_fraction": 0.05}},
+    "frame_counter_wrap": {"scanner": {"frame_counter_bits": 8}},
+    "ins_drift_200ppm": {"ins": {"clock_drift_ppm": 200.0}},
+}
+NEAR_JUMP_S = 5.0  # records this close to a clock jump may be flagged (pulses ≤ 4 s apart)
+
+
+def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("profile", list(PROFILES))
+def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
+    scn = scenario_from_table(_merge({"base": "bench", "seed": seed, **SHORT},
+                                     PROFILES[profile]))
+    simulate(scn, tmp_path, images=False)
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp)
+    truth = ins_truth_ns(tmp_path, inp)
+    e_ins = ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)
+    e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(tmp_path, res))
+    assert np.abs(e_ins).max() < WRONG_NS  # zero wrong tags
+    assert np.abs(e_line).max() < WRONG_NS
+    assert (res.lines.status == TimeStatus.OK).all()  # the scanner side resolves in every case
+    flagged = res.ins.status != TimeStatus.OK
+    if profile == "ins_clock_jump":
+        t0 = scn.block.t_start_gps_ns
+        jumps_ns = np.array([t0 + round(j["at_s"] * 1e9) for j in JUMPS])
+        near = np.abs(truth[:, None] - jumps_ns[None, :]).min(axis=1) <= NEAR_JUMP_S * 1e9
+        assert flagged.any()
+        assert not (flagged & ~near).any()  # only around a jump, and there with a reason
+        assert set(np.unique(res.ins.status[flagged])) <= {TimeStatus.CLOCK_JUMP,
+                                                          TimeStatus.AMBIGUOUS}
+    else:
+        assert not flagged.any()  # 100 % of the INS records
+    _report_shows_the_fault(profile, res.report, tmp_path)
+
+
+def test_clock_jumps_inside_scanner_strips_are_never_timed_wrong(tmp_path: Path) -> None:
+    """A 7 ms jump mid-strip and a −3 ms one in the last strip, 10 s before the log ends: the
+    frame-pulse train alone cannot say which pulse a latch after the last jump is (they repeat
+    every 1.024 s), so those records are flagged, never extrapolated across the jump."""
+    jumps = ({"at_s": 127.0, "jump_ms": 7.0}, {"at_s": 223.0, "jump_ms": -3.0})
+    scn = scenario_from_table(_merge({"base": "bench", **SHORT},
+                                     {"faults": {"ins_clock_jumps": list(jumps)}}))
+    simulate(scn, tmp_path, images=False)
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp)
+    truth = ins_truth_ns(tmp_path, inp)
+    assert np.abs(ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)).max() < 5_000
+    t0 = scn.block.t_start_gps_ns
+    flagged_at_s = (truth[res.ins.status != TimeStatus.OK] - t0) / 1e9
+    first, second = (j["at_s"] for j in jumps)
+    assert (flagged_at_s > first - NEAR_JUMP_S).all()
+    assert ((flagged_at_s < first + NEAR_JUMP_S) | (flagged_at_s > second - NEAR_JUMP_S)).all()
+    assert (flagged_at_s > second).sum() > 0.5 * (truth > t0 + second * 1e9).sum()
+
+
+def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> None:
+    pulses, ins, lines = rep["pulses"], rep["ins"], rep["lines"]
+    assert pulses["rejected"] == 0
+    assert pulses["ins_latches_unmatched"] == 0
+    if profile.startswith("lost_pulses"):  # PPS and frame pulses lost on the way to the box
+        faults = read_truth_csv(run / "truth" / "faults.csv")
+        lost_pps = int(np.count_nonzero((faults["kind"] == "lost_pulse")
+                                        & (faults["target"] == "PPS")))
+        assert lost_pps > 0 or profile == "lost_pulses_1pct"
+        assert pulses["pps_seen"] == read_truth_csv(run / "truth" / "pps.csv")[
+            "t_edge_gps_ns"].size - lost_pps
+    elif profile == "spurious_pulses":
+        assert pulses["pps_rejected_as_spurious"] > 0
+    elif profile == "pps_outage_60s":
+        assert pulses["timed_by"]["board"] > 0  # frame pulses of the outage: no TTT
+    elif profile == "ins_clock_jump":
+        assert ins["clock_jumps"] == 1  # the 1 s jump shows in the records
+        assert len(ins["clock_models"]) == 3  # the 50 µs one only in the pulses
+    elif profile == "ins_reboot":
+        assert ins["reboots"] == 1
+        assert ins["clock_pieces"] == 2
+    elif profile == "sync_restart":
+        assert pulses["sync_sessions"] == 2
+    elif profile == "frames_dropped":
+        dropped = int(read_truth_csv(run / "truth" / "frames.csv")["dropped"].sum())
+        assert 0 < lines["frames_dropped"] <= dropped
+    elif profile == "frame_counter_wrap":
+        assert lines["frame_counter_modulus"] == 256
+    elif profile == "ins_drift_200ppm":
+        assert all(m["ins_clock_fast_ppm"] == pytest.approx(200.0, abs=0.1)
+                   for m in ins["clock_models"])

@@ -23,6 +23,8 @@ EPILOG = """examples:
                                      a whole flight in virtual time: flight.mcap + truth
   sisa emulate --preset bench --out runs/bench-emu
                                      the three devices in real time on virtual ports
+  sisa sync runs/bench/flight.mcap --scanner runs/bench/scanner --out runs/bench/sync
+                                     every INS record and scan line on GPS time
   sisa <command> --help              every command shows an example
 """
 

@@ -18,8 +18,9 @@ $(VENV)/.installed: pyproject.toml
 
 demo: setup
 	rm -rf $(DEMO)
-	$(BIN)/sisa scenario show bench | tail -n 22
-	$(BIN)/sisa truth --preset bench --out $(DEMO)
+	$(BIN)/sisa simulate --preset bench --out $(DEMO)
+	$(BIN)/sisa sync $(DEMO)/flight.mcap --scanner $(DEMO)/scanner --out $(DEMO)/sync
+	$(BIN)/sisa log info $(DEMO)/flight.mcap | head -n 3
 
 lint: setup
 	$(BIN)/ruff check .

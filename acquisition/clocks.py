@@ -12,6 +12,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from sisa.timescale import unix_ns_from_gps_ns
+
 PPM = 1e-6
 
 
@@ -32,8 +34,8 @@ class TimingBoard:
 
 @dataclass
 class SimulatedHostClock:
-    """A logging computer's clock in a virtual-time run: UTC plus an NTP offset and a small
-    drift, read when the bytes arrive."""
+    """A logging computer's clock in a virtual-time run: Unix time (UTC) plus an NTP offset and
+    a small drift, read when the bytes arrive."""
 
     leap_s: int
     offset_ns: int = 37_000_000
@@ -42,7 +44,7 @@ class SimulatedHostClock:
 
     def now_ns(self, t_gps_ns: int) -> int:
         dt = t_gps_ns - self.t_ref_ns
-        return t_gps_ns - self.leap_s * 1_000_000_000 + self.offset_ns + round(
+        return unix_ns_from_gps_ns(t_gps_ns, self.leap_s) + self.offset_ns + round(
             dt * self.drift_ppm * PPM)
 
 

@@ -43,7 +43,7 @@ from recorder.messages import (
     StreamHealth,
     Topic,
 )
-from sisa.timescale import NS_PER_S
+from sisa.timescale import NS_PER_S, gps_ns_from_unix_ns
 
 LogSink = Callable[[LoggedMessage, Topic | None], None]
 GATE_DELAY_NS = 1_000  # the box's input → output propagation
@@ -153,7 +153,7 @@ class Acquisition:
         """Best guess of GPS time now, to pick the GPS week of a time-of-week tag."""
         if self._last_fix_gps_ns is not None:
             return self._last_fix_gps_ns
-        return t_host_ns + self.config.leap_s * NS_PER_S
+        return gps_ns_from_unix_ns(t_host_ns, self.config.leap_s)
 
     def on_scanner_bytes(self, t_host_ns: int, data: bytes) -> None:
         self._start(t_host_ns)

@@ -17,6 +17,7 @@ NS_PER_S = 1_000_000_000
 NS_PER_DAY = 86_400 * NS_PER_S
 NS_PER_WEEK = 7 * NS_PER_DAY
 GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.UTC)
+UNIX_NS_AT_GPS_EPOCH = 315_964_800 * NS_PER_S  # host clocks count from 1970 (UTC, with leaps)
 _GPS_EPOCH_NAIVE = GPS_EPOCH.replace(tzinfo=None)
 
 
@@ -65,3 +66,13 @@ def ns_from_seconds_since(t_s: npt.ArrayLike, epoch_ns: int) -> npt.NDArray[np.i
     return np.int64(epoch_ns) + np.rint(np.asarray(t_s, dtype=np.float64) * NS_PER_S).astype(
         np.int64
     )
+
+
+def unix_ns_from_gps_ns(t_gps_ns: int, leap_s: int) -> int:
+    """A host (Unix, UTC) clock reading of a GPS instant."""
+    return t_gps_ns - leap_s * NS_PER_S + UNIX_NS_AT_GPS_EPOCH
+
+
+def gps_ns_from_unix_ns(t_unix_ns: int, leap_s: int) -> int:
+    """The GPS instant of a host (Unix, UTC) clock reading."""
+    return t_unix_ns - UNIX_NS_AT_GPS_EPOCH + leap_s * NS_PER_S

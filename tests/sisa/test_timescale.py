@@ -38,3 +38,11 @@ def test_local_seconds_keep_nanoseconds_that_seconds_since_1980_lose():
 def test_bad_datetime_rejected(bad):
     with pytest.raises(ValueError):  # noqa: PT011
         ts.parse_gps_datetime(bad)
+
+
+def test_host_unix_clock_and_gps_time():
+    t = ts.parse_gps_datetime("2026-06-15T09:00:18")
+    unix = ts.unix_ns_from_gps_ns(t, 18)
+    expected = dt.datetime(2026, 6, 15, 9, 0, 0, tzinfo=dt.UTC).timestamp() * 1e9
+    assert unix == int(expected)
+    assert ts.gps_ns_from_unix_ns(unix, 18) == t

@@ -113,6 +113,7 @@ class Acquisition:
         self.last_pps_gps_ns: int | None = None
         self.down_until_board_ns: int | None = None
         self._edge_offset_min_ns: int | None = None
+        self._first_edge_host_ns: int | None = None
         self._can_batch = _CanBatch()
 
     # --- serial ports ----------------------------------------------------------------------
@@ -207,6 +208,10 @@ class Acquisition:
         offset = t_host_ns - edge.t_ns
         if self._edge_offset_min_ns is None or offset < self._edge_offset_min_ns:
             self._edge_offset_min_ns = offset
+        if self._first_edge_host_ns is None:
+            self._first_edge_host_ns = t_host_ns
+        if t_host_ns - self._first_edge_host_ns < NS_PER_S:
+            return  # warm-up: edges queued on the link before the reader ran are not misses
         if offset - self._edge_offset_min_ns > self.config.edge_deadline_ns:
             name = "pps" if edge.line is PulseLine.PPS else "ppf"
             self.streams[name].deadline_misses += 1

@@ -79,8 +79,9 @@ class GpsReceiver(Device):
     input_lines = (PulseLine.GPS_EVENT,)
 
     def __init__(self, scn: Scenario, traj: TruthTrajectory, rng: np.random.Generator,
-                 faults: TruthTable) -> None:
+                 faults: TruthTable, chunk_s: float = FIX_CHUNK_S) -> None:
         self.scn, self.traj, self.rng, self.faults = scn, traj, rng, faults
+        self.chunk_s = chunk_s
         self.plane = LocalPlane.for_scenario(scn)
         self.tag_res_ns = scn.gps.event_tag_resolution_ns
         # re-arms 2 % early, so pulses exactly one period apart (PPS ± jitter) all get tagged
@@ -217,7 +218,7 @@ class GpsReceiver(Device):
 
     def _fix_chunk(self, first_ns: int) -> dict[int, tuple[float, float, float, float, float]]:
         """Antenna fixes for the next minute of epochs, computed in one vectorised pass."""
-        n = max(1, math.floor(FIX_CHUNK_S * NS_PER_S / self._epoch_ns))
+        n = max(1, math.floor(self.chunk_s * NS_PER_S / self._epoch_ns))
         t = first_ns + self._epoch_ns * np.arange(n, dtype=np.int64)
         t = np.clip(t, self.traj.t_start_ns, self.traj.t_end_ns)
         st = self.traj.state(t)

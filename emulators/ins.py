@@ -352,7 +352,7 @@ class InsEmulator(Device):
     input_lines = (PulseLine.INS_SYNC,)
 
     def __init__(self, scn: Scenario, traj: TruthTrajectory, rng: np.random.Generator,
-                 faults: TruthTable) -> None:
+                 faults: TruthTable, chunk_s: float = CHUNK_S) -> None:
         ins = scn.ins
         self._traj, self._rng, self._faults = traj, rng, faults
         self._t0_ns = traj.t_start_ns
@@ -364,7 +364,7 @@ class InsEmulator(Device):
         self.errors = _error_table()
         self._draw_errors(ins)
         self._epochs = _Epochs(self.clock, traj.t_end_ns)
-        self._chunk_n = max(1, math.ceil(CHUNK_S * ins.rate_hz))
+        self._chunk_n = max(1, math.ceil(chunk_s * ins.rate_hz))
         self._align_end_ns = _alignment_end_ns(traj)
         self._boot_off_ns = np.array([b.t_off_ns for b in self.clock.boots], dtype=np.int64)
         self._records_in_boot: dict[int, int] = {}

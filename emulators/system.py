@@ -43,8 +43,10 @@ class EmulatedSystem:
         self.scn = scn
         self.traj = traj or TruthTrajectory.from_scenario(scn)
         self.faults = fault_table()
-        self.gps = GpsReceiver(scn, self.traj, self._rng(Stream.GPS), self.faults)
-        self.ins = InsEmulator(scn, self.traj, self._rng(Stream.INS), self.faults)
+        # in real time, compute truth in small batches so no batch delays an emission
+        chunk_s = {"chunk_s": 0.25} if real_time else {}
+        self.gps = GpsReceiver(scn, self.traj, self._rng(Stream.GPS), self.faults, **chunk_s)
+        self.ins = InsEmulator(scn, self.traj, self._rng(Stream.INS), self.faults, **chunk_s)
         scene: Scene | None = None
         if scanner_dir is not None:
             terrain = terrain or Terrain.from_scenario(scn)

@@ -7,6 +7,7 @@ import argparse
 import queue
 import shutil
 import signal
+import sys
 import time
 from pathlib import Path
 from types import FrameType
@@ -61,6 +62,7 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     scn = scenario_from_args(args)
     config = acquisition_config(scn)
+    sys.setswitchinterval(0.001)  # reader threads get the GIL within ~1 ms: edges stay on time
     sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses)
     stop = _install_stop_handlers()
     split_s = args.split_minutes * 60 if args.split_minutes else None

@@ -80,8 +80,9 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
     ins_hz = (len(ins_t) - 1) / max(1e-9, (ins_t[-1] - ins_t[0]) / 1e9)
     late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
-    return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf, "errors": errors,
-            "drops": drops, "late": late, "cpu_pct": 100 * cpu / wall, "emulator_late_ms": late_ms}
+    return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf,
+            "errors": errors, "drops": drops, "late": late, "cpu_pct": 100 * cpu / wall,
+            "emulator_late_ms": late_ms}
 
 
 def main() -> None:
@@ -99,7 +100,8 @@ def main() -> None:
         for k in (float(x) for x in args.scales.split(",")):
             r = run_level(k, args.seconds, start_s, Path(tmp))
             clean = r["errors"] == 0 and r["drops"] == 0 and r["late"] == 0
-            print(f"{k:5g} {64 * k:7.0f} {r['ins_hz']:7.0f} {62.5 * k:7.0f} {r['ins_recorded']:8.0f} "
+            print(f"{k:5g} {64 * k:7.0f} {r['ins_hz']:7.0f} {62.5 * k:7.0f} "
+                  f"{r['ins_recorded']:8.0f} "
                   f"{r['headers']:8.0f} {r['errors']:6.0f} {r['drops']:5.0f} {r['late']:4.0f} "
                   f"{r['cpu_pct']:7.1f}% {r['emulator_late_ms']:10.1f}"
                   f"{'' if clean else '   <- first loss'}")

@@ -9,31 +9,31 @@ also be built directly (tests, the speed benchmark).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
-from postproc.logcolumns import Columns, FieldSpec, read_topic_columns
 from recorder.messages import Topic
-from recorder.reader import Paths
+from recorder.reader import Paths, read_topics
 
+Columns = dict[str, npt.NDArray[Any]]
 I64 = npt.NDArray[np.int64]
 Bool = npt.NDArray[np.bool_]
 
-WANTED: Final[dict[str, tuple[FieldSpec, ...]]] = {
-    Topic.INS_RECORD: (("t_host_ns", "int"), ("counter", "int"), ("ins_time_ticks", "int"),
-                       ("status", "int"), ("sync_flag", "bool"), ("sync_time_ticks", "int")),
-    Topic.SCANNER_HEADER: (("t_host_ns", "int"), ("frame_counter", "int"), ("segment", "int")),
-    Topic.GPS_FIX: (("t_host_ns", "int"), ("t_gps_ns", "int")),
-    Topic.GPS_TIME_TAG: (("t_host_ns", "int"), ("kind", "str"), ("t_gps_ns", "int")),
-    Topic.SYNC_SESSION: (("session", "int"), ("lfsr_bits", "int")),
-    Topic.SYNC_PPS: (("t_host_ns", "int"), ("board_ns", "int"), ("gps_second_ns", "int"),
-                     ("lfsr_bit", "int")),
-    Topic.SYNC_FORWARD: (("t_host_ns", "int"), ("session", "int"), ("board_ns", "int"),
-                         ("mode", "int"), ("source", "str"), ("to_gps_event", "bool"),
-                         ("gps_second_ns", "int"), ("frame_counter", "int")),
-    Topic.SYNC_MODE: (("to_mode", "int"),),
+WANTED: Final[dict[str, tuple[str, ...]]] = {
+    Topic.INS_RECORD: ("t_host_ns", "counter", "ins_time_ticks",
+                       "status", "sync_flag", "sync_time_ticks"),
+    Topic.SCANNER_HEADER: ("t_host_ns", "frame_counter", "segment"),
+    Topic.GPS_FIX: ("t_host_ns", "t_gps_ns"),
+    Topic.GPS_TIME_TAG: ("t_host_ns", "kind", "t_gps_ns"),
+    Topic.SYNC_SESSION: ("session", "lfsr_bits"),
+    Topic.SYNC_PPS: ("t_host_ns", "board_ns", "gps_second_ns",
+                     "lfsr_bit"),
+    Topic.SYNC_FORWARD: ("t_host_ns", "session", "board_ns",
+                         "mode", "source", "to_gps_event",
+                         "gps_second_ns", "frame_counter"),
+    Topic.SYNC_MODE: ("to_mode",),
 }
 
 
@@ -106,7 +106,7 @@ class SyncInput:
 
 
 def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
-    """The typed bundle from `read_topic_columns(paths, WANTED)`."""
+    """The typed bundle from `read_topics(paths, WANTED)`."""
     ins, tags = cols[Topic.INS_RECORD], cols[Topic.GPS_TIME_TAG]
     fix, pps, fwd = cols[Topic.GPS_FIX], cols[Topic.SYNC_PPS], cols[Topic.SYNC_FORWARD]
     hdr = cols[Topic.SCANNER_HEADER]
@@ -130,4 +130,4 @@ def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
 def read_sync_input(paths: Paths) -> SyncInput:
     """Everything time synchronisation needs from a log (one file or the parts of a split one),
     in one streaming pass."""
-    return sync_input_from_columns(read_topic_columns(paths, WANTED))
+    return sync_input_from_columns(read_topics(paths, WANTED))

@@ -19,7 +19,7 @@ import base64
 import json
 import struct
 from array import array
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, BinaryIO, Final, TypeVar, cast
@@ -480,6 +480,8 @@ def _column_values(objs: list[dict[str, Any]], path: tuple[str, ...]) -> list[An
 
 
 def _to_array(values: list[Any], dtype: Any, b64: bool) -> npt.NDArray[Any]:
+    if dtype is np.int64 and not all(type(v) is int for v in values):
+        raise TypeError("a value of an integer field is not an integer")  # numpy would truncate
     if b64 or dtype is object:
         arr = np.empty(len(values), dtype=object)
         arr[:] = [base64.b64decode(v) for v in values] if b64 else values
@@ -492,8 +494,8 @@ def _to_array(values: list[Any], dtype: Any, b64: bool) -> npt.NDArray[Any]:
 class _ColumnBuilder:
     """Accumulates one topic's messages in numpy arrays, one JSON batch at a time."""
 
-    def __init__(self, props: dict[str, Any]) -> None:
-        self.columns = _columns(props)
+    def __init__(self, props: dict[str, Any], fields: Sequence[str] | None = None) -> None:
+        self.columns = [c for c in _columns(props) if fields is None or c[0] in fields]
         self.b64 = {name for name, p in props.items() if p.get("contentEncoding") == "base64"}
         self.parts: dict[str, list[npt.NDArray[Any]]] = {"log_time_ns": []}
         self.parts.update({name: [] for name, _, _ in self.columns})
@@ -534,24 +536,51 @@ def read_columns(path_or_paths: Paths, topic: Topic | str) -> dict[str, npt.NDAr
     integer → int64, number → float64 (NaN kept), boolean → bool, string → str, bytes and
     arrays → object; nested objects flatten to "parent.child".
     """
-    builder: _ColumnBuilder | None = None
-    times: list[int] = []
-    datas: list[bytes] = []
+    return read_topics(path_or_paths, {str(topic): None})[str(topic)]
+
+
+class _TopicBatches:
+    """One topic's messages waiting to be converted, and its column builder."""
+
+    def __init__(self, fields: Sequence[str] | None) -> None:
+        self.fields = fields
+        self.builder: _ColumnBuilder | None = None
+        self.times: list[int] = []
+        self.datas: list[bytes] = []
+
+    def add(self, channel: ChannelInfo, log_time: int, data: bytes) -> None:
+        if self.builder is None:
+            self.builder = _ColumnBuilder(_schema_properties(channel) or {}, self.fields)
+        self.times.append(log_time)
+        self.datas.append(data)
+        if len(self.datas) >= _BATCH:
+            self.builder.add_batch(self.times, self.datas)
+            self.times, self.datas = [], []
+
+    def result(self, topic: str) -> dict[str, npt.NDArray[Any]]:
+        if self.builder is None:
+            self.builder = _ColumnBuilder(_known_props(topic), self.fields)
+        if self.datas:
+            self.builder.add_batch(self.times, self.datas)
+        columns = self.builder.result()
+        missing = [f for f in self.fields or () if f not in columns]
+        if missing:
+            raise DecodeError(f"{topic}: the log's schema has no field {', '.join(missing)}")
+        return columns
+
+
+def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
+                ) -> dict[str, dict[str, npt.NDArray[Any]]]:
+    """Several topics as numpy columns in ONE streaming pass (each pass over a long log costs
+    seconds): {topic: {field: array}} for the wanted fields (None: all), plus `log_time_ns`.
+    A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
+    with a value of the wrong type, raises DecodeError."""
+    batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
     for channel, msg in LogReader(path_or_paths).raw():
-        if channel.topic != topic:
-            continue
-        if builder is None:
-            builder = _ColumnBuilder(_schema_properties(channel) or {})
-        times.append(msg.log_time)
-        datas.append(msg.data)
-        if len(datas) >= _BATCH:
-            builder.add_batch(times, datas)
-            times, datas = [], []
-    if builder is None:
-        builder = _ColumnBuilder(_known_props(str(topic)))
-    if datas:
-        builder.add_batch(times, datas)
-    return builder.result()
+        batch = batches.get(channel.topic)
+        if batch is not None:
+            batch.add(channel, msg.log_time, msg.data)
+    return {topic: batch.result(topic) for topic, batch in batches.items()}
 
 
 def topics_in(stats: LogStats) -> Iterable[str]:

@@ -114,6 +114,7 @@ class Acquisition:
         self.down_until_board_ns: int | None = None
         self._edge_offset_min_ns: int | None = None
         self._first_edge_host_ns: int | None = None
+        self._t_host_now_ns = 0
         self._can_batch = _CanBatch()
 
     # --- serial ports ----------------------------------------------------------------------
@@ -220,6 +221,7 @@ class Acquisition:
         """Time passes with nothing arriving: scanner-off detection and health reports."""
         if not self._started:
             return
+        self._t_host_now_ns = t_host_ns
         if self._can_batch.full(t_host_ns):
             self._flush_can()
         board_ns = self.board.counter_ns(t_edge_clock_ns)
@@ -242,16 +244,13 @@ class Acquisition:
             targets.append(PulseLine.GPS_EVENT)
         for target in targets:
             self.send_edge(Edge(target, 0, t_out))
-            self.log(PulseEdgeLog(self._host_now(), target.name, fwd.board_ns, 0),
+            self.log(PulseEdgeLog(self._t_host_now_ns, target.name, fwd.board_ns, 0),
                      Topic.PULSE_OUT)
-
-    def _host_now(self) -> int:
-        counters = [c.last_t_host_ns for c in self.streams.values() if c.last_t_host_ns]
-        return max(counters) if counters else 0
 
     # --- lifecycle -------------------------------------------------------------------------
 
     def _start(self, t_host_ns: int) -> None:
+        self._t_host_now_ns = t_host_ns  # the event being handled: what a forward is logged at
         if not self._started:
             self._started = True
             self._next_health_ns = t_host_ns + self.config.health_interval_ns

@@ -1,8 +1,10 @@
 """`sisa emulate` as a separate process, read by real clients: pyserial on the GPS pty,
 python-can slcan on the INS adapter, a TCP socket on the pulse endpoint."""
 
+import contextlib
 import itertools
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -30,7 +32,7 @@ def test_emulate_serves_real_clients_and_takes_sync_pulses(tmp_path):
     endpoints_file = tmp_path / "endpoints.json"
     proc = subprocess.Popen(
         [sys.executable, "-m", "sisa.cli", "emulate", "--preset", "bench", "--out",
-         str(tmp_path / "run"), "--duration", "8", "--no-images", "--endpoints",
+         str(tmp_path / "run"), "--duration", "60", "--no-images", "--endpoints",
          str(endpoints_file)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         ep = _wait_for(endpoints_file)
@@ -52,21 +54,27 @@ def test_emulate_serves_real_clients_and_takes_sync_pulses(tmp_path):
                 if (rec := asm.feed(msg)) is not None:
                     records.append(rec.message)
             try:
-                got = edge_dec.feed(pulses.recv(4096))
+                chunk = pulses.recv(4096)
             except TimeoutError:
-                got = []
+                chunk = None
             except ConnectionResetError:
                 break
+            if chunk == b"":
+                break  # the emulator has ended
+            got = edge_dec.feed(chunk) if chunk else []
             for item in got:
                 if item.message.line is PulseLine.PPS:
                     pps.append(item.message)
                     # answer like the sync unit: forward the PPS to the INS sync input
                     pulses.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 0, item.message.t_ns)))
         gps.close()
-        bus.shutdown()
+        # the emulator may already have closed its side of the pty on a slow machine
+        with contextlib.suppress(can.CanOperationError):
+            bus.shutdown()
         pulses.close()
+        proc.send_signal(signal.SIGTERM)  # stops cleanly, as Ctrl-C does
     finally:
-        out, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     assert "GPS receiver" in out
     assert len(fixes) >= 3

@@ -11,10 +11,10 @@ What it models, and why:
 - **Output.** A record leaves output_delay_ms after its epoch as seven CAN frames, each taking its
   bus time at 500 kbit/s; the counter wraps at 2^counter_bits.
 - **Errors.** Attitude = truth + per-axis bias + linear drift (both drawn once per run, drift
-  counted from the scenario start) + white noise. Body rates get RATE_NOISE_RPS and NED velocity
-  VEL_NOISE_MPS of white noise (navigation-grade gyro ARW ≈ 0.002°/√h is ≈ 5e-6 rad/s per sample
-  at 64 Hz). The attitude is output (with the same errors) during the alignment too: ALIGNING says
-  it is not yet valid.
+  counted from the scenario start) + white noise. Body rates get `ins.rate_noise_rps` and NED
+  velocity `ins.velocity_noise_mps` of white noise (navigation-grade gyro ARW ≈ 0.002°/√h is
+  ≈ 5e-6 rad/s per sample at 64 Hz). The attitude is output (with the same errors) during the
+  alignment too: ALIGNING says it is not yet valid.
 - **Status.** ALIGNING during the static phase except its last ALIGN_TAIL_S (engine start, taxi),
   NAVIGATING after; REBOOTED for REBOOTED_FLAG_S after a reboot (an in-flight reboot then goes on
   navigating: this emulator does not model in-air alignment).
@@ -71,8 +71,8 @@ FRAME_NS = frame_bits(FRAME_BYTES, worst_case_stuffing=False) * NS_PER_S // CAN_
 CHUNK_S = 4.0  # epochs per trajectory call: one call per record would be far too slow
 ALIGN_TAIL_S = 10.0  # end of the static phase spent navigating (engine start, taxi)
 REBOOTED_FLAG_S = 3.0
-RATE_NOISE_RPS = 5e-6
-VEL_NOISE_MPS = 2e-3
+RATE_NOISE_RPS: float = InsSettings.model_fields["rate_noise_rps"].default
+VEL_NOISE_MPS: float = InsSettings.model_fields["velocity_noise_mps"].default
 ARCSEC_RAD = math.pi / (180.0 * 3600.0)
 NEVER_NS = 1 << 62  # a boot that is never switched off
 _TWO_PI = 2.0 * math.pi
@@ -333,14 +333,14 @@ def _pulse_table() -> TruthTable:
     }, "every pulse on the INS sync input and what became of it")
 
 
-def _error_table() -> TruthTable:
+def _error_table(rate_noise_rps: float, velocity_noise_mps: float) -> TruthTable:
     return TruthTable("ins_errors", {
         "axis": "roll | pitch | heading",
         "bias_arcsec": "constant attitude bias drawn for this run",
         "drift_arcsec_per_h": "linear attitude drift drawn for this run (from the scenario start)",
         "noise_arcsec": "σ of the white attitude noise",
-    }, f"INS attitude error model; body-rate noise σ {RATE_NOISE_RPS} rad/s, "
-       f"velocity noise σ {VEL_NOISE_MPS} m/s")
+    }, f"INS attitude error model; body-rate noise σ {rate_noise_rps} rad/s, "
+       f"velocity noise σ {velocity_noise_mps} m/s")
 
 
 # --- the device ----------------------------------------------------------------------------
@@ -361,7 +361,9 @@ class InsEmulator(Device):
         self.clock = InsClock(ins, traj.t_start_ns, scn.faults)
         self.truth = _record_table()
         self.pulses = _pulse_table()
-        self.errors = _error_table()
+        self.rate_noise_rps = ins.rate_noise_rps
+        self.velocity_noise_mps = ins.velocity_noise_mps
+        self.errors = _error_table(ins.rate_noise_rps, ins.velocity_noise_mps)
         self._draw_errors(ins)
         self._epochs = _Epochs(self.clock, traj.t_end_ns)
         self._chunk_n = max(1, math.ceil(chunk_s * ins.rate_hz))
@@ -449,8 +451,8 @@ class InsEmulator(Device):
         self._seq += n
         st = self._traj.state(t_meas)
         roll, pitch, heading = self._attitude(st, t_meas)
-        rate = st.body_rate_rps + self._rng.normal(0.0, RATE_NOISE_RPS, (n, 3))
-        vel = st.vel_ned_mps + self._rng.normal(0.0, VEL_NOISE_MPS, (n, 3))
+        rate = st.body_rate_rps + self._rng.normal(0.0, self.rate_noise_rps, (n, 3))
+        vel = st.vel_ned_mps + self._rng.normal(0.0, self.velocity_noise_mps, (n, 3))
         t_out = t_meas + self.output_delay_ns
         t_off = self._boot_off_ns[boot]
         ins_ticks = np.floor_divide(clock, TICK_NS) & TICKS_MASK

@@ -126,6 +126,8 @@ class InsSettings(StrictModel):
     attitude_bias_arcsec: Vec3 = Field((10.0, 10.0, 30.0), description="σ roll, pitch, heading")
     attitude_drift_arcsec_per_h: Vec3 = Field((5.0, 5.0, 15.0), description="σ of linear drift")
     attitude_noise_arcsec: Vec3 = Field((2.0, 2.0, 3.0), description="white noise σ")
+    rate_noise_rps: float = Field(5e-6, ge=0, le=1.0, description="white body-rate noise σ")
+    velocity_noise_mps: float = Field(2e-3, ge=0, le=10.0, description="white NED velocity noise σ")
 
 
 class GpsSettings(StrictModel):

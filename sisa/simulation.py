@@ -19,6 +19,7 @@ from acquisition.runner import Acquisition
 from emulators.runtime import Output, Port, Runner
 from emulators.scenario import Scenario
 from emulators.system import EmulatedSystem
+from emulators.terrain import Terrain, ground_points, write_ground_points_csv
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import FlightRecorder
 from sisa.acqconfig import acquisition_config
@@ -95,10 +96,21 @@ class VirtualWiring:
         self.acq.finish(self._last_t_host_ns)
 
 
+def write_survey_data(scn: Scenario, terrain: Terrain, folder: Path) -> None:
+    """The DEM (ellipsoidal heights, GeoTIFF) and the surveyed ground points: inputs a real
+    survey has before it flies, not simulation truth."""
+    folder.mkdir(parents=True, exist_ok=True)
+    terrain.write_dem(folder / "dem.tif")
+    write_ground_points_csv(folder / "ground_points.csv", ground_points(scn, terrain),
+                            utm_epsg=terrain.epsg)
+
+
 def simulate(scn: Scenario, run: Path, *, images: bool = True) -> VirtualWiring:
     """Run the scenario's whole flight into `run` (a fresh folder): flight.mcap, scanner/,
-    truth/."""
-    system = EmulatedSystem(scn, run / "scanner" if images else None)
+    terrain/ (the DEM and surveyed ground points a survey would have), truth/."""
+    terrain = Terrain.from_scenario(scn)
+    write_survey_data(scn, terrain, run / "terrain")
+    system = EmulatedSystem(scn, run / "scanner" if images else None, terrain=terrain)
     with FlightRecorder(run / "flight.mcap", metadata={"scenario": scn.block.name}) as rec:
         wiring = VirtualWiring(system, rec, scn.seed)
         Runner(system.devices, system.faulty(wiring)).run()

@@ -1,0 +1,68 @@
+"""The sensor file: what georeferencing must know about the instrument, as one TOML file.
+
+    name = "CASI-501 #2 on EC-FXX"
+    time_delay_ms = 0.0          # the scanner's true exposure is this much after its time tag
+
+    [scanner]                     # interior geometry incl. self-calibration (sisa.sensor)
+    pixels = 512
+    focal_length_mm = 9.33
+    delta_focal_mm = 0.65
+    ...
+    [mounting]                    # lever arm, antenna offset (body frame, m), boresight (arcsec)
+    lever_arm_m = [0.0, 0.0, 0.3]
+    ...
+
+Calibration (`sisa calibrate`) writes the same format with the estimated values, so its output
+is what `sisa georef --sensor` takes. Unknown keys are errors: a misspelt field must not silently
+fall back to a default.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import tomli_w
+from pydantic import Field, ValidationError
+
+from sisa.errors import InputError
+from sisa.sensor import Mounting, ScannerGeometry, StrictModel
+
+
+class SensorModel(StrictModel):
+    """Scanner geometry, its mounting on the INS and the scanner–navigation time delay."""
+
+    name: str = Field("CASI-501 (nominal)", description="which instrument this describes")
+    time_delay_ms: float = Field(0.0, ge=-10_000, le=10_000,
+                                 description="true exposure − tagged line time")
+    scanner: ScannerGeometry = ScannerGeometry()
+    mounting: Mounting = Mounting()
+
+    @property
+    def time_delay_ns(self) -> int:
+        return round(self.time_delay_ms * 1e6)
+
+    @classmethod
+    def load(cls, path: Path) -> SensorModel:
+        """One-line InputError naming the file and the first bad field."""
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: not a TOML sensor file: {exc}") from None
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"]) or "(top level)"
+            raise InputError(f"{path}: {where}: {err['msg']}") from None
+
+    def to_toml(self) -> str:
+        return tomli_w.dumps(self.model_dump(mode="json"))
+
+    def check_pixels(self, pixels: int, where: str) -> None:
+        """A sensor file for another instrument must not be applied to this recording."""
+        if pixels != self.scanner.pixels:
+            raise InputError(f"{where}: {pixels} pixels per line, but the sensor file "
+                             f"'{self.name}' describes {self.scanner.pixels}: wrong sensor file?")

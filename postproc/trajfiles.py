@@ -1,0 +1,356 @@
+"""External trajectories in place of the log's own GPS: RTKLIB `.pos` and Applanix SBET.
+
+- **RTKLIB `.pos`** (rnx2rtkp / rtkpost output): antenna phase-centre positions, so they are
+  fused with the log's INS attitude and velocities exactly as the log's NMEA fixes are
+  (`postproc.navigation.fuse_ins_gps`). Read as RTKLIB writes it: `%` header lines, then one
+  solution per line: time as `yyyy/mm/dd hh:mm:ss.sss` or `week tow`, on the scale the column
+  header names (GPST; UTC or JST converted with the leap-second count you give), position as
+  latitude/longitude (degrees, or `ddd mm ss.sssss`) and ellipsoidal height, or ECEF x/y/z; then
+  Q, ns, three standard deviations and more columns (ignored). Files with geoid heights, the
+  Tokyo datum or e/n/u baselines are refused.
+- **Applanix SBET** (`sbet_*.out`): little-endian records of 17 float64 — time (GPS seconds of
+  week), latitude, longitude (rad), ellipsoidal height (m), x/y/z velocity (wander frame),
+  roll, pitch, platform heading, wander angle (rad), x/y/z body acceleration, x/y/z body
+  angular rate. True heading = platform heading − wander angle. An SBET is a full navigation
+  solution of the INS centre (pass `reference_offset_m` if yours refers to another point);
+  attitude goes through a rotation spline, position through a cubic spline of ECEF (so the SBET
+  must keep its native rate, ≥ 50 Hz, for millimetre positions; its velocities are not used).
+  The GPS week is not in the file: each record gets the week that puts the first record within
+  ±3.5 days of a reference GPS time (the flight log's first time), and a later drop of more
+  than half a week is a week rollover.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from collections.abc import Collection
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.interpolate import make_interp_spline
+from scipy.spatial.transform import Rotation, RotationSpline
+
+from postproc.navigation import (
+    MIN_RECORDS,
+    AntennaFixes,
+    Columns,
+    NavConfig,
+    Piece,
+    PiecewiseTrajectory,
+    Trajectory,
+    fuse_ins_gps,
+    geodetic_to_ecef,
+    ins_samples_from_columns,
+    r_ecef_from_ned,
+    runs,
+    vector3,
+)
+from postproc.sync import InsTimes
+from postproc.syncconfig import TimeStatus
+from recorder.messages import Topic
+from sisa.errors import InputError
+from sisa.frames import body_to_ned_matrix
+from sisa.timescale import NS_PER_S, NS_PER_WEEK, gps_ns_from_datetime, seconds_since
+
+I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
+
+RTK_Q_ALL: Final = (1, 2, 3, 4, 5, 6)  # fix, float, sbas, dgps, single, ppp
+JST_OFFSET_NS: Final = 9 * 3600 * NS_PER_S
+SBET_FIELDS: Final = (
+    "time_s", "lat_rad", "lon_rad", "height_m", "vel_x_mps", "vel_y_mps", "vel_z_mps",
+    "roll_rad", "pitch_rad", "platform_heading_rad", "wander_rad",
+    "acc_x_mps2", "acc_y_mps2", "acc_z_mps2", "rate_x_rps", "rate_y_rps", "rate_z_rps")
+SBET_DTYPE: Final = np.dtype([(name, "<f8") for name in SBET_FIELDS])
+SBET_RECORD_BYTES: Final = SBET_DTYPE.itemsize  # 136
+SBET_MAX_GAP_S: Final = 0.25
+_LAYOUTS: Final = (("latitude(d'\")", "dms"), ("latitude(deg)", "deg"), ("x-ecef(m)", "xyz"))
+_DATE: Final = re.compile(r"(\d{2,4})/(\d{1,2})/(\d{1,2})")
+_CLOCK: Final = re.compile(r"(\d{1,2}):(\d{1,2}):(\d{1,2})(?:\.(\d{0,9}))?")
+_SECONDS: Final = re.compile(r"(\d+)(?:\.(\d{0,9}))?")
+
+
+# --- RTKLIB .pos ------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RtkPos:
+    """The solutions of a `.pos` file, in file order (times strictly increasing)."""
+
+    t_gps_ns: I64
+    ecef_m: F64  # (N, 3) antenna phase centre
+    q: I64  # 1 fix, 2 float, 3 sbas, 4 dgps, 5 single, 6 ppp
+    ns: I64  # satellites (-1 if absent)
+    sigma_m: F64  # (N, 3): sdn, sde, sdu (lat/lon files) or sdx, sdy, sdz (ECEF); NaN if absent
+    line: I64  # line number in the file (1-based)
+
+
+@dataclass
+class _PosFormat:
+    layout: str = ""  # "deg" | "dms" | "xyz"; "" until the column header line
+    sep: str = " "
+    offset_ns: int = 0  # added to the file's times to get GPS time
+
+
+def _seconds_ns(text: str, pattern: re.Pattern[str] = _SECONDS) -> int:
+    m = pattern.fullmatch(text)
+    if m is None:
+        raise ValueError(f"not a time {text!r}")
+    whole, frac = m.group(1), m.group(2) or ""
+    return int(whole) * NS_PER_S + int((frac + "000000000")[:9])
+
+
+def _time_ns(date_or_week: str, clock_or_tow: str) -> int:
+    """ns on the file's own scale, exactly (no float)."""
+    day = _DATE.fullmatch(date_or_week)
+    if day is None:
+        if not date_or_week.isdigit():
+            raise ValueError(f"not a date or GPS week {date_or_week!r}")
+        return int(date_or_week) * NS_PER_WEEK + _seconds_ns(clock_or_tow)
+    m = _CLOCK.fullmatch(clock_or_tow)
+    if m is None:
+        raise ValueError(f"not a time of day {clock_or_tow!r}")
+    year, month, mday = (int(x) for x in day.groups())
+    year += 0 if year >= 100 else (2000 if year < 80 else 1900)  # as RTKLIB reads 2-digit years
+    hour, minute = int(m.group(1)), int(m.group(2))
+    start = gps_ns_from_datetime(dt.datetime(year, month, mday, hour, minute))
+    return start + _seconds_ns(f"{m.group(3)}.{m.group(4) or ''}")
+
+
+def _header(fmt: _PosFormat, text: str, where: str, leap_seconds: int | None) -> None:
+    """Take what a `%` line says about the format; refuse what we cannot use."""
+    if "height=" in text and "geodetic" in text:
+        raise InputError(f"{where}: heights are geodetic (above a geoid): export ellipsoidal")
+    if "lat/lon/height=Tokyo" in text:
+        raise InputError(f"{where}: Tokyo datum: export in WGS84")
+    if "e-baseline(m)" in text:
+        raise InputError(f"{where}: e/n/u baselines are not supported: export lat/lon/height")
+    for label, layout in _LAYOUTS:
+        at = text.find(label)
+        if at < 0:
+            continue
+        fmt.layout = layout
+        after = text[at + len(label):at + len(label) + 1]
+        fmt.sep = after if after and not after.isspace() else " "
+        scale = text[1:].split()[0] if text[1:].split() else ""
+        if scale not in ("GPST", "UTC", "JST"):
+            raise InputError(f"{where}: unknown time scale {scale!r} (GPST, UTC or JST)")
+        if scale != "GPST" and leap_seconds is None:
+            raise InputError(f"{where}: times are {scale}: give the leap-second count")
+        leap_ns = (leap_seconds or 0) * NS_PER_S
+        fmt.offset_ns = {"GPST": 0, "UTC": leap_ns, "JST": leap_ns - JST_OFFSET_NS}[scale]
+        return
+
+
+def _dms_deg(d: str, m: str, s: str) -> float:
+    sign = -1.0 if d.strip().startswith("-") else 1.0
+    return sign * (abs(float(d)) + float(m) / 60.0 + float(s) / 3600.0)
+
+
+def _solution(fmt: _PosFormat, text: str) -> tuple[int, list[float], int, int, list[float]]:
+    """(time ns on GPST, position values, Q, ns, sigmas) of one data line; ValueError if bad."""
+    fields = [text] if fmt.sep == " " else text.split(fmt.sep)
+    tok = [t for f in fields for t in f.split()]
+    n_pos = 7 if fmt.layout == "dms" else 3
+    if len(tok) < 3 + n_pos:
+        raise ValueError(f"{len(tok)} fields, need at least {3 + n_pos} (time, position, Q)")
+    t_ns = _time_ns(tok[0], tok[1]) + fmt.offset_ns
+    vals = [float(x) for x in tok[2:2 + n_pos]]
+    if fmt.layout == "dms":
+        vals = [_dms_deg(*tok[2:5]), _dms_deg(*tok[5:8]), vals[6]]
+    q = int(tok[2 + n_pos])
+    ns = int(tok[3 + n_pos]) if len(tok) > 3 + n_pos else -1
+    sig = [float(x) for x in tok[4 + n_pos:7 + n_pos]]
+    return t_ns, vals, q, ns, sig + [np.nan] * (3 - len(sig))
+
+
+def _check_position(layout: str, vals: list[float]) -> None:
+    if not all(np.isfinite(vals)):
+        raise ValueError("non-finite position")
+    if layout != "xyz" and not (-90.0 <= vals[0] <= 90.0 and -180.0 <= vals[1] <= 360.0):
+        raise ValueError(f"latitude/longitude out of range: {vals[0]}, {vals[1]}")
+
+
+def read_rtklib_pos(path: Path | str, *, leap_seconds: int | None = None) -> RtkPos:
+    """Every solution of an RTKLIB `.pos` file; InputError (file:line: problem) if malformed."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable text file: {exc}") from None
+    fmt = _PosFormat()
+    rows: list[tuple[int, list[float], int, int, list[float], int]] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if line.startswith("%"):
+            _header(fmt, line, f"{path}:{number}", leap_seconds)
+            continue
+        if not line:
+            continue
+        if not fmt.layout:
+            raise InputError(f"{path}:{number}: a solution before the column header line "
+                             "('%  GPST  latitude(deg) ...'): not an RTKLIB .pos file?")
+        try:
+            t_ns, vals, q, ns, sig = _solution(fmt, line)
+            _check_position(fmt.layout, vals)
+        except ValueError as exc:
+            raise InputError(f"{path}:{number}: {exc}") from None
+        if rows and t_ns <= rows[-1][0]:
+            raise InputError(f"{path}:{number}: time does not increase after line {rows[-1][5]}")
+        rows.append((t_ns, vals, q, ns, sig, number))
+    if not rows:
+        raise InputError(f"{path}: no solution lines")
+    pos = np.array([r[1] for r in rows], dtype=np.float64)
+    ecef = pos if fmt.layout == "xyz" else geodetic_to_ecef(pos[:, 0], pos[:, 1], pos[:, 2])
+    return RtkPos(np.array([r[0] for r in rows], dtype=np.int64), ecef,
+                  np.array([r[2] for r in rows], dtype=np.int64),
+                  np.array([r[3] for r in rows], dtype=np.int64),
+                  np.array([r[4] for r in rows], dtype=np.float64),
+                  np.array([r[5] for r in rows], dtype=np.int64))
+
+
+def rtklib_trajectory(path: Path | str, columns: dict[str, Columns], ins_times: InsTimes, *,
+                      antenna_offset_m: npt.ArrayLike, leap_seconds: int | None = None,
+                      accept_q: Collection[int] = RTK_Q_ALL, config: NavConfig | None = None
+                      ) -> PiecewiseTrajectory:
+    """The log's INS (attitude, velocity) fused with the antenna positions of a `.pos` file
+    whose quality Q is in `accept_q`."""
+    pos = read_rtklib_pos(path, leap_seconds=leap_seconds)
+    keep = np.isin(pos.q, np.asarray(list(accept_q), dtype=np.int64))
+    fixes = AntennaFixes(pos.t_gps_ns[keep], pos.ecef_m[keep])
+    return fuse_ins_gps(ins_samples_from_columns(columns, ins_times), fixes,
+                        antenna_offset_m=antenna_offset_m, config=config, source=str(path))
+
+
+# --- Applanix SBET ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Sbet:
+    """SBET records with their full GPS times."""
+
+    t_gps_ns: I64
+    records: npt.NDArray[np.void]  # structured, SBET_DTYPE fields
+
+
+def _sbet_values(path: Path) -> npt.NDArray[np.void]:
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable: {exc}") from None
+    if size == 0 or size % SBET_RECORD_BYTES:
+        raise InputError(f"{path}: {size} bytes is not a whole number of {SBET_RECORD_BYTES}-byte"
+                         " SBET records (17 little-endian float64)")
+    rec = np.fromfile(path, dtype=SBET_DTYPE)
+    values = rec.view("<f8").reshape(-1, len(SBET_FIELDS))
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        i, j = (int(x) for x in bad[0])
+        raise InputError(f"{path}: record {i} (byte {i * SBET_RECORD_BYTES}): "
+                         f"{SBET_FIELDS[j]} is not finite")
+    out = np.flatnonzero((values[:, 0] < 0) | (values[:, 0] >= NS_PER_WEEK / NS_PER_S)
+                         | (np.abs(values[:, 1]) > np.pi / 2) | (np.abs(values[:, 2]) > 2 * np.pi))
+    if out.size:
+        i = int(out[0])
+        raise InputError(f"{path}: record {i}: time or latitude/longitude out of range "
+                         "(seconds of week; radians)")
+    return rec
+
+
+def sbet_times_ns(tow_s: F64, reference_gps_ns: int) -> I64:
+    """Full GPS ns of SBET seconds-of-week (see the module docstring for the week)."""
+    tow_ns = np.rint(tow_s * NS_PER_S).astype(np.int64)
+    half = NS_PER_WEEK // 2
+    start = reference_gps_ns // NS_PER_WEEK * NS_PER_WEEK
+    first = start + int(tow_ns[0])
+    start += NS_PER_WEEK if reference_gps_ns - first > half else 0
+    start -= NS_PER_WEEK if first - reference_gps_ns > half else 0
+    rollover = np.concatenate([[0], np.cumsum(np.diff(tow_ns) < -half)])
+    return np.asarray(start + tow_ns + rollover * NS_PER_WEEK, np.int64)
+
+
+def read_sbet(path: Path | str, reference_gps_ns: int) -> Sbet:
+    """An SBET file, checked: size, finite values, ranges, strictly increasing times."""
+    path = Path(path)
+    rec = _sbet_values(path)
+    t = sbet_times_ns(np.asarray(rec["time_s"], np.float64), reference_gps_ns)
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise InputError(f"{path}: record {i}: time {float(rec['time_s'][i]):.6f} s of week does"
+                         " not increase")
+    return Sbet(t, rec)
+
+
+@dataclass(frozen=True)
+class _SplinePosition:
+    spline: Any  # BSpline of ECEF offsets over seconds since the epoch
+
+    def __call__(self, t_s: F64) -> F64:
+        return np.asarray(self.spline(t_s), np.float64)
+
+
+def sbet_trajectory(path: Path | str, reference_gps_ns: int, *,
+                    reference_offset_m: npt.ArrayLike = (0.0, 0.0, 0.0),
+                    max_gap_s: float = SBET_MAX_GAP_S) -> PiecewiseTrajectory:
+    """The INS-centre trajectory of an SBET. `reference_offset_m`: INS centre → the point the
+    SBET refers to, body frame (zero for an SBET of the INS centre)."""
+    sb = read_sbet(path, reference_gps_ns)
+    r = sb.records
+    r_bn = body_to_ned_matrix(r["roll_rad"], r["pitch_rad"],
+                              r["platform_heading_rad"] - r["wander_rad"])
+    ref = geodetic_to_ecef(np.degrees(r["lat_rad"]), np.degrees(r["lon_rad"]), r["height_m"])
+    ins = ref - (r_ecef_from_ned(ref) @ r_bn) @ vector3(reference_offset_m, "reference_offset_m")
+    epoch = int(sb.t_gps_ns[0]) // NS_PER_S * NS_PER_S
+    origin = ins[0].copy()
+    t_s = seconds_since(sb.t_gps_ns, epoch)
+    pieces = [Piece(int(sb.t_gps_ns[lo]), int(sb.t_gps_ns[hi - 1]),
+                    RotationSpline(t_s[lo:hi], Rotation.from_matrix(r_bn[lo:hi])),
+                    _SplinePosition(make_interp_spline(t_s[lo:hi], ins[lo:hi] - origin, k=3)))
+              for lo, hi in runs(sb.t_gps_ns, max_gap_s) if hi - lo >= MIN_RECORDS]
+    if not pieces:
+        raise InputError(f"{path}: no {MIN_RECORDS} records without a gap over {max_gap_s} s: "
+                         "is it decimated? (give a larger max gap)")
+    return PiecewiseTrajectory(epoch, origin, pieces)
+
+
+# --- either, for the pipeline -----------------------------------------------------------------
+
+def _reference_gps_ns(columns: dict[str, Columns], ins_times: InsTimes) -> int:
+    timed = ins_times.t_gps_ns[(ins_times.status == TimeStatus.OK) & (ins_times.t_gps_ns >= 0)]
+    if timed.size:
+        return int(timed.min())
+    fixes = np.asarray(columns.get(Topic.GPS_FIX, {}).get("t_gps_ns", []), np.int64)
+    if fixes.size:
+        return int(fixes.min())
+    raise InputError("flight log: no GPS time at all (no timed INS record, no fix): cannot "
+                     "place the SBET's seconds of week")
+
+
+def _is_text(path: Path) -> bool:
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(512)
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable: {exc}") from None
+    return bool(head) and all(b in b"\t\r\n" or 32 <= b < 127 for b in head)
+
+
+def read_trajectory_file(path: Path | str, columns: dict[str, Columns], ins_times: InsTimes, *,
+                         antenna_offset_m: npt.ArrayLike, leap_seconds: int | None = None,
+                         sbet_offset_m: npt.ArrayLike = (0.0, 0.0, 0.0),
+                         config: NavConfig | None = None) -> Trajectory:
+    """An RTKLIB `.pos` (text) or an SBET (binary), told apart by their content."""
+    path = Path(path)
+    if _is_text(path):
+        return rtklib_trajectory(path, columns, ins_times, antenna_offset_m=antenna_offset_m,
+                                 leap_seconds=leap_seconds, config=config)
+    return sbet_trajectory(path, _reference_gps_ns(columns, ins_times),
+                           reference_offset_m=sbet_offset_m)
+
+
+__all__ = ["RTK_Q_ALL", "SBET_DTYPE", "SBET_FIELDS", "RtkPos", "Sbet", "read_rtklib_pos",
+           "read_sbet", "read_trajectory_file", "rtklib_trajectory", "sbet_times_ns",
+           "sbet_trajectory"]

@@ -85,7 +85,9 @@ class LiveSources:
         def read() -> None:
             while not self._stop.is_set():
                 try:
-                    data = ser.read(4096)
+                    # what is waiting, or block for the first byte: read(4096) would hold
+                    # bytes back until 4096 arrive or the timeout ends, stamping them late
+                    data = ser.read(max(1, ser.in_waiting))
                 except (serial.SerialException, OSError, TypeError):
                     break
                 if data:

@@ -36,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
         emulate,
         log,
         record,
+        replay,
         scenario,
         simulate,
         sync,
@@ -53,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.register(sub)
     emulate.register(sub)
     record.register(sub)
+    replay.register(sub)
     bench.register(sub)
     log.register(sub)
     sync.register(sub)

@@ -19,8 +19,7 @@ $(VENV)/.installed: pyproject.toml
 demo: setup
 	rm -rf $(DEMO)
 	$(BIN)/sisa simulate --preset bench --out $(DEMO)
-	$(BIN)/sisa sync $(DEMO)/flight.mcap --scanner $(DEMO)/scanner --out $(DEMO)/sync
-	$(BIN)/sisa log info $(DEMO)/flight.mcap | head -n 3
+	$(BIN)/sisa process $(DEMO)
 
 lint: setup
 	$(BIN)/ruff check .

@@ -25,6 +25,10 @@ EPILOG = """examples:
                                      the three devices in real time on virtual ports
   sisa sync runs/bench/flight.mcap --scanner runs/bench/scanner --out runs/bench/sync
                                      every INS record and scan line on GPS time
+  sisa georef runs/bench/flight.mcap --scanner runs/bench/scanner \
+       --dem runs/bench/terrain/dem.tif --out runs/bench/georef
+                                     every pixel on the DEM: IGM, ortho, mosaic, footprints
+  sisa process runs/bench            sync + georeference + report with accuracy vs truth
   sisa <command> --help              every command shows an example
 """
 
@@ -33,8 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
     from sisa.commands import (
         Formatter,
         bench,
+        calibrate,
         emulate,
+        georef,
         log,
+        process,
         record,
         replay,
         scenario,
@@ -58,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.register(sub)
     log.register(sub)
     sync.register(sub)
+    georef.register(sub)
+    calibrate.register(sub)
+    process.register(sub)
     return parser
 
 

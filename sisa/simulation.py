@@ -23,6 +23,7 @@ from emulators.terrain import Terrain, ground_points, write_ground_points_csv
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import FlightRecorder
 from sisa.acqconfig import acquisition_config
+from sisa.errors import ConfigError
 from sisa.timescale import NS_PER_S
 
 SERIAL_BAUD = 115_200
@@ -101,8 +102,12 @@ def write_survey_data(scn: Scenario, terrain: Terrain, folder: Path) -> None:
     survey has before it flies, not simulation truth."""
     folder.mkdir(parents=True, exist_ok=True)
     terrain.write_dem(folder / "dem.tif")
-    write_ground_points_csv(folder / "ground_points.csv", ground_points(scn, terrain),
-                            utm_epsg=terrain.epsg)
+    try:
+        points = ground_points(scn, terrain)
+    except ConfigError as exc:  # a block too small for its points: fly it without them
+        (folder / "ground_points.txt").write_text(f"no ground points: {exc}\n", encoding="utf-8")
+        return
+    write_ground_points_csv(folder / "ground_points.csv", points, utm_epsg=terrain.epsg)
 
 
 def simulate(scn: Scenario, run: Path, *, images: bool = True) -> VirtualWiring:

@@ -7,9 +7,13 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.outdir import staged_output_dir
+
+if TYPE_CHECKING:
+    from emulators.scenario import Scenario
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -21,7 +25,20 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--no-images", action="store_true",
                         help="skip rendering the scanner's image lines (timing only)")
+    parser.add_argument("--error-free", action="store_true",
+                        help="no GPS position noise and no INS attitude, rate or velocity "
+                             "errors: georeferencing must then reproduce the truth")
     parser.set_defaults(handler=_run)
+
+
+def error_free(scn: Scenario) -> Scenario:
+    """The scenario without navigation errors (timing flaws and faults stay as they are)."""
+    zero = (0.0, 0.0, 0.0)
+    gps = scn.gps.model_copy(update={"horizontal_noise_m": 0.0, "vertical_noise_m": 0.0})
+    ins = scn.ins.model_copy(update={
+        "attitude_bias_arcsec": zero, "attitude_drift_arcsec_per_h": zero,
+        "attitude_noise_arcsec": zero, "rate_noise_rps": 0.0, "velocity_noise_mps": 0.0})
+    return scn.model_copy(update={"gps": gps, "ins": ins})
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -31,6 +48,8 @@ def _run(args: argparse.Namespace) -> int:
     scn = scenario_from_args(args)
     if args.seed is not None:
         scn = scn.model_copy(update={"seed": args.seed})
+    if args.error_free:
+        scn = error_free(scn)
     started = time.perf_counter()
     with staged_output_dir(args.out) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")

@@ -1,0 +1,347 @@
+"""Orthorectification: SISA's nearest-pixel-centre ortho against `gdalwarp -geoloc`.
+
+    .venv/bin/python bench/ortho_speed.py                    20 000 lines x 512 px x 18 bands
+    .venv/bin/python bench/ortho_speed.py --big-gb 10        also peak memory on a 10 GB file
+
+A synthetic segment is written to disk: a 512-pixel pushbroom (34.2° field of view, 1 m pixels
+at nadir) flown along a gently turning track with smooth turbulence (sideways, yaw and
+along-track oscillations), its IGM (float64, pixel centres, UTM 31N) and its raw image (uint16
+BIL, band 1 = line + 1 and band 2 = pixel + 1, so any resampler's choice can be decoded; the
+other bands a textured scene with sensor noise). Both tools map it onto the same 1 m grid,
+nearest neighbour, each in its own process (wall time, and peak RSS from the rusage of that
+child), writing the same GeoTIFF layout twice: as the product (tiled 512, band-interleaved,
+DEFLATE level 1 with the horizontal predictor) and uncompressed (sparse), which times the
+resampling without the compression both pay alike. The position error of a cell is the
+distance from its centre to the ground position of the pixel chosen for it; the exact nearest
+neighbour comes from a cKDTree over every pixel. Targets: ours >= 10x faster than gdalwarp,
+mean error <= exact nearest + 5 %, peak RSS < 1.5 GB for a 10 GB scanner file (--big-gb: raw
+DN as a sparse file, the IGM written in full).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import rasterio
+from rasterio.windows import Window
+
+from postproc.igm import IgmWriter, igm_bounds, open_igm, write_geolocation_vrt
+from postproc.ortho import OrthoGrid, orthorectify
+
+F64 = npt.NDArray[np.float64]
+EPSG = 32631
+BLOCK = 4096
+FOV_DEG = 34.2
+
+
+@dataclass(frozen=True)
+class Flight:
+    """A strip's pixel-centre ground positions, line block by line block (no state)."""
+
+    lines: int
+    pixels: int
+    gsd_m: float = 1.0
+    along_m: float = 1.0
+    heading_deg: float = 8.0
+    turn_deg: float = 6.0
+    origin_m: tuple[float, float] = (470_000.0, 4_640_000.0)
+
+    def block(self, lo: int, hi: int) -> tuple[F64, F64, F64]:
+        line = np.arange(lo, hi, dtype=np.float64)
+        h0 = math.radians(self.heading_deg)
+        k = math.radians(self.turn_deg) / max(self.lines, 1)
+        head = h0 + k * line
+        if k:
+            east_c = self.origin_m[0] + self.along_m * (math.cos(h0) - np.cos(head)) / k
+            north_c = self.origin_m[1] + self.along_m * (np.sin(head) - math.sin(h0)) / k
+        else:
+            east_c = self.origin_m[0] + self.along_m * line * math.sin(h0)
+            north_c = self.origin_m[1] + self.along_m * line * math.cos(h0)
+        tau = 2 * np.pi * line
+        lateral = 0.8 * np.sin(tau / 173 + 0.3) + 0.4 * np.sin(tau / 61 + 1.1)
+        yaw = head + np.radians(0.5 * np.sin(tau / 211) + 0.3 * np.sin(tau / 47 + 2.0))
+        surge = 0.3 * np.sin(tau / 89 + 0.7)
+        ifov = math.radians(FOV_DEG) / self.pixels
+        c = (self.pixels - 1) / 2
+        across = self.gsd_m / ifov * np.tan((c - np.arange(self.pixels)) * ifov)  # to the right
+        off = across[None, :] + lateral[:, None]
+        east = east_c[:, None] + off * np.cos(yaw)[:, None] + (surge * np.sin(head))[:, None]
+        north = north_c[:, None] - off * np.sin(yaw)[:, None] + (surge * np.cos(head))[:, None]
+        height = 150.0 + 30.0 * np.sin(east / 400.0) * np.cos(north / 700.0)
+        return east, north, height
+
+
+def write_header(path: Path, lines: int, pixels: int, bands: int) -> None:
+    wl = np.linspace(430.0, 950.0, bands)
+    path.with_suffix(".hdr").write_text(
+        "ENVI\ndescription = {ortho_speed synthetic segment}\n"
+        f"samples = {pixels}\nlines = {lines}\nbands = {bands}\nheader offset = 0\n"
+        "file type = ENVI Standard\ndata type = 12\ninterleave = bil\nbyte order = 0\n"
+        "data ignore value = 0\nwavelength units = Nanometers\n"
+        "wavelength = {" + ", ".join(f"{w:.2f}" for w in wl) + "}\n", encoding="ascii")
+
+
+def make_segment(folder: Path, flight: Flight, bands: int, *, sparse_raw: bool) -> Path:
+    """Write seg_igm.bil/.hdr and seg.bil/.hdr; returns the image path."""
+    raw = folder / "seg.bil"
+    rng = np.random.default_rng(7)
+    scale = 1.0 + 0.05 * np.arange(bands)[None, :, None]
+    with IgmWriter(folder / "seg_igm", flight.lines, flight.pixels, EPSG) as igm, \
+            raw.open("wb") as fh:
+        for lo in range(0, flight.lines, BLOCK):
+            hi = min(lo + BLOCK, flight.lines)
+            e, n, h = flight.block(lo, hi)
+            igm.write_block(lo, e, n, h)
+            if sparse_raw:
+                continue
+            scene = 1000 + 400 * np.sin(e / 23.0) * np.cos(n / 31.0)
+            dn = scene[:, None, :] * scale + rng.normal(0, 20, (hi - lo, bands, flight.pixels))
+            dn = np.clip(dn, 1, 65535).astype("<u2")
+            dn[:, 0] = (np.arange(lo, hi) + 1)[:, None] % 65536
+            dn[:, 1] = np.arange(1, flight.pixels + 1)[None, :]
+            dn.tofile(fh)
+        if sparse_raw:
+            fh.truncate(flight.lines * bands * flight.pixels * 2)
+    write_header(raw, flight.lines, flight.pixels, bands)
+    return raw
+
+
+@dataclass(frozen=True)
+class Run:
+    wall_s: float
+    cpu_s: float  # user + system, all threads: less sensitive than wall time to a busy machine
+    peak_rss_mb: float
+    out: dict[str, Any]
+
+
+def measured(cmd: list[str], cwd: Path | None = None) -> Run:
+    """`cmd` under a fresh Python that reports the child's wall time and peak RSS
+    (RUSAGE_CHILDREN of a process whose only child is `cmd`)."""
+    wrapper = [sys.executable, __file__, "--measure", "--", *cmd]
+    proc = subprocess.run(wrapper, capture_output=True, text=True, check=False, cwd=cwd)
+    if proc.returncode != 0:
+        raise SystemExit(f"{cmd[0]} failed: {proc.stderr.strip()[-2000:]}")
+    got = json.loads(proc.stdout)
+    return Run(got["wall_s"], got["cpu_s"], got["peak_rss_mb"], got["out"])
+
+
+def _measure_main(cmd: list[str]) -> None:
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = proc.communicate()
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.stderr.write(err)
+        raise SystemExit(proc.returncode)
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    body = json.loads(out) if out.strip().startswith("{") else {}
+    print(json.dumps({"wall_s": wall, "cpu_s": use.ru_utime + use.ru_stime,
+                      "peak_rss_mb": use.ru_maxrss / 1024, "out": body}))
+
+
+def _ours_main(igm: str, image: str, grid_json: str, tif: str, glt: str, compress: str) -> None:
+    grid = OrthoGrid(**json.loads(grid_json))
+    t0 = time.perf_counter()
+    res = orthorectify(Path(igm), Path(image), grid, Path(tif), Path(glt), compress=compress)
+    print(json.dumps({"ortho_s": time.perf_counter() - t0, **asdict(res)}))
+
+
+def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str) -> list[str]:
+    return [sys.executable, __file__, "--ours", str(folder / "seg_igm.bil"),
+            str(folder / "seg.bil"), json.dumps(asdict(grid)), str(folder / f"ours_{tag}.tif"),
+            str(folder / f"ours_{tag}_glt"), compress]
+
+
+def gdal_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str, threads: bool
+             ) -> list[str]:
+    """gdalwarp writing what orthorectify writes: tiled 512, band-interleaved, same codec
+    (DEFLATE: level 1, horizontal predictor; none: sparse), with 512 MB of warp memory."""
+    w, s, e, n = grid.bounds_m
+    exe = shutil.which("gdalwarp")
+    if exe is None:
+        raise SystemExit("gdalwarp not found (GDAL command-line tools)")
+    co = ["TILED=YES", "BLOCKXSIZE=512", "BLOCKYSIZE=512", "INTERLEAVE=BAND", "BIGTIFF=IF_SAFER",
+          f"COMPRESS={compress.upper()}"]
+    if compress == "deflate":
+        co += ["ZLEVEL=1", "PREDICTOR=2"]
+    if compress == "none":
+        co += ["SPARSE_OK=TRUE"]
+    multi = ["-multi", "-wo", "NUM_THREADS=ALL_CPUS", "-co", "NUM_THREADS=ALL_CPUS"] if threads \
+        else []
+    return [exe, "-q", "-overwrite", "-geoloc", "-r", "near", "-t_srs", f"EPSG:{grid.epsg}",
+            "-te", *(repr(v) for v in (w, s, e, n)), "-tr", repr(grid.cell_m), repr(grid.cell_m),
+            "-wm", "512", *multi, *(x for c in co for x in ("-co", c)),
+            str(folder / "seg_geoloc.vrt"), str(folder / f"gdal_{tag}.tif")]
+
+
+def warm_up(folder: Path) -> None:
+    """Compile (or load from numba's cache) the kernels before anything is timed."""
+    small = folder / "warm"
+    small.mkdir()
+    make_segment(small, Flight(300, 64), 3, sparse_raw=False)
+    grid = OrthoGrid.covering(igm_bounds(small / "seg_igm.bil"), 1.0, EPSG)
+    orthorectify(small / "seg_igm.bil", small / "seg.bil", grid, small / "o.tif", small / "g")
+    shutil.rmtree(small)
+
+
+# -- accuracy --------------------------------------------------------------------------------
+
+def errors(folder: Path, grid: OrthoGrid) -> dict[str, float]:
+    """Mean position error (m) of gdalwarp, ours and the exact nearest pixel."""
+    from scipy.spatial import cKDTree  # only here: keeps the timed child's start-up short
+
+    igm = open_igm(folder / "seg_igm.bil")
+    e, n = np.asarray(igm[:, 0]), np.asarray(igm[:, 1])
+    tree = cKDTree(np.stack([e.ravel(), n.ravel()], axis=1))
+    sums = dict.fromkeys(("gdal", "ours", "nn", "gdal_c", "ours_c", "nn_c"), 0.0)
+    counts = dict.fromkeys(("gdal", "ours", "both", "ours_not_gdal", "gdal_not_ours", "same"), 0)
+    with rasterio.open(folder / "gdal_deflate.tif") as g, \
+            rasterio.open(folder / "ours_deflate.tif") as o:
+        for r0 in range(0, grid.height, 2048):
+            win = Window(0, r0, grid.width, min(2048, grid.height - r0))
+            gl, gp = g.read(1, window=win).astype(np.int64), g.read(2, window=win).astype(np.int64)
+            ol, op = o.read(1, window=win).astype(np.int64), o.read(2, window=win).astype(np.int64)
+            rows, cols = np.mgrid[r0:r0 + win.height, 0:grid.width]
+            cx, cy = grid.centre_x_m(cols), grid.centre_y_m(rows)
+            g_ok, o_ok = (gl > 0) & (gp > 0), (ol > 0) & (op > 0)
+            d_g = np.hypot(e[gl[g_ok] - 1, gp[g_ok] - 1] - cx[g_ok],
+                           n[gl[g_ok] - 1, gp[g_ok] - 1] - cy[g_ok])
+            d_o = np.hypot(e[ol[o_ok] - 1, op[o_ok] - 1] - cx[o_ok],
+                           n[ol[o_ok] - 1, op[o_ok] - 1] - cy[o_ok])
+            d_nn, k = tree.query(np.stack([cx[o_ok], cy[o_ok]], axis=1), workers=2)
+            both = (g_ok & o_ok)[o_ok]
+            both_g = (g_ok & o_ok)[g_ok]
+            sums["gdal"] += float(d_g.sum())
+            sums["ours"] += float(d_o.sum())
+            sums["nn"] += float(d_nn.sum())
+            sums["gdal_c"] += float(d_g[both_g].sum())
+            sums["ours_c"] += float(d_o[both].sum())
+            sums["nn_c"] += float(d_nn[both].sum())
+            counts["gdal"] += int(g_ok.sum())
+            counts["ours"] += int(o_ok.sum())
+            counts["both"] += int((g_ok & o_ok).sum())
+            counts["ours_not_gdal"] += int((o_ok & ~g_ok).sum())
+            counts["gdal_not_ours"] += int((g_ok & ~o_ok).sum())
+            counts["same"] += int((k == (ol[o_ok] - 1) * e.shape[1] + op[o_ok] - 1).sum())
+    return {
+        "gdal_mean_m": sums["gdal"] / max(counts["gdal"], 1),
+        "ours_mean_m": sums["ours"] / max(counts["ours"], 1),
+        "nn_mean_m": sums["nn"] / max(counts["ours"], 1),
+        "gdal_common_m": sums["gdal_c"] / max(counts["both"], 1),
+        "ours_common_m": sums["ours_c"] / max(counts["both"], 1),
+        "nn_common_m": sums["nn_c"] / max(counts["both"], 1),
+        "ours_equal_nn_pct": 100.0 * counts["same"] / max(counts["ours"], 1),
+        **{f"cells_{k}": float(v) for k, v in counts.items() if k != "same"},
+    }
+
+
+# -- the runs --------------------------------------------------------------------------------
+
+def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
+             gdal_threads: bool) -> None:
+    folder = work / "main"
+    folder.mkdir()
+    t0 = time.perf_counter()
+    make_segment(folder, Flight(lines, pixels), bands, sparse_raw=False)
+    write_geolocation_vrt(folder / "seg_geoloc.vrt", folder / "seg.bil",
+                          folder / "seg_igm.bil", EPSG)
+    grid = OrthoGrid.covering(igm_bounds(folder / "seg_igm.bil"), cell_m, EPSG)
+    raw_gb = (folder / "seg.bil").stat().st_size / 1e9
+    print(f"segment: {lines} lines x {pixels} px x {bands} bands uint16 ({raw_gb:.2f} GB), "
+          f"IGM {(folder / 'seg_igm.bil').stat().st_size / 1e9:.2f} GB, written in "
+          f"{time.perf_counter() - t0:.1f} s")
+    print(f"grid: {grid.width} x {grid.height} cells of {cell_m} m (EPSG:{EPSG})")
+    shown = gdal_cmd(folder, grid, "deflate", "deflate", gdal_threads)
+    print(f"gdalwarp {' '.join(Path(a).name if '/' in a else a for a in shown[1:])}")
+    for compress in ("deflate", "none"):
+        # GDAL 3.6 + NUM_THREADS needs the VRT's folder as working directory: see igm.py
+        gd = measured(gdal_cmd(folder, grid, compress, compress, gdal_threads), cwd=folder)
+        us = measured(ours_cmd(folder, grid, compress, compress))
+        print(f"[{compress} GeoTIFF, tiled 512]  (load average {os.getloadavg()[0]:.1f} on "
+              f"{os.cpu_count()} cores)")
+        print(f"  gdalwarp -geoloc : {gd.wall_s:7.2f} s wall, {gd.cpu_s:7.2f} s CPU, peak RSS "
+              f"{gd.peak_rss_mb:6.0f} MB")
+        print(f"  sisa orthorectify: {us.wall_s:7.2f} s wall, {us.cpu_s:7.2f} s CPU, peak RSS "
+              f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {us.out['ortho_s']:.2f} s wall)")
+        print(f"  speed-up: {gd.wall_s / us.wall_s:.1f}x wall, {gd.cpu_s / us.cpu_s:.1f}x CPU "
+              f"(whole processes); {gd.wall_s / us.out['ortho_s']:.1f}x wall against "
+              "orthorectify() alone")
+    err = errors(folder, grid)
+    print(f"cells filled: gdalwarp {err['cells_gdal']:.0f}, ours {err['cells_ours']:.0f}; "
+          f"ours but not gdalwarp {err['cells_ours_not_gdal']:.0f}, "
+          f"gdalwarp but not ours {err['cells_gdal_not_ours']:.0f}")
+    print("mean position error (cell centre -> chosen pixel centre), each on its own cells: "
+          f"gdalwarp {err['gdal_mean_m']:.4f} m, ours {err['ours_mean_m']:.4f} m, "
+          f"exact nearest {err['nn_mean_m']:.4f} m")
+    print(f"  on the {err['cells_both']:.0f} cells both filled: gdalwarp "
+          f"{err['gdal_common_m']:.4f} m, ours {err['ours_common_m']:.4f} m, exact nearest "
+          f"{err['nn_common_m']:.4f} m; ours = exact nearest on {err['ours_equal_nn_pct']:.2f} % "
+          f"of our cells; ours / exact = {err['ours_mean_m'] / err['nn_mean_m']:.4f}")
+
+
+def big_run(work: Path, size_gb: float, pixels: int, bands: int, cell_m: float) -> None:
+    folder = work / "big"
+    folder.mkdir()
+    lines = int(size_gb * 1e9 / (bands * pixels * 2))
+    t0 = time.perf_counter()
+    flight = Flight(lines, pixels, heading_deg=0.0, turn_deg=0.0)
+    make_segment(folder, flight, bands, sparse_raw=True)
+    grid = OrthoGrid.covering(igm_bounds(folder / "seg_igm.bil"), cell_m, EPSG)
+    print(f"\nbig: {lines} lines x {pixels} px x {bands} bands = "
+          f"{(folder / 'seg.bil').stat().st_size / 1e9:.2f} GB raw (sparse), IGM "
+          f"{(folder / 'seg_igm.bil').stat().st_size / 1e9:.2f} GB, made in "
+          f"{time.perf_counter() - t0:.0f} s; grid {grid.width} x {grid.height}")
+    us = measured(ours_cmd(folder, grid, "big", "deflate"))
+    print(f"sisa orthorectify: {us.wall_s:8.1f} s wall, {us.cpu_s:.1f} s CPU, peak RSS "
+          f"{us.peak_rss_mb:7.0f} MB ({us.out['cells_filled']} cells filled)")
+
+
+def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--measure":
+        _measure_main(sys.argv[3:])
+        return
+    if len(sys.argv) > 1 and sys.argv[1] == "--ours":
+        _ours_main(*sys.argv[2:8])
+        return
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--lines", type=int, default=20_000)
+    ap.add_argument("--pixels", type=int, default=512)
+    ap.add_argument("--bands", type=int, default=18)
+    ap.add_argument("--cell-m", type=float, default=1.0)
+    ap.add_argument("--big-gb", type=float, default=0.0,
+                    help="also measure peak RSS on a scanner file of this many GB")
+    ap.add_argument("--gdal-threads", action="store_true",
+                    help="let gdalwarp use every core (-multi, NUM_THREADS=ALL_CPUS)")
+    ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temp)")
+    ap.add_argument("--keep", action="store_true", help="keep the scratch files")
+    args = ap.parse_args()
+    work = Path(tempfile.mkdtemp(prefix="ortho_speed_", dir=args.work))
+    try:
+        warm_up(work)
+        main_run(work, args.lines, args.pixels, args.bands, args.cell_m, args.gdal_threads)
+        if args.big_gb > 0:
+            big_run(work, args.big_gb, args.pixels, args.bands, args.cell_m)
+    finally:
+        if args.keep:
+            print(f"files kept in {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYTHONHASHSEED", "0")
+    main()

@@ -1,0 +1,277 @@
+"""The DEM the post-processor casts rays onto: a north-up grid of ELLIPSOIDAL heights.
+
+Conventions (docs/conventions.md):
+- The grid is in a projected CRS in metres (the block's UTM zone); a geographic or rotated raster
+  is refused rather than resampled, because resampling would change the surface rays are cast on.
+- Each sample belongs to its cell CENTRE. rasterio's transform gives cell EDGES, so the first
+  centre is half a cell in from the raster's corner.
+- The surface is bilinear between centres and exists only inside the hull of the centres: the
+  outer half cell and any cell touching a nodata sample carry no surface (NaN), nothing is
+  extrapolated.
+- Heights are ellipsoidal. A DEM of orthometric heights H needs a geoid: h = H + N, with N a
+  constant or a raster of undulations sampled bilinearly at every DEM cell centre.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+import rasterio
+from pyproj import Transformer
+from rasterio.errors import RasterioError
+from rasterio.windows import Window
+
+from sisa.errors import InputError
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+
+DEFAULT_MARGIN_M: Final = 500.0  # beyond bounds_m: room for oblique rays over relief
+GEOID_COORD_STEP_CELLS: Final = 16  # geoid coordinates computed exactly every 16 DEM cells
+
+
+@dataclass(frozen=True, eq=False)
+class Dem:
+    """Heights on a north-up grid (row 0 = north) in a projected CRS, NaN = no data.
+
+    `first_easting_m`/`first_northing_m` are the CENTRE of cell (row 0, col 0); `cell_e_m` and
+    `cell_n_m` are the column and row spacings (both > 0; rows run south).
+    """
+
+    heights_m: F32
+    first_easting_m: float
+    first_northing_m: float
+    cell_e_m: float
+    cell_n_m: float
+    epsg: int
+
+    def __post_init__(self) -> None:
+        h = self.heights_m
+        if h.ndim != 2 or h.dtype != np.float32 or min(h.shape) < 2:
+            raise ValueError(f"heights_m must be float32 (rows, cols) >= 2x2, got {h.dtype} "
+                             f"{h.shape}")
+        if not (self.cell_e_m > 0.0 and self.cell_n_m > 0.0):
+            raise ValueError("cell sizes must be > 0")
+
+    @property
+    def rows(self) -> int:
+        return int(self.heights_m.shape[0])
+
+    @property
+    def cols(self) -> int:
+        return int(self.heights_m.shape[1])
+
+    @property
+    def bounds_m(self) -> tuple[float, float, float, float]:
+        """(west, south, east, north) of the surface: first to last cell CENTRE."""
+        return (self.first_easting_m, self.first_northing_m - (self.rows - 1) * self.cell_n_m,
+                self.first_easting_m + (self.cols - 1) * self.cell_e_m, self.first_northing_m)
+
+    def height_at(self, easting_m: npt.ArrayLike, northing_m: npt.ArrayLike) -> F64:
+        """Ellipsoidal height (m), bilinear between cell centres; NaN off the surface."""
+        e, n = np.broadcast_arrays(np.asarray(easting_m, dtype=np.float64),
+                                   np.asarray(northing_m, dtype=np.float64))
+        x = (e - self.first_easting_m) / self.cell_e_m
+        y = (self.first_northing_m - n) / self.cell_n_m
+        return bilinear_centres(self.heights_m, x, y)
+
+    @classmethod
+    def read(cls, path: str | Path, *, bounds_m: tuple[float, float, float, float] | None = None,
+             margin_m: float = DEFAULT_MARGIN_M, geoid: float | str | Path | None = None) -> Dem:
+        """Read a single-band GeoTIFF (or any GDAL raster), only the window that covers
+        bounds_m = (west, south, east, north) in the DEM's CRS grown by margin_m, so a flight
+        segment never loads a whole national DEM. Nodata becomes NaN. `geoid` turns
+        orthometric heights into ellipsoidal ones: a constant undulation N (m) or a raster of N
+        in any CRS."""
+        path = Path(path)
+        with _open(path, "DEM") as ds:
+            epsg = _projected_epsg(ds, path)
+            first_e, first_n, cell_e, cell_n = _grid_of(ds, path)
+            win = _window(ds, path, first_e, first_n, cell_e, cell_n, bounds_m, margin_m)
+            heights = _read_band(ds, win)
+        dem = cls(heights, first_e + win.col_off * cell_e, first_n - win.row_off * cell_n,
+                  cell_e, cell_n, epsg)
+        if geoid is None:
+            return dem
+        if isinstance(geoid, (int, float)):
+            if not math.isfinite(geoid):
+                raise InputError(f"{path}: geoid undulation {geoid} is not finite")
+            return dem._with_heights(heights + np.float32(geoid))
+        return dem._with_heights(heights + _undulation_at_centres(Path(geoid), dem))
+
+    def _with_heights(self, heights_m: F32) -> Dem:
+        return Dem(heights_m.astype(np.float32), self.first_easting_m, self.first_northing_m,
+                   self.cell_e_m, self.cell_n_m, self.epsg)
+
+    def centres_m(self) -> tuple[F64, F64]:
+        """1-D eastings of the column centres and northings of the row centres."""
+        cols = np.arange(self.cols, dtype=np.float64)
+        rows = np.arange(self.rows, dtype=np.float64)
+        return (np.asarray(self.first_easting_m + cols * self.cell_e_m),
+                np.asarray(self.first_northing_m - rows * self.cell_n_m))
+
+
+def bilinear_centres(grid: npt.NDArray[Any], x: F64, y: F64) -> F64:
+    """Bilinear value of `grid` at fractional (col, row) positions of its samples; NaN outside
+    [0, cols-1] x [0, rows-1] or next to a NaN sample."""
+    rows, cols = grid.shape
+    inside = (x >= 0.0) & (x <= cols - 1) & (y >= 0.0) & (y <= rows - 1)
+    xs = np.where(inside, x, 0.0)
+    ys = np.where(inside, y, 0.0)
+    c0 = np.minimum(np.floor(xs), cols - 2).astype(np.intp)
+    r0 = np.minimum(np.floor(ys), rows - 2).astype(np.intp)
+    fx = xs - c0
+    fy = ys - r0
+    z00, z01, z10, z11 = (np.asarray(grid[r, c], dtype=np.float64)
+                          for r, c in ((r0, c0), (r0, c0 + 1), (r0 + 1, c0), (r0 + 1, c0 + 1)))
+    top = z00 * (1.0 - fx) + z01 * fx
+    bottom = z10 * (1.0 - fx) + z11 * fx
+    out = top * (1.0 - fy) + bottom * fy
+    return np.asarray(np.where(inside, out, np.nan))
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+
+def _open(path: Path, what: str) -> Any:
+    if not path.is_file():
+        raise InputError(f"{path}: {what} file not found")
+    try:
+        ds = rasterio.open(path)
+    except RasterioError as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{path}: not a readable {what} raster ({reason})") from None
+    if ds.count < 1:
+        ds.close()
+        raise InputError(f"{path}: {what} raster has no band")
+    return ds
+
+
+def _projected_epsg(ds: Any, path: Path) -> int:
+    crs = ds.crs
+    if crs is None:
+        raise InputError(f"{path}: DEM has no CRS")
+    if not crs.is_projected:
+        raise InputError(f"{path}: DEM is in a non-projected CRS ({crs}); reproject it to a "
+                         "projected CRS in metres (the block's UTM zone) first")
+    unit, factor = crs.linear_units_factor
+    if factor != 1.0:
+        raise InputError(f"{path}: DEM CRS units are {unit}, not metres")
+    epsg = crs.to_epsg()
+    if epsg is None:
+        raise InputError(f"{path}: DEM CRS has no EPSG code ({crs.to_string()[:60]})")
+    return int(epsg)
+
+
+def _grid_of(ds: Any, path: Path) -> tuple[float, float, float, float]:
+    """(first centre easting, first centre northing, cell east, cell north) of a north-up
+    raster; rasterio's transform is for cell EDGES, so the first centre is half a cell in."""
+    t = ds.transform
+    if t.b != 0.0 or t.d != 0.0:
+        raise InputError(f"{path}: DEM grid is rotated or skewed ({tuple(t)[:6]}); "
+                         "warp it to a north-up grid first")
+    if not (t.a > 0.0 and t.e < 0.0):
+        raise InputError(f"{path}: DEM grid is not north-up (pixel size {t.a}, {t.e})")
+    if ds.width < 2 or ds.height < 2:
+        raise InputError(f"{path}: DEM has fewer than 2x2 cells")
+    return float(t.c + 0.5 * t.a), float(t.f + 0.5 * t.e), float(t.a), float(-t.e)
+
+
+def _window(ds: Any, path: Path, first_e: float, first_n: float, cell_e: float, cell_n: float,
+            bounds_m: tuple[float, float, float, float] | None, margin_m: float) -> Window:
+    """Cells whose centres' hull covers bounds_m + margin (clipped to the raster)."""
+    if bounds_m is None:
+        return Window(0, 0, ds.width, ds.height)
+    west, south, east, north = bounds_m
+    if not (west <= east and south <= north) or margin_m < 0.0:
+        raise InputError(f"{path}: bad bounds {bounds_m} / margin {margin_m}")
+    c0 = max(math.floor((west - margin_m - first_e) / cell_e), 0)
+    c1 = min(math.ceil((east + margin_m - first_e) / cell_e), ds.width - 1)
+    r0 = max(math.floor((first_n - north - margin_m) / cell_n), 0)
+    r1 = min(math.ceil((first_n - south + margin_m) / cell_n), ds.height - 1)
+    if c1 - c0 < 1 or r1 - r0 < 1:
+        raise InputError(f"{path}: bounds {bounds_m} (+{margin_m} m) do not overlap the DEM")
+    return Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1)
+
+
+def _read_band(ds: Any, win: Window) -> F32:
+    """Band 1 in the window as float32, nodata and masked cells NaN."""
+    data = ds.read(1, window=win, masked=True)
+    out = np.ma.filled(data.astype(np.float32), np.nan)
+    out[~np.isfinite(out)] = np.nan
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------------
+# Geoid
+# ---------------------------------------------------------------------------------------------
+
+
+def _undulation_at_centres(path: Path, dem: Dem) -> F32:
+    """Geoid undulation N (m) at every DEM cell centre, bilinear between the geoid raster's own
+    centres. The DEM → geoid-CRS transform is done by pyproj every GEOID_COORD_STEP_CELLS cells
+    and interpolated in between (it is smooth: far below a micro-degree), while the geoid grid
+    itself is sampled bilinearly at each centre."""
+    with _open(path, "geoid") as ds:
+        if ds.crs is None:
+            raise InputError(f"{path}: geoid raster has no CRS")
+        col, row = _geoid_pixel_coords(ds, dem)
+        ok = np.isfinite(col) & np.isfinite(row)
+        if not ok.any():
+            raise InputError(f"{path}: geoid coordinates undefined over the DEM")
+        c0 = max(math.floor(float(col[ok].min())) - 1, 0)
+        r0 = max(math.floor(float(row[ok].min())) - 1, 0)
+        c1 = min(math.ceil(float(col[ok].max())) + 2, ds.width - 1)
+        r1 = min(math.ceil(float(row[ok].max())) + 2, ds.height - 1)
+        if c1 - c0 < 1 or r1 - r0 < 1:
+            raise InputError(f"{path}: geoid raster does not cover the DEM")
+        grid = _read_band(ds, Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1))
+    n = bilinear_centres(grid, col - c0, row - r0)
+    missing = int((np.isnan(n) & np.isfinite(dem.heights_m)).sum())
+    if missing:
+        raise InputError(f"{path}: geoid raster does not cover {missing} DEM cells")
+    return n.astype(np.float32)
+
+
+def _geoid_pixel_coords(ds: Any, dem: Dem) -> tuple[F64, F64]:
+    """Fractional (col, row) of every DEM centre in the geoid raster, relative to the geoid's
+    own cell centres."""
+    step = GEOID_COORD_STEP_CELLS
+    rs = np.unique(np.append(np.arange(0, dem.rows, step), dem.rows - 1))
+    cs = np.unique(np.append(np.arange(0, dem.cols, step), dem.cols - 1))
+    e_1d, n_1d = dem.centres_m()
+    ee, nn = np.meshgrid(e_1d[cs], n_1d[rs])
+    to_geoid = Transformer.from_crs(dem.epsg, ds.crs.to_wkt(), always_xy=True)
+    gx, gy = (np.asarray(v, dtype=np.float64) for v in to_geoid.transform(ee, nn))
+    inv = ~ds.transform
+    if ds.crs.is_geographic:
+        gx = _wrap_longitude(gx, ds)
+    col = inv.a * gx + inv.b * gy + inv.c - 0.5
+    row = inv.d * gx + inv.e * gy + inv.f - 0.5
+    return _interp_coarse(col, rs, cs, dem), _interp_coarse(row, rs, cs, dem)
+
+
+def _wrap_longitude(lon: F64, ds: Any) -> F64:
+    """Shift longitudes by ±360° into a geographic geoid grid's span (0–360° grids)."""
+    west = ds.bounds.left
+    east = ds.bounds.right
+    lon = np.where(lon < west, lon + 360.0, lon)
+    return np.asarray(np.where(lon > east, lon - 360.0, lon))
+
+
+def _interp_coarse(values: F64, rs: npt.NDArray[np.intp], cs: npt.NDArray[np.intp],
+                   dem: Dem) -> F64:
+    """Bilinear interpolation of values known at rows rs x cols cs to every DEM cell."""
+    rows = np.arange(dem.rows, dtype=np.float64)
+    cols = np.arange(dem.cols, dtype=np.float64)
+    x = np.interp(cols, cs, np.arange(cs.size, dtype=np.float64))
+    y = np.interp(rows, rs, np.arange(rs.size, dtype=np.float64))
+    xx, yy = np.meshgrid(x, y)
+    return bilinear_centres(values, xx, yy)

@@ -1,0 +1,379 @@
+"""Direct georeferencing of a whole flight: sync → navigation → per-line exterior orientation →
+ray–DEM intersection of every pixel → products (seed 003, eq. 1; docs/georef.md).
+
+    job = GeorefJob(flight_paths, scanner_dir, out_dir, options)
+    result = job.run(progress)        # streams segment by segment, block of lines by block
+
+The log is read once (sync and navigation columns in one pass). Each segment is processed in
+blocks of `block_lines` lines, and each product is written block by block or tile by tile, so
+memory is bounded by the navigation arrays and one block, not by the length of the flight.
+Nothing here reads simulation truth.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+import rasterio
+from pyproj import CRS, Transformer
+
+from postproc.dem import Dem
+from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
+from postproc.footprints import footprint_feature, write_footprints_geojson
+from postproc.igm import IgmWriter, igm_bounds, open_igm, write_geolocation_vrt
+from postproc.mosaic import mosaic
+from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
+from postproc.ortho import OrthoGrid, orthorectify
+from postproc.quicklook import write_quicklook
+from postproc.raycast import intersect
+from postproc.registration import register_strips
+from postproc.sensorfile import SensorModel
+from postproc.sync import SyncResult, synchronise
+from postproc.syncconfig import TimeStatus
+from postproc.syncio import read_scanner_lines, write_ins_times, write_line_times, write_report
+from postproc.synclog import WANTED as SYNC_WANTED
+from postproc.synclog import sync_input_from_columns
+from postproc.trajfiles import read_trajectory_file
+from recorder.reader import Paths, read_topics
+from sisa.errors import InputError
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+BLOCK_LINES: Final = 4096
+FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
+Progress = Callable[[int], None]  # called with the number of lines just finished
+
+
+@dataclass(frozen=True)
+class GeorefOptions:
+    sensor: SensorModel
+    dem: Path
+    geoid: Path | float | None = None
+    epsg: int | None = None  # output CRS; default: the DEM's
+    cell_m: float | None = None  # ortho cell; default: the median across-track pixel spacing
+    trajectory: Path | None = None  # RTKLIB .pos or Applanix SBET instead of the log's GPS
+    block_lines: int = BLOCK_LINES
+    products: bool = True  # ortho, GLT, mosaic, quicklooks (the IGM and EO are always made)
+
+
+@dataclass
+class SegmentResult:
+    segment: int
+    lines: int
+    lines_timed: int
+    lines_georeferenced: int
+    rays: int
+    rays_hit: int
+    gsd_across_m: float
+    gsd_along_m: float
+    t_first_gps_ns: int
+    t_last_gps_ns: int
+    igm: Path
+    image: Path
+    files: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class GeorefResult:
+    sync: SyncResult
+    trajectory: Trajectory
+    epsg: int
+    cell_m: float
+    segments: list[SegmentResult]
+    mosaic: Path | None
+    summary: dict[str, Any]
+
+
+def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
+    """One field list per topic for a single read_topics pass."""
+    out: dict[str, tuple[str, ...]] = {}
+    for w in wanted:
+        for topic, fields in w.items():
+            out[topic] = tuple(dict.fromkeys((*out.get(topic, ()), *fields)))
+    return out
+
+
+def segment_image(scanner_dir: Path, segment: int) -> Path:
+    path = scanner_dir / f"segment_{segment:03d}.bil"
+    if not path.is_file():
+        raise InputError(f"{path}: missing: the lines file lists segment {segment}")
+    return path
+
+
+def image_shape(path: Path) -> tuple[int, int, int]:
+    """(lines, bands, pixels) from the ENVI header, through GDAL."""
+    try:
+        with rasterio.open(path) as ds:
+            return int(ds.height), int(ds.count), int(ds.width)
+    except rasterio.errors.RasterioIOError as exc:
+        raise InputError(f"{path}: not a readable ENVI image: {exc}") from None
+
+
+class GeorefJob:
+    def __init__(self, flight: Paths, scanner_dir: Path, out_dir: Path,
+                 options: GeorefOptions) -> None:
+        self.flight = flight
+        self.scanner_dir = Path(scanner_dir)
+        self.out = Path(out_dir)
+        self.opt = options
+        with rasterio.open(options.dem) if Path(options.dem).is_file() else _missing(
+                options.dem) as ds:
+            if ds.crs is None or not ds.crs.is_projected:
+                raise InputError(f"{options.dem}: the DEM must be in a projected CRS (UTM)")
+            self.dem_epsg = int(ds.crs.to_epsg() or 0)
+            self.dem_bounds = tuple(ds.bounds)
+        if not self.dem_epsg:
+            raise InputError(f"{options.dem}: the DEM's CRS has no EPSG code")
+        self.epsg = options.epsg or self.dem_epsg
+        try:
+            crs = CRS.from_epsg(self.epsg)
+        except Exception:  # pyproj raises CRSError subclasses of several kinds
+            raise InputError(f"EPSG:{self.epsg}: unknown CRS") from None
+        if not crs.is_projected:
+            raise InputError(f"EPSG:{self.epsg}: products need a projected CRS (metres)")
+        self._to_out = (None if self.epsg == self.dem_epsg else
+                        Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
+
+    # -- the steps ---------------------------------------------------------------------------
+
+    def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
+        lines = read_scanner_lines(self.scanner_dir)
+        cols = read_topics(self.flight, merged_wanted(SYNC_WANTED, NAV_WANTED))
+        result = synchronise(sync_input_from_columns(cols), lines)
+        mounting = self.opt.sensor.mounting
+        if self.opt.trajectory is not None:
+            traj = read_trajectory_file(self.opt.trajectory, cols, result.ins,
+                                        antenna_offset_m=mounting.antenna_offset_m)
+        else:
+            traj = nav_from_columns(cols, result.ins, antenna_offset_m=mounting.antenna_offset_m)
+        return result, traj
+
+    def write_sync(self, result: SyncResult) -> None:
+        sync_dir = self.out / "sync"
+        sync_dir.mkdir(parents=True, exist_ok=True)
+        ins, ln = result.ins, result.lines
+        write_ins_times(sync_dir / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
+                        ins.status)
+        write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
+                         ln.t_gps_ns, ln.status)
+        write_report(sync_dir / "sync_report.json", result.report)
+
+    def segment_eo(self, result: SyncResult, traj: Trajectory, segment: int, n_lines: int
+                   ) -> tuple[LineEo, I64]:
+        """EO of every line of the segment's image (invalid where the line has no time)."""
+        ln = result.lines
+        sel = ln.segment == segment
+        t = np.full(n_lines, -1, dtype=np.int64)
+        rows = ln.line[sel]
+        if rows.size and (rows.min() < 0 or rows.max() >= n_lines):
+            raise InputError(f"segment {segment}: the lines file has line {rows.max()} but the "
+                             f"image only {n_lines} lines")
+        ok = ln.status[sel] == TimeStatus.OK
+        t[rows[ok]] = ln.t_gps_ns[sel][ok]
+        timed = t >= 0
+        eo = exterior_orientation(traj, np.where(timed, t, traj.span_ns[0]),
+                                  self.opt.sensor.mounting,
+                                  time_delay_ns=self.opt.sensor.time_delay_ns)
+        eo.valid[:] &= timed
+        return eo, t
+
+    def dem_window(self, eo: LineEo) -> Dem:
+        """The DEM under the segment's swath: edge and centre rays of every 64th line met with
+        the DEM's lowest and highest heights, plus a margin."""
+        look = self.opt.sensor.scanner.look_vectors_camera()
+        pick = np.flatnonzero(eo.valid)[::64]
+        if pick.size == 0:
+            raise InputError("no line of the segment has a time and a pose")
+        with rasterio.open(self.opt.dem) as ds:
+            coarse = ds.read(1, out_shape=(max(ds.height // 16, 1), max(ds.width // 16, 1)),
+                             masked=True)
+        h_lo = float(coarse.min()) - 50.0 if coarse.count() else 0.0
+        h_hi = float(coarse.max()) + 50.0 if coarse.count() else 0.0
+        to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
+        to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
+        c = eo.centre_ecef_m[pick]
+        lon, lat, h = to_geo.transform(c[:, 0], c[:, 1], c[:, 2])
+        up = np.stack([np.cos(np.radians(lat)) * np.cos(np.radians(lon)),
+                       np.cos(np.radians(lat)) * np.sin(np.radians(lon)),
+                       np.sin(np.radians(lat))], axis=1)
+        pts = []
+        for j in (0, look.shape[1] // 2, look.shape[1] - 1):
+            d = np.einsum("nij,j->ni", eo.r_ecef_from_camera[pick], look[:, j])
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            down = -np.einsum("ni,ni->n", d, up)
+            for target in (h_lo, h_hi):
+                s = np.where(down > 0.05, (h - target) / np.maximum(down, 0.05), 0.0)
+                s = np.clip(s, 0.0, 50_000.0)
+                p = c + s[:, None] * d
+                plon, plat, _ = to_geo.transform(p[:, 0], p[:, 1], p[:, 2])
+                pts.append(np.stack(to_dem.transform(plon, plat), axis=1))
+        xy = np.concatenate(pts)
+        bounds = (float(xy[:, 0].min()) - FOOTPRINT_MARGIN_M,
+                  float(xy[:, 1].min()) - FOOTPRINT_MARGIN_M,
+                  float(xy[:, 0].max()) + FOOTPRINT_MARGIN_M,
+                  float(xy[:, 1].max()) + FOOTPRINT_MARGIN_M)
+        return Dem.read(self.opt.dem, bounds_m=bounds, geoid=self.opt.geoid)
+
+    def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, image: Path,
+                             progress: Progress | None) -> SegmentResult:
+        n_lines, _bands, pixels = image_shape(image)
+        self.opt.sensor.check_pixels(pixels, str(image))
+        look = self.opt.sensor.scanner.look_vectors_camera()
+        dem = self.dem_window(eo)
+        stem = self.out / f"segment_{segment:03d}"
+        write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
+        hits = 0
+        geo_lines = 0
+        across: list[F64] = []
+        along: list[F64] = []
+        with IgmWriter(Path(f"{stem}_igm"), n_lines, pixels, self.epsg) as igm:
+            for lo in range(0, n_lines, self.opt.block_lines):
+                hi = min(lo + self.opt.block_lines, n_lines)
+                east, north, height = (np.full((hi - lo, pixels), np.nan) for _ in range(3))
+                ok = np.flatnonzero(eo.valid[lo:hi])
+                if ok.size:
+                    gp = intersect(dem, eo.centre_ecef_m[lo:hi][ok],
+                                   eo.r_ecef_from_camera[lo:hi][ok], look)
+                    east[ok], north[ok], height[ok] = gp.easting_m, gp.northing_m, gp.height_m
+                if self._to_out is not None:
+                    east, north = self._to_out.transform(east, north)
+                    east, north = np.asarray(east), np.asarray(north)
+                igm.write_block(lo, east, north, height)
+                good = np.isfinite(east)
+                hits += int(good.sum())
+                geo_lines += int(good.any(axis=1).sum())
+                across.append(np.hypot(np.diff(east, axis=1), np.diff(north, axis=1))[::16]
+                              .ravel())
+                mid = pixels // 2
+                along.append(np.hypot(np.diff(east[:, mid]), np.diff(north[:, mid])))
+                if progress is not None:
+                    progress(hi - lo)
+        timed = t_gps_ns >= 0
+        return SegmentResult(
+            segment=segment, lines=n_lines, lines_timed=int(timed.sum()),
+            lines_georeferenced=geo_lines, rays=n_lines * pixels, rays_hit=hits,
+            gsd_across_m=_median(across), gsd_along_m=_median(along),
+            t_first_gps_ns=int(t_gps_ns[timed].min()) if timed.any() else -1,
+            t_last_gps_ns=int(t_gps_ns[timed].max()) if timed.any() else -1,
+            igm=Path(f"{stem}_igm.bil"), image=image,
+            files={"eo": f"{stem.name}_eo.csv", "igm": f"{stem.name}_igm.bil"})
+
+    def products(self, seg: SegmentResult, cell_m: float) -> None:
+        stem = self.out / f"segment_{seg.segment:03d}"
+        vrt = Path(f"{stem}_geoloc.vrt")
+        write_geolocation_vrt(vrt, seg.image, seg.igm, self.epsg)
+        seg.files["geolocation_vrt"] = vrt.name
+        if not self.opt.products:
+            return
+        igm = open_igm(seg.igm)
+        grid = OrthoGrid.covering(igm_bounds(igm), cell_m, self.epsg)
+        tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
+        orthorectify(seg.igm, seg.image, grid, tif, glt)
+        png = Path(f"{stem}_quicklook.png")
+        write_quicklook(tif, png)
+        seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)
+
+    # -- the whole job -----------------------------------------------------------------------
+
+    def run(self, progress: Progress | None = None,
+            on_total: Callable[[int], None] | None = None) -> GeorefResult:
+        self.out.mkdir(parents=True, exist_ok=True)
+        result, traj = self.read_and_sync()
+        self.write_sync(result)
+        segments = sorted({int(s) for s in result.lines.segment})
+        images = {s: segment_image(self.scanner_dir, s) for s in segments}
+        shapes = {s: image_shape(images[s]) for s in segments}
+        if on_total is not None:
+            on_total(sum(shapes[s][0] for s in segments))
+        done: list[SegmentResult] = []
+        for s in segments:
+            eo, t = self.segment_eo(result, traj, s, shapes[s][0])
+            done.append(self.georeference_segment(s, eo, t, images[s], progress))
+        cell_m = self.opt.cell_m or nice_cell_m(
+            float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
+                            or [math.nan])))
+        if not math.isfinite(cell_m) or cell_m <= 0:
+            raise InputError("no pixel could be georeferenced: does the DEM cover the flight?")
+        features = []
+        for seg in done:
+            self.products(seg, cell_m)
+            features.append(footprint_feature(open_igm(seg.igm), self.epsg, properties={
+                "segment": seg.segment, "lines": seg.lines,
+                "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
+        write_footprints_geojson(self.out / "footprints.geojson", features)
+        mosaic_path: Path | None = None
+        if self.opt.products and done:
+            mosaic_path = self.out / "mosaic.tif"
+            mosaic([(d.igm, d.image) for d in done],
+                   OrthoGrid.covering(_union_bounds([open_igm(d.igm) for d in done]), cell_m,
+                                      self.epsg), mosaic_path)
+            write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
+        summary = self._summary(result, done, cell_m)
+        summary["strip_registration"] = self.registrations(done)
+        (self.out / "georef_summary.json").write_text(json.dumps(summary, indent=1) + "\n",
+                                                       encoding="utf-8")
+        return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary)
+
+    def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
+        """Shift between every pair of overlapping segment orthos (cells and metres)."""
+        out = []
+        orthos = [(d.segment, self.out / d.files["ortho"]) for d in done if "ortho" in d.files]
+        for k, (sa, pa) in enumerate(orthos):
+            for sb, pb in orthos[k + 1:]:
+                reg = register_strips(pa, pb)
+                if reg is None or reg.tiles == 0:
+                    continue
+                out.append({"segments": [sa, sb], "dx_cells": reg.dx_cells,
+                            "dy_cells": reg.dy_cells, "shift_cells": reg.shift_cells,
+                            "tiles": reg.tiles, "spread_cells": reg.spread_cells})
+        return out
+
+    def _summary(self, result: SyncResult, done: list[SegmentResult], cell_m: float
+                 ) -> dict[str, Any]:
+        sensor = self.opt.sensor
+        return {
+            "crs": f"EPSG:{self.epsg}", "vertical": "ellipsoidal (WGS 84)"
+            if self.opt.geoid is None else "ellipsoidal (DEM + geoid)",
+            "cell_m": cell_m, "sensor": sensor.name,
+            "time_delay_ms": sensor.time_delay_ms,
+            "segments": [{
+                "segment": d.segment, "lines": d.lines, "lines_timed": d.lines_timed,
+                "lines_georeferenced": d.lines_georeferenced, "rays": d.rays,
+                "rays_hit": d.rays_hit, "gsd_across_m": d.gsd_across_m,
+                "gsd_along_m": d.gsd_along_m, "t_first_gps_ns": d.t_first_gps_ns,
+                "t_last_gps_ns": d.t_last_gps_ns, "files": d.files} for d in done],
+            "ins_records_timed": int((result.ins.status == TimeStatus.OK).sum()),
+            "ins_records": int(result.ins.status.size),
+        }
+
+
+def nice_cell_m(gsd_m: float) -> float:
+    """The pixel spacing rounded to two significant digits: 0.964 → 0.96, 3.47 → 3.5."""
+    if not math.isfinite(gsd_m) or gsd_m <= 0:
+        return math.nan
+    digits = 1 - math.floor(math.log10(gsd_m))
+    return round(gsd_m, digits)
+
+
+def _median(parts: list[F64]) -> float:
+    vals = np.concatenate(parts) if parts else np.zeros(0)
+    vals = vals[np.isfinite(vals)]
+    return float(np.median(vals)) if vals.size else math.nan
+
+
+def _union_bounds(igms: list[Any]) -> tuple[float, float, float, float]:
+    b = [igm_bounds(i) for i in igms]
+    return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
+            max(x[3] for x in b))
+
+
+def _missing(path: Path) -> Any:
+    raise InputError(f"{path}: no such DEM file")

@@ -1,0 +1,718 @@
+"""Orthorectification by nearest pixel centre: the ortho GeoTIFF and its GLT (ENVI).
+
+For every cell of a north-up grid, the input pixel whose ground position (IGM, pixel centre) is
+nearest to the cell centre. Every quad of 2×2 neighbouring pixels is rasterised onto the grid as
+two triangles, so each cell centre inside the swath is reached (no holes from resampling); the
+nearest corner of the quad is then refined by a descent over neighbouring pixels, which finds
+the exact nearest pixel even where turbulence shears the lines. Cells whose centre no quad
+covers are nodata. Work goes by output windows (full-width strips of rows, or square tiles on
+wide grids) sized by WINDOW_BYTES, each reading only the IGM and image lines that reach it, so
+memory does not grow with the length of the flight; the GeoTIFF is compressed in a background
+thread while the next window is computed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from collections.abc import Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import numba
+import numpy as np
+import numpy.typing as npt
+import rasterio
+from affine import Affine
+from rasterio.windows import Window
+
+from postproc.igm import (
+    EnviRaster,
+    commit_envi,
+    coordinate_system_string,
+    envi_header_text,
+    envi_list,
+    igm_epsg,
+    igm_raster,
+    iter_igm_blocks,
+    partial_path,
+    projected_crs,
+)
+from sisa.errors import InputError
+
+F64 = npt.NDArray[np.float64]
+I32 = npt.NDArray[np.int32]
+I64 = npt.NDArray[np.int64]
+B = npt.NDArray[np.bool_]
+
+TIFF_BLOCK: Final = 512
+WINDOW_BYTES: Final = 160_000_000  # output values (all bands) held per work window
+STRIP_MAX_COLS: Final = 8192  # grids up to this wide go by full-width strips of rows
+INDEX_BLOCK_LINES: Final = 128  # lines per bounding box of the swath index
+MAX_READ_LINES: Final = 2048  # IGM lines per read
+RAW_CHUNK_LINES: Final = 1024  # image lines per read
+DESCENT_LINES: Final = 2  # neighbourhood searched by the descent to the nearest pixel
+DESCENT_PIXELS: Final = 1
+DESCENT_MARGIN_LINES: Final = 4  # lines read beyond a run of quads for the descent
+GDAL_CACHE_MB: Final = 128
+TIFF_ZLEVEL: Final = 1
+TIFF_COMPRESSIONS: Final = ("deflate", "zstd", "lzw", "none")
+GLT_BAND_NAMES: Final = ("GLT Sample Lookup", "GLT Line Lookup")
+
+
+# -- the output grid -------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class OrthoGrid:
+    """A north-up grid in a projected CRS. Cell (row, col) is the square
+    [west + col·cell, west + (col+1)·cell] × [north − (row+1)·cell, north − row·cell]
+    (GeoTIFF AREA_OR_POINT=Area); its centre is the point a pixel is chosen for."""
+
+    west_m: float
+    north_m: float
+    cell_m: float
+    width: int
+    height: int
+    epsg: int
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.cell_m) and self.cell_m > 0):
+            raise InputError(f"grid cell must be a positive number of metres, got {self.cell_m}")
+        if self.width <= 0 or self.height <= 0:
+            raise InputError(f"grid must have cells, got {self.width} x {self.height}")
+        projected_crs(self.epsg)
+
+    @classmethod
+    def covering(cls, bounds_m: Sequence[float], cell_m: float, epsg: int) -> OrthoGrid:
+        """The smallest grid with edges on multiples of `cell_m` that holds (west, south,
+        east, north); grids of one cell size built this way are aligned with each other."""
+        west, south, east, north = (float(b) for b in bounds_m)
+        if not all(map(math.isfinite, (west, south, east, north))) or west > east or \
+                south > north:
+            raise InputError(f"grid bounds {tuple(bounds_m)} are not (west, south, east, north)")
+        if not (math.isfinite(cell_m) and cell_m > 0):
+            raise InputError(f"grid cell must be a positive number of metres, got {cell_m}")
+        c0, c1 = math.floor(west / cell_m), math.ceil(east / cell_m)
+        r0, r1 = math.floor(south / cell_m), math.ceil(north / cell_m)
+        return cls(c0 * cell_m, r1 * cell_m, float(cell_m), max(c1 - c0, 1), max(r1 - r0, 1),
+                   int(epsg))
+
+    @property
+    def transform(self) -> Affine:
+        return Affine(self.cell_m, 0.0, self.west_m, 0.0, -self.cell_m, self.north_m)
+
+    @property
+    def bounds_m(self) -> tuple[float, float, float, float]:
+        return (self.west_m, self.north_m - self.height * self.cell_m,
+                self.west_m + self.width * self.cell_m, self.north_m)
+
+    def centre_x_m(self, col: npt.ArrayLike) -> F64:
+        return self.west_m + (np.asarray(col, dtype=np.float64) + 0.5) * self.cell_m
+
+    def centre_y_m(self, row: npt.ArrayLike) -> F64:
+        return self.north_m - (np.asarray(row, dtype=np.float64) + 0.5) * self.cell_m
+
+    def windows(self, max_cells: int, tile_cells: int | None = None
+                ) -> Iterator[tuple[int, int, int, int]]:
+        """(row0, col0, rows, cols) of work windows of at most ~max_cells, row by row, on
+        GeoTIFF block boundaries: full-width strips when the grid is narrow enough (one GLT
+        write per strip), else square tiles; `tile_cells` forces square tiles of that side."""
+        if tile_cells is not None:
+            rows = cols = max(int(tile_cells), 1)
+        elif self.width <= STRIP_MAX_COLS and self.width * TIFF_BLOCK <= max_cells:
+            rows, cols = max_cells // self.width // TIFF_BLOCK * TIFF_BLOCK, self.width
+        else:
+            rows = cols = max(math.isqrt(max_cells) // TIFF_BLOCK, 1) * TIFF_BLOCK
+        for r in range(0, self.height, rows):
+            for c in range(0, self.width, cols):
+                yield r, c, min(rows, self.height - r), min(cols, self.width - c)
+
+    def offset_in(self, outer: OrthoGrid) -> tuple[int, int]:
+        """(row, col) of this grid's first cell in `outer`; the grids must be aligned."""
+        if self.epsg != outer.epsg or not math.isclose(self.cell_m, outer.cell_m,
+                                                       rel_tol=1e-9):
+            raise InputError(f"grids differ: EPSG:{self.epsg} cell {self.cell_m} m against "
+                             f"EPSG:{outer.epsg} cell {outer.cell_m} m")
+        col = (self.west_m - outer.west_m) / outer.cell_m
+        row = (outer.north_m - self.north_m) / outer.cell_m
+        if abs(col - round(col)) > 1e-6 or abs(row - round(row)) > 1e-6:
+            raise InputError("grids are not aligned (edges are not on common multiples of the "
+                             "cell size)")
+        return round(row), round(col)
+
+
+# -- where each block of lines lies on the ground --------------------------------------------
+
+@dataclass(frozen=True)
+class SwathIndex:
+    """Bounding box of every block of quads of an IGM, so a tile reads only the lines that
+    reach it. Block k holds the quads whose first line is in [k·block_lines, (k+1)·block_lines)
+    (they reach one line further)."""
+
+    raster: EnviRaster
+    block_lines: int
+    boxes_m: F64  # (blocks, 4): west, south, east, north; NaN where a block has no position
+
+    @classmethod
+    def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES) -> SwathIndex:
+        raster = igm_raster(Path(igm))
+        per_line = np.full((raster.lines, 4), np.nan)
+        for lo, blk in iter_igm_blocks(raster.path):
+            e, n = blk[:, 0], blk[:, 1]
+            bad = ~(np.isfinite(e) & np.isfinite(n))
+            e, n = np.where(bad, np.nan, e), np.where(bad, np.nan, n)
+            hi = lo + blk.shape[0]
+            per_line[lo:hi] = np.stack([np.fmin.reduce(e, axis=1), np.fmin.reduce(n, axis=1),
+                                        np.fmax.reduce(e, axis=1), np.fmax.reduce(n, axis=1)],
+                                       axis=1)
+        starts = np.arange(0, max(raster.lines - 1, 1), block_lines)
+        boxes = np.empty((starts.size, 4))
+        boxes[:, :2] = np.fmin.reduceat(per_line[:, :2], starts, axis=0)
+        boxes[:, 2:] = np.fmax.reduceat(per_line[:, 2:], starts, axis=0)
+        nxt = np.minimum(starts + block_lines, raster.lines - 1)  # last line of each block
+        boxes[:, :2] = np.fmin(boxes[:, :2], per_line[nxt, :2])
+        boxes[:, 2:] = np.fmax(boxes[:, 2:], per_line[nxt, 2:])
+        return cls(raster, block_lines, boxes)
+
+    @property
+    def bounds_m(self) -> tuple[float, float, float, float]:
+        b = self.boxes_m
+        if not np.isfinite(b).any():
+            raise InputError(f"{self.raster.path}: no finite position in the IGM")
+        return (float(np.nanmin(b[:, 0])), float(np.nanmin(b[:, 1])),
+                float(np.nanmax(b[:, 2])), float(np.nanmax(b[:, 3])))
+
+    def _hits(self, west: float, south: float, east: float, north: float) -> B:
+        b = self.boxes_m
+        with np.errstate(invalid="ignore"):
+            hit: B = ((b[:, 2] >= west) & (b[:, 0] <= east) & (b[:, 3] >= south)
+                      & (b[:, 1] <= north))
+        return hit
+
+    def cell_extent(self, grid: OrthoGrid, row0: int, col0: int, rows: int, cols: int,
+                    snap: int = 1) -> tuple[int, int, int, int] | None:
+        """The part (row0, col0, rows, cols) of a window that the swath can reach, its start
+        snapped down and its end up to multiples of `snap` within the window; None if none."""
+        x0, y0 = float(grid.centre_x_m(col0)), float(grid.centre_y_m(row0))
+        b = self.boxes_m[self._hits(x0, y0 - (rows - 1) * grid.cell_m,
+                                    x0 + (cols - 1) * grid.cell_m, y0)]
+        if b.shape[0] == 0:
+            return None
+        c_lo = math.floor((float(b[:, 0].min()) - grid.west_m) / grid.cell_m - 0.5)
+        c_hi = math.ceil((float(b[:, 2].max()) - grid.west_m) / grid.cell_m - 0.5) + 1
+        r_lo = math.floor((grid.north_m - float(b[:, 3].max())) / grid.cell_m - 0.5)
+        r_hi = math.ceil((grid.north_m - float(b[:, 1].min())) / grid.cell_m - 0.5) + 1
+        r_lo, c_lo = max(r_lo // snap * snap, row0), max(c_lo // snap * snap, col0)
+        r_hi = min(-(-r_hi // snap) * snap, row0 + rows)
+        c_hi = min(-(-c_hi // snap) * snap, col0 + cols)
+        if r_lo >= r_hi or c_lo >= c_hi:
+            return None
+        return r_lo, c_lo, r_hi - r_lo, c_hi - c_lo
+
+    def quad_runs(self, west: float, south: float, east: float, north: float
+                  ) -> list[tuple[int, int]]:
+        """[first, end) ranges of quad lines whose blocks' boxes meet the given extent."""
+        blocks = np.flatnonzero(self._hits(west, south, east, north))
+        if blocks.size == 0:
+            return []
+        breaks = np.flatnonzero(np.diff(blocks) > 1)
+        firsts = np.concatenate([blocks[:1], blocks[breaks + 1]])
+        lasts = np.concatenate([blocks[breaks], blocks[-1:]])
+        end_line = self.raster.lines - 1
+        runs = []
+        for f, la in zip(firsts, lasts, strict=True):
+            q0, q1 = int(f) * self.block_lines, min((int(la) + 1) * self.block_lines, end_line)
+            runs += [(a, min(a + MAX_READ_LINES, q1)) for a in range(q0, q1, MAX_READ_LINES)]
+        return runs
+
+
+# -- the nearest pixel of every cell of a tile -----------------------------------------------
+
+class Scratch:
+    """Arrays reused from window to window: a fresh large array costs a page fault per 4 KB
+    touched, more than the work done in it."""
+
+    def __init__(self) -> None:
+        self._bufs: dict[str, npt.NDArray[Any]] = {}
+
+    def get(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike,
+            fill: float | None = None) -> npt.NDArray[Any]:
+        size = math.prod(shape)
+        buf = self._bufs.get(name)
+        if buf is None or buf.size < size or buf.dtype != np.dtype(dtype):
+            buf = self._bufs[name] = np.empty(size, dtype=dtype)
+        arr = buf[:size].reshape(shape)
+        if fill is not None:
+            arr.fill(fill)
+        return arr
+
+
+@dataclass(frozen=True)
+class TileChoice:
+    """For each cell of a tile: the chosen input pixel (-1 where none), its squared distance
+    to the cell centre in cell units², and whether it lies inside the cell."""
+
+    line: I32
+    pixel: I32
+    d2_cells: F64
+    inside: B
+
+    @property
+    def valid(self) -> B:
+        return self.line >= 0
+
+
+def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, rows: int,
+                   cols: int, scratch: Scratch | None = None) -> TileChoice:
+    """The nearest input pixel of every cell of the window (rows × cols at row0, col0); with
+    `scratch`, the arrays are overwritten by the next call."""
+    sc = scratch or Scratch()
+    d2 = sc.get("d2", (rows, cols), np.float64, np.inf)
+    line = sc.get("line", (rows, cols), np.int32, -1)
+    pixel = sc.get("pixel", (rows, cols), np.int32, -1)
+    inside = sc.get("inside", (rows, cols), np.bool_, False)
+    x0, y0 = float(grid.centre_x_m(col0)), float(grid.centre_y_m(row0))
+    x1, y1 = x0 + (cols - 1) * grid.cell_m, y0 - (rows - 1) * grid.cell_m
+    for q0, q1 in index.quad_runs(x0, y1, x1, y0):
+        lo = max(q0 - DESCENT_MARGIN_LINES, 0)
+        hi = min(q1 + 1 + DESCENT_MARGIN_LINES, index.raster.lines)
+        blk = index.raster.read_lines(lo, hi)
+        u = (blk[:, 0] - x0) / grid.cell_m
+        v = (y0 - blk[:, 1]) / grid.cell_m
+        box = np.stack([np.fmin.reduce(u, axis=1), np.fmax.reduce(u, axis=1),
+                        np.fmin.reduce(v, axis=1), np.fmax.reduce(v, axis=1)], axis=1)
+        _rasterise(u, v, box, q0 - lo, q1 - lo, lo, d2, line, pixel, inside)
+    return TileChoice(line, pixel, d2, inside)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _in_triangle(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, px: float,
+                 py: float) -> bool:
+    area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    if area == 0.0:
+        return False
+    e0 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+    e1 = (cx - bx) * (py - by) - (cy - by) * (px - bx)
+    e2 = (ax - cx) * (py - cy) - (ay - cy) * (px - cx)
+    tol = 1e-9 * abs(area)  # points on a shared edge belong to both triangles: no cracks
+    if area > 0.0:
+        return e0 >= -tol and e1 >= -tol and e2 >= -tol
+    return e0 <= tol and e1 <= tol and e2 <= tol
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _descend(u: F64, v: F64, li: int, pj: int, d: float, px: float, py: float
+             ) -> tuple[int, int, float]:
+    """Move to the nearest pixel within ±DESCENT_LINES lines and ±DESCENT_PIXELS pixels
+    while that gets closer (turbulence can make lines cross, so look beyond the next one)."""
+    nl, npx = u.shape
+    for _ in range(64):
+        bi, bj, bd = li, pj, d
+        for a in range(max(li - DESCENT_LINES, 0), min(li + DESCENT_LINES + 1, nl)):
+            for b in range(max(pj - DESCENT_PIXELS, 0), min(pj + DESCENT_PIXELS + 1, npx)):
+                x, y = u[a, b], v[a, b]
+                t = (x - px) * (x - px) + (y - py) * (y - py)
+                if t < bd:  # False for NaN
+                    bi, bj, bd = a, b, t
+        if bi == li and bj == pj:
+            break
+        li, pj, d = bi, bj, bd
+    return li, pj, d
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _dist2(x: float, y: float, px: float, py: float) -> float:
+    t = (x - px) * (x - px) + (y - py) * (y - py)
+    return t if t == t else np.inf
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _rasterise(u: F64, v: F64, box: F64, q0: int, q1: int, line_base: int, d2: F64,
+               line: I32, pixel: I32, inside: B) -> None:
+    """Rasterise quads with first line q0..q1-1 of the block (u, v: positions in cell units,
+    column and row of the window's cell centres; box: each line's u/v extent) and keep each
+    cell's nearest pixel. Corners in ring order a (i, j), b (i, j+1), c (i+1, j+1),
+    d (i+1, j): all valid, triangles abc + acd; one missing, the triangle of the other three."""
+    nl, npx = u.shape
+    rows, cols = d2.shape
+    for i in range(q0, min(q1, nl - 1)):
+        if (min(box[i, 0], box[i + 1, 0]) > cols - 1 or max(box[i, 1], box[i + 1, 1]) < 0
+                or min(box[i, 2], box[i + 1, 2]) > rows - 1
+                or max(box[i, 3], box[i + 1, 3]) < 0):
+            continue  # the pair of lines misses the window (NaN boxes fall through)
+        for j in range(npx - 1):
+            ax, ay, bx, by = u[i, j], v[i, j], u[i, j + 1], v[i, j + 1]
+            cx, cy, dx, dy = u[i + 1, j + 1], v[i + 1, j + 1], u[i + 1, j], v[i + 1, j]
+            oka, okb = ax == ax and ay == ay, bx == bx and by == by
+            okc, okd = cx == cx and cy == cy, dx == dx and dy == dy
+            n_ok = int(oka) + int(okb) + int(okc) + int(okd)
+            if n_ok < 3:
+                continue
+            # triangles (p, q, r) and (p, r, s); with a corner missing both are the same one
+            px, py, qx, qy, rx, ry, sx, sy = ax, ay, bx, by, cx, cy, dx, dy
+            if n_ok == 3:
+                if not oka:
+                    px, py, qx, qy, rx, ry = bx, by, cx, cy, dx, dy
+                elif not okb:
+                    qx, qy, rx, ry = cx, cy, dx, dy
+                elif not okc:
+                    rx, ry = dx, dy
+                sx, sy = rx, ry
+            umin, umax = min(px, qx, rx, sx), max(px, qx, rx, sx)
+            vmin, vmax = min(py, qy, ry, sy), max(py, qy, ry, sy)
+            if umax < 0 or vmax < 0 or umin > cols - 1 or vmin > rows - 1:
+                continue
+            c_lo, c_hi = max(math.ceil(umin), 0), min(math.floor(umax), cols - 1)
+            r_lo, r_hi = max(math.ceil(vmin), 0), min(math.floor(vmax), rows - 1)
+            for r in range(r_lo, r_hi + 1):
+                fr = float(r)
+                for c in range(c_lo, c_hi + 1):
+                    fc = float(c)
+                    if not (_in_triangle(px, py, qx, qy, rx, ry, fc, fr)
+                            or _in_triangle(px, py, rx, ry, sx, sy, fc, fr)):
+                        continue
+                    best, li, pj = _dist2(ax, ay, fc, fr), i, j
+                    t = _dist2(bx, by, fc, fr)
+                    if t < best:
+                        best, li, pj = t, i, j + 1
+                    t = _dist2(cx, cy, fc, fr)
+                    if t < best:
+                        best, li, pj = t, i + 1, j + 1
+                    t = _dist2(dx, dy, fc, fr)
+                    if t < best:
+                        best, li, pj = t, i + 1, j
+                    li, pj, best = _descend(u, v, li, pj, best, fc, fr)
+                    if best < d2[r, c]:
+                        d2[r, c] = best
+                        line[r, c] = line_base + li
+                        pixel[r, c] = pj
+                        inside[r, c] = abs(u[li, pj] - fc) <= 0.5 and abs(v[li, pj] - fr) <= 0.5
+
+
+# -- reading the chosen pixels of the image --------------------------------------------------
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _copy_pixels(block: npt.NDArray[Any], lo: int, lines: I64, pixels: I64, cells: I64,
+                 out: npt.NDArray[Any]) -> None:
+    """out[b, cells[k]] = block[lines[k] - lo, b, pixels[k]] (cell by cell, every band)."""
+    for k in range(cells.size):
+        li, pj, c = lines[k] - lo, pixels[k], cells[k]
+        for b in range(block.shape[1]):
+            out[b, c] = block[li, b, pj]
+
+
+def gather_pixels(raw: EnviRaster, line: npt.NDArray[np.integer[Any]],
+                  pixel: npt.NDArray[np.integer[Any]], valid: B, fill: float,
+                  scratch: Scratch | None = None, into: npt.NDArray[Any] | None = None
+                  ) -> npt.NDArray[Any]:
+    """(bands, rows, cols): the image's value at (line, pixel) where valid, else `fill` (or,
+    with `into`, what `into` held); the image is read by chunks of lines, only where some
+    cell needs them."""
+    rows, cols = line.shape
+    if into is None:
+        into = (scratch or Scratch()).get("pixels", (raw.bands, rows, cols),
+                                          raw.dtype.newbyteorder("="), fill)
+    out = into.reshape(raw.bands, rows * cols)
+    cells = np.flatnonzero(valid.ravel())
+    if cells.size:
+        lines = line.ravel()[cells].astype(np.int64)
+        pixels = pixel.ravel()[cells].astype(np.int64)
+        chunk = lines // RAW_CHUNK_LINES
+        k0 = int(chunk.min())
+        for k in np.flatnonzero(np.bincount(chunk - k0)) + k0:
+            sel = np.flatnonzero(chunk == k)
+            lo, hi = int(lines[sel].min()), int(lines[sel].max()) + 1
+            _copy_pixels(raw.read_lines(lo, hi), lo, lines[sel], pixels[sel], cells[sel], out)
+    return out.reshape(raw.bands, rows, cols)
+
+
+def output_nodata(raw: EnviRaster) -> float:
+    """The image's own ignore value when it has one (SISA's scanner: 0), else 0 or NaN."""
+    if raw.nodata is not None:
+        return raw.nodata
+    return math.nan if raw.dtype.kind == "f" else 0.0
+
+
+def band_labels(raw: EnviRaster) -> list[str]:
+    labels = []
+    for b in range(raw.bands):
+        name = _envi_band_name(raw, b) or f"band {b + 1}"
+        wl = raw.wavelengths_nm[b]
+        labels.append(name if wl is None or "nm" in name else f"{name} ({wl:.1f} nm)")
+    return labels
+
+
+def _envi_band_name(raw: EnviRaster, b: int) -> str:
+    names = raw.envi.get("band_names", "").strip().strip("{}").split(",")
+    return names[b].strip() if len(names) == raw.bands else raw.band_names[b]
+
+
+# -- the output files ------------------------------------------------------------------------
+
+class TiffWriter:
+    """A tiled, DEFLATE-compressed GeoTIFF written window by window under a temporary name,
+    renamed into place by `close()`. Blocks without data are not written: GDAL fills them
+    with nodata when it closes the file.
+
+    Writing (compression) runs in a background thread while the next window is computed:
+    `write()` first waits for the previous write, so a caller may reuse the arrays it passed
+    once the following `write()` has returned.
+
+    Band-interleaved, horizontal predictor, DEFLATE level 1: on imagery with sensor noise
+    the higher levels shrink the file by a few per cent at several times the time.
+    `compress` "none" is for timing the resampling alone: blocks left unwritten stay empty in
+    the file (SPARSE_OK; GDAL reads them as nodata) instead of being written as zeros."""
+
+    def __init__(self, path: Path, grid: OrthoGrid, raw: EnviRaster, nodata: float,
+                 description: str, compress: str = "deflate") -> None:
+        if compress not in TIFF_COMPRESSIONS:
+            raise InputError(f"GeoTIFF compression {compress!r}: use one of "
+                             f"{', '.join(TIFF_COMPRESSIONS)}")
+        self.path = Path(path)
+        self._tmp = partial_path(self.path)
+        kind = np.dtype(raw.dtype.name).kind
+        packing: dict[str, Any] = {"compress": compress}
+        if compress != "none":
+            packing["predictor"] = 3 if kind == "f" else 2
+        if compress == "deflate":
+            packing["zlevel"] = TIFF_ZLEVEL
+        if compress == "none":
+            packing["sparse_ok"] = True
+        self._ds = rasterio.open(
+            self._tmp, "w", driver="GTiff", width=grid.width, height=grid.height,
+            count=raw.bands, dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
+            transform=grid.transform, nodata=nodata, tiled=True, blockxsize=TIFF_BLOCK,
+            blockysize=TIFF_BLOCK, interleave="band", bigtiff="IF_SAFER",
+            num_threads="ALL_CPUS", **packing)
+        self._ds.update_tags(AREA_OR_POINT="Area", TIFFTAG_IMAGEDESCRIPTION=description)
+        for b, label in enumerate(band_labels(raw)):
+            self._ds.set_band_description(b + 1, label)
+            wl = raw.wavelengths_nm[b]
+            if wl is not None:
+                self._ds.update_tags(b + 1, wavelength=f"{wl:g}", wavelength_units="Nanometers")
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sisa-tiff")
+        self._pending: Future[None] | None = None
+
+    def write(self, data: npt.NDArray[Any], row0: int, col0: int, valid: B) -> None:
+        """Queue the window's blocks that hold data (`valid`: the window's cells)."""
+        self._wait()
+        self._pending = self._pool.submit(self._write, data, row0, col0, valid)
+
+    def _wait(self) -> None:
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            pending.result()
+
+    def _write(self, data: npt.NDArray[Any], row0: int, col0: int, valid: B) -> None:
+        rows, cols = valid.shape
+        if row0 % TIFF_BLOCK or col0 % TIFF_BLOCK:
+            self._ds.write(data, window=Window(col0, row0, cols, rows))
+            return
+        for r in range(0, rows, TIFF_BLOCK):
+            for c in range(0, cols, TIFF_BLOCK):
+                if valid[r:r + TIFF_BLOCK, c:c + TIFF_BLOCK].any():
+                    blk = data[:, r:r + TIFF_BLOCK, c:c + TIFF_BLOCK]
+                    self._ds.write(blk, window=Window(col0 + c, row0 + r, blk.shape[2],
+                                                      blk.shape[1]))
+
+    def close(self) -> None:
+        """Finish the last write, close and rename into place (or drop it all on error)."""
+        try:
+            self._wait()
+            self._pool.shutdown()
+            self._ds.close()
+        except BaseException:
+            self.abort()
+            raise
+        os.replace(self._tmp, self.path)
+
+    def abort(self) -> None:
+        try:
+            with contextlib.suppress(Exception):  # the error being handled is the caller's
+                self._wait()
+        finally:
+            self._pool.shutdown()
+            self._ds.close()
+            self._tmp.unlink(missing_ok=True)
+
+
+class GltWriter:
+    """The GLT as ENVI BIL int32 (band 1 sample, band 2 line, 1-based), written tile by tile
+    into a zero-filled file (0 = no input pixel) and renamed into place by `close()`."""
+
+    def __init__(self, stem: Path, grid: OrthoGrid, image_name: str, ortho_name: str) -> None:
+        self.path, self.grid = Path(f"{stem}.bil"), grid
+        self.image_name, self.ortho_name = image_name, ortho_name
+        self._tmp = partial_path(self.path)
+        self._fd: int | None = os.open(self._tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.ftruncate(self._fd, grid.height * 2 * grid.width * 4)
+
+    def write_window(self, row0: int, col0: int, values: I32) -> None:
+        """values (rows, 2, cols): sample and line of the window, as the GLT holds them."""
+        if self._fd is None:
+            raise InputError(f"{self.path}: GLT writer already closed")
+        width = self.grid.width
+        data = values.astype("<i4", copy=False)
+        has = data[:, 0] != 0
+        first = np.argmax(has, axis=1)
+        end = has.shape[1] - np.argmax(has[:, ::-1], axis=1)
+        for r in np.flatnonzero(has.any(axis=1)):  # the file is zeros already: write the spans
+            a, b = int(first[r]), int(end[r])
+            for band in range(2):
+                os.pwrite(self._fd, data[r, band, a:b].tobytes(),
+                          ((int(row0 + r) * 2 + band) * width + col0 + a) * 4)
+
+    def close(self) -> None:
+        if self._fd is None:
+            return
+        os.close(self._fd)
+        self._fd = None
+        commit_envi(self._tmp, self.path, self.header_text())
+
+    def abort(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+        self._tmp.unlink(missing_ok=True)
+
+    def header_text(self) -> str:
+        g = self.grid
+        desc = (f"SISA GLT (geographic lookup table) of {self.image_name} for "
+                f"{self.ortho_name}: for every output cell, the 1-based sample (band 1) and "
+                "line (band 2) of the input pixel whose pixel-centre ground position is "
+                "nearest to the cell centre. 0 = no input pixel (the cell centre is outside "
+                "the swath). Negative = that nearest pixel lies outside the cell, which is "
+                "filled from it (ENVI's infill convention): use the absolute value.")
+        return envi_header_text(
+            description=desc, samples=g.width, lines=g.height, bands=2, dtype=np.int32,
+            fields=[("band names", envi_list(GLT_BAND_NAMES)),
+                    ("map info", envi_map_info(g)),
+                    ("coordinate system string", coordinate_system_string(
+                        projected_crs(g.epsg))),
+                    ("data ignore value", "0")])
+
+
+def envi_map_info(grid: OrthoGrid) -> str:
+    """ENVI `map info`: pixel (1, 1) is the upper-left corner of the upper-left cell."""
+    crs = projected_crs(grid.epsg)
+    head = f"1, 1, {grid.west_m!r}, {grid.north_m!r}, {grid.cell_m!r}, {grid.cell_m!r}"
+    if 32601 <= grid.epsg <= 32660 or 32701 <= grid.epsg <= 32760:
+        hemi = "North" if grid.epsg < 32700 else "South"
+        return f"{{UTM, {head}, {grid.epsg % 100}, {hemi}, WGS-84, units=Meters}}"
+    return f"{{{crs.name.replace(',', ' ')}, {head}, units=Meters}}"
+
+
+# -- orthorectify one segment ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class OrthoResult:
+    cells: int
+    cells_filled: int
+    cells_infill: int  # filled from a pixel outside the cell (negative in the GLT)
+    mean_distance_m: float  # cell centre → ground position of the chosen pixel
+    max_distance_m: float
+
+
+def check_pair(index: SwathIndex, raw: EnviRaster, epsg: int) -> None:
+    g = index.raster
+    if (g.lines, g.pixels) != (raw.lines, raw.pixels):
+        raise InputError(f"{g.path}: IGM is {g.lines} x {g.pixels}, the image {raw.path} "
+                         f"{raw.lines} x {raw.pixels}")
+    code = igm_epsg(g.path)
+    if code is not None and code != epsg:
+        raise InputError(f"{g.path}: IGM is in EPSG:{code}, the grid in EPSG:{epsg}")
+
+
+def window_cells(raw: EnviRaster) -> int:
+    """Cells per work window so that its values and buffers stay near WINDOW_BYTES."""
+    per_cell = raw.bands * raw.dtype.itemsize + 32  # + choice buffers and the GLT
+    return max(WINDOW_BYTES // per_cell, TIFF_BLOCK * TIFF_BLOCK)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _glt_values(line: I32, pixel: I32, inside: B, d2: F64, out: I32) -> tuple[int, int, float,
+                                                                            float]:
+    """Fill out (rows, 2, cols) with the signed 1-based GLT; return (filled, infill,
+    sum of distances, max distance) in cell units."""
+    rows, cols = line.shape
+    filled = infill = 0
+    total = top = 0.0
+    for r in range(rows):
+        for c in range(cols):
+            if line[r, c] < 0:
+                out[r, 0, c] = 0
+                out[r, 1, c] = 0
+                continue
+            sign = 1 if inside[r, c] else -1
+            out[r, 0, c] = sign * (pixel[r, c] + 1)
+            out[r, 1, c] = sign * (line[r, c] + 1)
+            filled += 1
+            infill += 1 - inside[r, c]
+            d = math.sqrt(d2[r, c])
+            total += d
+            top = max(top, d)
+    return filled, infill, total, top
+
+
+def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_stem: Path, *,
+                 tile_cells: int | None = None, compress: str = "deflate") -> OrthoResult:
+    """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and
+    `<glt_stem>.bil/.hdr`; each appears only when complete. `tile_cells` forces square work
+    tiles of that side (default: windows sized by WINDOW_BYTES)."""
+    index = SwathIndex.build(Path(igm))
+    raw = EnviRaster.open(Path(image))
+    check_pair(index, raw, grid.epsg)
+    nodata = output_nodata(raw)
+    out_tif = Path(out_tif)
+    desc = (f"SISA ortho of {raw.path.name}: each cell holds the input pixel whose "
+            "pixel-centre ground position (IGM) is nearest to the cell centre")
+    with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
+        tif = TiffWriter(out_tif, grid, raw, nodata, desc, compress)
+        try:
+            glt = GltWriter(Path(glt_stem), grid, raw.path.name, out_tif.name)
+        except BaseException:
+            tif.abort()
+            raise
+        try:
+            filled, infill, dist_sum, dist_max = _ortho_windows(index, raw, grid, nodata, tif,
+                                                                glt, tile_cells)
+            tif.close()
+        except BaseException:
+            tif.abort()
+            glt.abort()
+            raise
+        glt.close()
+    return OrthoResult(grid.width * grid.height, filled, infill,
+                       dist_sum / filled if filled else math.nan, dist_max)
+
+
+def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
+                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None
+                   ) -> tuple[int, int, float, float]:
+    """Every window: nearest pixels, their values, the GLT; (filled, infill, sum and max of
+    the distances in metres)."""
+    filled = infill = written = 0
+    dist_sum = dist_max = 0.0
+    scratches = (Scratch(), Scratch())  # one window is written while the next is made
+    for window in grid.windows(window_cells(raw), tile_cells):
+        part = index.cell_extent(grid, *window, snap=TIFF_BLOCK)
+        if part is None:
+            continue
+        row0, col0, rows, cols = part  # only where the swath can be: less to fill
+        scratch = scratches[written % 2]
+        ch = nearest_pixels(index, grid, row0, col0, rows, cols, scratch)
+        ok = ch.valid
+        if not ok.any():
+            continue
+        tif.write(gather_pixels(raw, ch.line, ch.pixel, ok, nodata, scratch), row0, col0, ok)
+        values = scratch.get("glt", (rows, 2, cols), np.int32)
+        n, n_in, d_sum, d_top = _glt_values(ch.line, ch.pixel, ch.inside, ch.d2_cells, values)
+        glt.write_window(row0, col0, values)
+        written += 1
+        filled, infill = filled + n, infill + n_in
+        dist_sum += d_sum * grid.cell_m
+        dist_max = max(dist_max, d_top * grid.cell_m)
+    return filled, infill, dist_sum, dist_max

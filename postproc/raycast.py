@@ -1,0 +1,1136 @@
+"""Where each scanner ray first meets the DEM: the post-processor's ray casting.
+
+Geometry. Rays are straight in ECEF; the DEM is a bilinear surface of ELLIPSOIDAL height over a
+projected (UTM) grid, and (E, N, h) are not Cartesian (curvature drops a point 1 km from nadir
+by ~8 cm; the UTM scale varies). Lines are grouped in blocks; for each block a local East-North-Up
+frame is fitted with a QUADRATIC map p ↦ (E, N, h), least squares on pyproj at Chebyshev nodes
+of a box holding every ray's path through the DEM's height range, and checked at other points
+(< MAP_TOLERANCE_M, else the block is split). Along one ray E, N and h are then exact quadratics
+in the range s, with per-line coefficients, so a ray costs a few multiply-adds to set up.
+
+Fast path (numba, parallel over blocks, lines in order within a block). Each ray starts from the
+range of the same pixel in the previous line (float64 set-up of float32 quadratic models of the
+grid position and height in t = s − start, relative to the block) and takes two branch-free
+float32 Newton steps on g = h − DEM(E, N) (vectorised; the four corner heights are gathers).
+Inside one DEM cell g is a quadratic in t, so the last step bounds the remaining error: a ray is
+accepted only if |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M, that step stayed in one cell, and the
+root is provably the FIRST one: g falls monotonically along the ray's whole path through the
+DEM's height range when the steepest DEM slope under the paths of a group of rays (a sparse
+table of per-tile slope maxima) times the ray's horizontal/vertical rate is below 1. Float32
+rounding relative to the block leaves < 0.1 mm; the output is evaluated in float64. Every other
+ray takes the safe path (float64): a cell-by-cell walk along the ray from the top of the DEM's
+height range, solving the (quadratic-in-s) gap exactly inside each cell, so a ray grazing a
+ridge or occluded by a cliff finds its first crossing.
+
+Misses (hit False, NaN): rays that never come down to the DEM's highest sample, that pass off
+the DEM or over a nodata cell while within the DEM's height range (nothing is invented about
+unknown terrain), and cameras below the surface. The few rays whose path leaves the box a
+block's map was fitted to are solved by the reference method.
+
+`reference_intersect` is the slow oracle sharing no code with the fast path: pyproj at every
+point, DEM heights from `Dem.height_at`, steps no longer than gap / (1 + max slope) so no
+crossing can be skipped, then bisection to 1e-7 m.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import weakref
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any, Final, TypeVar, cast
+
+import numba
+import numpy as np
+import numpy.typing as npt
+from pyproj import Transformer
+
+from postproc.dem import Dem
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+U8 = npt.NDArray[np.uint8]
+B1 = npt.NDArray[np.bool_]
+_Fn = TypeVar("_Fn", bound=Callable[..., Any])
+
+BLOCK_LINES: Final = 256  # lines sharing one fitted map (and one parallel work item)
+GROUP_LINES: Final = 16  # lines certified together (first-root test) before the next group
+CHUNK_PIXELS: Final = 64  # pixels whose paths share one slope bound
+TILE_CELLS: Final = 8  # DEM cells per side of the tiles holding slope maxima
+COLD_PASSES: Final = 4  # rounds of Newton steps for a block's first line (cold start)
+MAP_TOLERANCE_M: Final = 3e-5  # fitted map vs pyproj at check points
+ROOT_TOLERANCE_M: Final = 1e-6  # error bound of the last Newton step
+MAX_NEWTON_STEP_M: Final = 0.01  # a larger final step is not trusted
+SLOPE_MARGIN: Final = 0.98  # first-root test: slope × rate must stay below this
+BOX_MARGIN_M: Final = 60.0  # map box beyond the sampled footprints...
+BOX_MARGIN_FRACTION: Final = 0.1  # ...plus this fraction of its size
+BAND_PAD_M: Final = 10.0  # map box reaches this far above / below the DEM's heights
+SAFE_SEGMENT_M: Final = 4.0  # longest stretch of ray solved as one quadratic in the safe path
+REFERENCE_MIN_STEP_M: Final = 1e-4
+REFERENCE_TOLERANCE_M: Final = 1e-7
+
+# Per-ray outcome codes of the kernel.
+_HIT: Final = 0
+_MISS: Final = 1
+_EXACT: Final = 2  # outside the fitted map: solved by the reference method
+
+
+def _jit(parallel: bool = False, inline: bool = False) -> Callable[[_Fn], _Fn]:
+    """numba.njit, cached on disk, IEEE division (needed to vectorise), no fastmath (NaN
+    tests must hold)."""
+    return cast(Callable[[_Fn], _Fn],
+                numba.njit(cache=True, parallel=parallel, error_model="numpy",
+                           inline="always" if inline else "never"))
+
+
+# ---------------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class GroundPoints:
+    """First intersection of every ray with the DEM, in the DEM's CRS: easting, northing and
+    ellipsoidal height (lines, pixels), NaN where the ray misses (hit False)."""
+
+    easting_m: F64
+    northing_m: F64
+    height_m: F64
+    hit: B1
+
+    @classmethod
+    def empty(cls, lines: int, pixels: int) -> GroundPoints:
+        """Uninitialised buffers: allocate once, pass as `out=` for every chunk of lines."""
+        shape = (lines, pixels)
+        return cls(np.empty(shape), np.empty(shape), np.empty(shape), np.empty(shape, np.bool_))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return cast(tuple[int, int], self.easting_m.shape)
+
+
+@dataclass
+class CastStats:
+    """How the rays of one `intersect` call were resolved (for benchmarks and reports)."""
+
+    fast: int = 0  # accepted from the Newton path
+    safe_hit: int = 0  # cell walk, hit
+    safe_miss: int = 0  # cell walk, miss
+    exact: int = 0  # outside the fitted maps: reference method
+    blocks: int = 0
+    map_error_m: float = 0.0  # worst fitted-map error at the check points
+
+
+def intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64, look_camera: F64, *,
+              out: GroundPoints | None = None, stats: CastStats | None = None) -> GroundPoints:
+    """Ground point of every pixel of every line: ray i, j is
+    centre_ecef_m[i] + s · r_ecef_from_camera[i] @ look_camera[:, j], s ≥ 0.
+
+    centre_ecef_m (n, 3), r_ecef_from_camera (n, 3, 3) rotations, look_camera (3, p)
+    unnormalised camera-frame look vectors. Coordinates in the DEM's CRS, accurate to
+    < 1 mm of range. A line whose pose is NaN (no time) gives NaN, hit False. `out` buffers
+    are reused when given (shape (n, p)); `stats`, when given, is filled in."""
+    centre, rot, look = _checked_rays(centre_ecef_m, r_ecef_from_camera, look_camera)
+    n, p = centre.shape[0], look.shape[1]
+    out = _output(out, n, p)
+    if n == 0 or p == 0:
+        return out
+    posed = _posed(centre, rot)
+    if not posed.all():  # lines without a pose: NaN, the others as usual
+        sub = intersect(dem, centre[posed], rot[posed], look, stats=stats)
+        for full, part in ((out.easting_m, sub.easting_m), (out.northing_m, sub.northing_m),
+                           (out.height_m, sub.height_m)):
+            full[posed], full[~posed] = part, np.nan
+        out.hit[posed], out.hit[~posed] = sub.hit, False
+        return out
+    surf = _surface(dem)
+    unit = look / np.linalg.norm(look, axis=0)
+    maps = _fit_block_maps(surf, centre, rot, unit)
+    coef = _line_coefficients(maps, centre, rot)
+    blk, consts = _kernel_tables(surf, maps)
+    line_flag = np.zeros(n, np.uint8)
+    counts = np.zeros((maps.starts.size - 1, 4), np.int64)
+    _cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef,
+                 _look_products(unit), maps.starts, blk, consts, out.easting_m, out.northing_m,
+                 out.height_m, out.hit.view(np.uint8), line_flag, counts, *_scratch(p))
+    exact = _resolve_exact(dem, out, line_flag, centre, rot, unit)
+    if stats is not None:
+        total = counts.sum(axis=0)
+        stats.fast, stats.safe_hit, stats.safe_miss = int(total[0]), int(total[1]), int(total[2])
+        stats.exact = exact
+        stats.blocks = int(maps.starts.size - 1)
+        stats.map_error_m = float(maps.error_m.max())
+    return out
+
+
+def reference_intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64,
+                        look_camera: F64) -> GroundPoints:
+    """Same result as `intersect`, slowly and independently: float64 throughout, pyproj
+    (ECEF → geodetic → map) at every point of a march whose steps cannot skip a crossing
+    (gap / (1 + steepest DEM slope), at most half a cell in the DEM's height range), then
+    bisection to REFERENCE_TOLERANCE_M."""
+    centre, rot, look = _checked_rays(centre_ecef_m, r_ecef_from_camera, look_camera)
+    n, p = centre.shape[0], look.shape[1]
+    posed = np.repeat(_posed(centre, rot), p)
+    d = np.einsum("nij,jp->npi", rot, look).reshape(-1, 3)
+    c = np.repeat(centre, p, axis=0)
+    c[~posed], d[~posed] = [0.0, 0.0, 1e7], [0.0, 0.0, 1.0]  # unposed: far up, looking up
+    e, nn, h = _reference_rays(dem, c, d)
+    for a in (e, nn, h):
+        a[~posed] = np.nan
+    return GroundPoints(e.reshape(n, p), nn.reshape(n, p), h.reshape(n, p),
+                        np.isfinite(e).reshape(n, p))
+
+
+def _scratch(pixels: int) -> tuple[F64, F32, U8, F32, npt.NDArray[np.int32]]:
+    """Per-thread scratch of the kernel: ranges (previous, start), float32 linear models and
+    Newton offsets, and the first-root test's per-ray data for a group of lines."""
+    t = numba.get_num_threads()
+    return (np.empty((t, 2, pixels)), np.empty((t, 10, pixels), np.float32),
+            np.empty((t, GROUP_LINES, pixels), np.uint8),
+            np.empty((t, GROUP_LINES, pixels), np.float32),
+            np.empty((t, 4, GROUP_LINES, pixels), np.int32))
+
+
+def _checked_rays(centre: F64, rot: F64, look: F64) -> tuple[F64, F64, F64]:
+    c = np.ascontiguousarray(centre, dtype=np.float64)
+    r = np.ascontiguousarray(rot, dtype=np.float64)
+    lk = np.ascontiguousarray(look, dtype=np.float64)
+    n = c.shape[0] if c.ndim == 2 else -1
+    if c.shape != (n, 3) or r.shape != (n, 3, 3) or lk.ndim != 2 or lk.shape[0] != 3:
+        raise ValueError(f"expected centre (n, 3), rotation (n, 3, 3), look (3, p); got "
+                         f"{c.shape}, {r.shape}, {lk.shape}")
+    if not np.isfinite(lk).all() or (lk.shape[1] and not (np.linalg.norm(lk, axis=0) > 0.0).all()):
+        raise ValueError("look vectors must be finite and non-zero")
+    ok = _posed(c, r)
+    if ok.any() and np.abs(np.swapaxes(r[ok], 1, 2) @ r[ok] - np.eye(3)).max() > 1e-6:
+        raise ValueError("r_ecef_from_camera must be rotation matrices")
+    return c, r, lk
+
+
+def _posed(centre: F64, rot: F64) -> B1:
+    """Lines with a finite pose (a line without one, NaN, gives NaN ground points)."""
+    return np.asarray(np.isfinite(centre).all(axis=1) & np.isfinite(rot).all(axis=(1, 2)))
+
+
+def _output(out: GroundPoints | None, n: int, p: int) -> GroundPoints:
+    if out is None:
+        return GroundPoints.empty(n, p)
+    arrays = (out.easting_m, out.northing_m, out.height_m)
+    if (any(a.shape != (n, p) or a.dtype != np.float64 or not a.flags.c_contiguous
+            for a in arrays) or out.hit.shape != (n, p) or out.hit.dtype != np.bool_
+            or not out.hit.flags.c_contiguous):
+        raise ValueError(f"out buffers must be C-contiguous float64/bool of shape {(n, p)}")
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The prepared DEM
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class _Surface:
+    """What the kernel needs of a DEM, built once per DEM: flat heights, their range, and a
+    sparse table of per-tile slope maxima (inf where a tile touches nodata)."""
+
+    dem: Dem
+    flat: F32
+    rows: int
+    cols: int
+    low_m: float
+    high_m: float
+    slope_table: F32  # (levels, tile rows, tile cols): max over 2**level tiles from col
+    log2: I64  # floor(log2(k)) for k = 0..tile cols
+    coarse_map: _Maps  # over the whole DEM: only to size the blocks' boxes
+
+    @classmethod
+    def build(cls, dem: Dem) -> _Surface:
+        h = dem.heights_m
+        if not np.isfinite(h).any():
+            raise ValueError("the DEM has no valid height")
+        slope = cell_slopes(dem)
+        table = _sparse_table(_tile_max(slope, TILE_CELLS))
+        log2 = np.zeros(table.shape[2] + 1, np.int64)
+        log2[2:] = np.floor(np.log2(np.arange(2, table.shape[2] + 1))).astype(np.int64)
+        low, high = float(np.nanmin(h)), float(np.nanmax(h))
+        coarse = _fit_maps(np.array([dem.bounds_m], dtype=np.float64), low, high, dem.epsg)
+        return cls(dem, np.ascontiguousarray(h).ravel(), dem.rows, dem.cols, low, high, table,
+                   log2, coarse)
+
+
+_SURFACES: weakref.WeakKeyDictionary[Dem, _Surface] = weakref.WeakKeyDictionary()
+
+
+def _surface(dem: Dem) -> _Surface:
+    surf = _SURFACES.get(dem)
+    if surf is None:
+        surf = _SURFACES[dem] = _Surface.build(dem)
+    return surf
+
+
+def cell_slopes(dem: Dem) -> F32:
+    """Upper bound of |grad h| (m/m) over each cell's bilinear patch, (rows-1, cols-1); inf
+    where a corner is nodata. Float32 (rounding is far inside the margins it is used with)."""
+    z = dem.heights_m
+    gx = np.maximum(np.abs(z[:-1, 1:] - z[:-1, :-1]), np.abs(z[1:, 1:] - z[1:, :-1]))
+    gy = np.maximum(np.abs(z[1:, :-1] - z[:-1, :-1]), np.abs(z[1:, 1:] - z[:-1, 1:]))
+    s = np.hypot(gx * np.float32(1.0 / dem.cell_e_m), gy * np.float32(1.0 / dem.cell_n_m))
+    s[np.isnan(s)] = np.inf
+    return np.asarray(s, dtype=np.float32)
+
+
+def _tile_max(cells: F32, k: int) -> F32:
+    rows, cols = cells.shape
+    tr, tc = -(-rows // k), -(-cols // k)
+    pad = np.zeros((tr * k, tc * k), np.float32)
+    pad[:rows, :cols] = cells
+    return np.asarray(pad.reshape(tr, k, tc, k).max(axis=(1, 3)), dtype=np.float32)
+
+
+def _sparse_table(tiles: F32) -> F32:
+    """table[k, r, c] = max(tiles[r, c : c + 2**k]) (clipped at the last column)."""
+    levels = max(1, math.floor(math.log2(tiles.shape[1])) + 1)
+    table = np.empty((levels, *tiles.shape), np.float32)
+    table[0] = tiles
+    for k in range(1, levels):
+        half = 1 << (k - 1)
+        table[k] = table[k - 1]
+        table[k, :, :-half] = np.maximum(table[k - 1, :, :-half], table[k - 1, :, half:])
+    return table
+
+
+# ---------------------------------------------------------------------------------------------
+# Fitted maps: local ENU → (E, N, h), one per block of lines
+# ---------------------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=16)
+def _transformers(epsg: int) -> tuple[Transformer, Transformer, Transformer, Transformer]:
+    """(ECEF → geodetic, geodetic → map, map → geodetic, geodetic → ECEF), built once."""
+    return (Transformer.from_crs(4978, 4979, always_xy=True),
+            Transformer.from_crs(4326, epsg, always_xy=True),
+            Transformer.from_crs(epsg, 4326, always_xy=True),
+            Transformer.from_crs(4979, 4978, always_xy=True))
+
+
+def _enu_rotation(lat_rad: F64, lon_rad: F64) -> F64:
+    """(..., 3, 3) rows east, north, up in ECEF."""
+    sl, cl, so, co = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
+    z = np.zeros_like(sl)
+    return np.stack([np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1),
+                     np.stack([cl * co, cl * so, sl], -1)], -2)
+
+
+_EXPONENTS: Final = np.array([e for e in itertools.product(range(3), repeat=3) if sum(e) <= 2])
+
+
+def _monomials(u: F64) -> F64:
+    return np.asarray(np.prod(u[..., None, :] ** _EXPONENTS, axis=-1))
+
+
+def _chebyshev_nodes() -> F64:
+    axes = [np.cos(np.pi * (np.arange(m) + 0.5) / m) for m in (4, 4, 3)]
+    return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=-1)
+
+
+_NODES: Final = _chebyshev_nodes()
+_FIT: Final = np.linalg.pinv(_monomials(_NODES))
+_CHECKS: Final = np.concatenate([
+    np.array(list(itertools.product((-1.0, 1.0), repeat=3))),
+    np.random.default_rng(20_260_615).uniform(-1.0, 1.0, (8, 3))])
+
+
+@dataclass(frozen=True)
+class _Maps:
+    """Per block: line range, ENU origin and rotation, the quadratic map
+    (E − E0, N − N0, h − h0) = a + g·p + ½ pᵀHp, and the DEM-grid box it is valid in."""
+
+    starts: I64  # (blocks + 1,)
+    origin_ecef_m: F64  # (b, 3)
+    rot: F64  # (b, 3, 3) ENU rows
+    a: F64  # (b, 3)
+    g: F64  # (b, 3, 3) [component, axis]
+    hess: F64  # (b, 3, 3, 3) [component, axis, axis]
+    en0_m: F64  # (b, 2) E0, N0
+    h0_m: F64  # (b,)
+    box_en_m: F64  # (b, 4) west, south, east, north where the map is valid
+    error_m: F64  # (b,) worst check-point error
+
+
+def _fit_maps(boxes: F64, low_m: float, high_m: float, epsg: int) -> _Maps:
+    """Quadratic ENU → (E, N, h) maps over each EN box × [low, high] (padded), by least
+    squares on pyproj at Chebyshev nodes; error at independent check points."""
+    to_geo, to_map, from_map, to_ecef = _transformers(epsg)
+    b = boxes.shape[0]
+    en0 = np.round(0.5 * (boxes[:, :2] + boxes[:, 2:]))
+    h0 = np.full(b, float(round(0.5 * (low_m + high_m))))
+    lon0, lat0 = from_map.transform(en0[:, 0], en0[:, 1])
+    origin = np.stack(to_ecef.transform(lon0, lat0, h0), axis=-1)
+    rot = _enu_rotation(np.radians(lat0), np.radians(lon0))
+    # p-box: ENU bounding box of the EN box's corners, edge midpoints and centre at both heights
+    t = np.array([0.0, 0.5, 1.0])
+    fe, fn, fh = (g.ravel() for g in np.meshgrid(t, t, [0.0, 1.0], indexing="ij"))
+    e = boxes[:, None, 0] + fe * (boxes[:, None, 2] - boxes[:, None, 0])
+    n = boxes[:, None, 1] + fn * (boxes[:, None, 3] - boxes[:, None, 1])
+    h = (low_m - BAND_PAD_M) + fh * (high_m - low_m + 2.0 * BAND_PAD_M) + 0.0 * e
+    p = _map_to_enu(e, n, h, origin, rot, epsg)
+    centre = 0.5 * (p.min(axis=1) + p.max(axis=1))
+    half = 0.5 * (p.max(axis=1) - p.min(axis=1)) + 2.0
+
+    def exact(u: F64) -> F64:
+        q = centre[:, None] + u[None] * half[:, None]
+        x = origin[:, None] + np.einsum("bji,bkj->bki", rot, q)
+        lon, lat, hh = to_geo.transform(x[..., 0], x[..., 1], x[..., 2])
+        ee, nn = to_map.transform(lon, lat)
+        return np.stack([ee - en0[:, None, 0], nn - en0[:, None, 1], hh - h0[:, None]], -1)
+
+    coef = np.einsum("tm,bmk->btk", _FIT, exact(_NODES))  # (b, 10 terms, 3)
+    err = np.abs(np.einsum("mt,btk->bmk", _monomials(_CHECKS), coef) - exact(_CHECKS))
+    a, g, hess = _expand(coef, centre, half)
+    return _Maps(np.zeros(0, np.int64), origin, rot, a, g, hess, en0, h0, boxes.copy(),
+                 err.max(axis=(1, 2)))
+
+
+def _map_to_enu(e: F64, n: F64, h: F64, origin: F64, rot: F64, epsg: int) -> F64:
+    _, _, from_map, to_ecef = _transformers(epsg)
+    lon, lat = from_map.transform(e, n)
+    x = np.stack(to_ecef.transform(lon, lat, h), axis=-1)
+    return np.asarray(np.einsum("bij,bkj->bki", rot, x - origin[:, None]))
+
+
+def _expand(coef: F64, centre: F64, half: F64) -> tuple[F64, F64, F64]:
+    """Polynomial in u = (p − centre)/half → a + g·p + ½ pᵀHp (per block and component)."""
+    b = coef.shape[0]
+    lin = np.zeros((b, 3, 3))  # [b, k, axis] coefficient of u_axis
+    quad = np.zeros((b, 3, 3, 3))  # [b, k, i, j] so that ½ uᵀ quad u is the quadratic part
+    const = np.zeros((b, 3))
+    for t, ex in enumerate(_EXPONENTS):
+        idx = [i for i in range(3) for _ in range(ex[i])]
+        if len(idx) == 0:
+            const += coef[:, t]
+        elif len(idx) == 1:
+            lin[:, :, idx[0]] += coef[:, t]
+        elif idx[0] == idx[1]:
+            quad[:, :, idx[0], idx[0]] += 2.0 * coef[:, t]
+        else:
+            quad[:, :, idx[0], idx[1]] += coef[:, t]
+            quad[:, :, idx[1], idx[0]] += coef[:, t]
+    inv = 1.0 / half  # (b, 3)
+    hess = quad * inv[:, None, :, None] * inv[:, None, None, :]
+    g0 = lin * inv[:, None, :]
+    g = g0 - np.einsum("bkij,bj->bki", hess, centre)
+    a = (const - np.einsum("bki,bi->bk", g0, centre)
+         + 0.5 * np.einsum("bi,bkij,bj->bk", centre, hess, centre))
+    return a, g, hess
+
+
+def _fit_block_maps(surf: _Surface, centre: F64, rot: F64, unit: F64) -> _Maps:
+    """Blocks of BLOCK_LINES lines, each with a map fitted over the box its rays' paths
+    through the DEM's height range cover (from a coarse whole-DEM map); blocks whose map misses
+    MAP_TOLERANCE_M are halved until they fit (a single line that cannot is left with an empty
+    box: its rays go to the reference method)."""
+    dem = surf.dem
+    n = centre.shape[0]
+    hull = np.array(dem.bounds_m, dtype=np.float64)
+    lines = np.unique(np.append(np.arange(0, n, 8), n - 1))
+    pix = np.unique(np.append(np.arange(0, unit.shape[1], 16), unit.shape[1] - 1))
+    foot = _footprints(surf.coarse_map, centre[lines], rot[lines], unit[:, pix], surf, hull)
+    start = np.arange(0, n, BLOCK_LINES)
+    stop = np.minimum(start + BLOCK_LINES, n)
+    parts: list[tuple[I64, _Maps]] = []
+    for _ in range(64):
+        maps = _fit_maps(_block_boxes(foot, lines, start, stop, hull), surf.low_m, surf.high_m,
+                         dem.epsg)
+        keep = (maps.error_m <= MAP_TOLERANCE_M) | (stop - start == 1)
+        parts.append((start[keep], _take(maps, keep)))
+        mid = (start + stop) // 2
+        start, stop = (np.concatenate([start[~keep], mid[~keep]]),
+                       np.concatenate([mid[~keep], stop[~keep]]))
+        if start.size == 0:
+            break
+    starts = np.concatenate([p[0] for p in parts])
+    order = np.argsort(starts)
+    maps = _concat([p[1] for p in parts], order)
+    bad = maps.error_m > MAP_TOLERANCE_M
+    maps.box_en_m[bad] = [np.inf, np.inf, -np.inf, -np.inf]
+    return _with_starts(maps, np.append(starts[order], n).astype(np.int64))
+
+
+def _take(maps: _Maps, keep: B1) -> _Maps:
+    return _Maps(maps.starts, maps.origin_ecef_m[keep], maps.rot[keep], maps.a[keep],
+                 maps.g[keep], maps.hess[keep], maps.en0_m[keep], maps.h0_m[keep],
+                 maps.box_en_m[keep], maps.error_m[keep])
+
+
+def _concat(parts: list[_Maps], order: I64) -> _Maps:
+    def cat(name: str) -> F64:
+        return np.concatenate([getattr(p, name) for p in parts])[order]
+
+    return _Maps(np.zeros(0, np.int64), cat("origin_ecef_m"), cat("rot"), cat("a"), cat("g"),
+                 cat("hess"), cat("en0_m"), cat("h0_m"), cat("box_en_m"), cat("error_m"))
+
+
+def _with_starts(maps: _Maps, starts: I64) -> _Maps:
+    return _Maps(starts, maps.origin_ecef_m, maps.rot, maps.a, maps.g, maps.hess, maps.en0_m,
+                 maps.h0_m, maps.box_en_m, maps.error_m)
+
+
+def _footprints(coarse: _Maps, centre: F64, rot: F64, unit: F64, surf: _Surface,
+                hull: F64) -> F64:
+    """Per line (lines, 4): approximate EN box (west, south, east, north) of where its rays
+    cross the DEM's lowest and highest heights (the camera itself when below), clipped to the
+    DEM; the camera's own position when no ray comes down."""
+    coarse = _with_starts(coarse, np.array([0, centre.shape[0]], np.int64))
+    coef = _line_coefficients(coarse, centre, rot)
+    out = np.empty((centre.shape[0], 4))
+    levels = np.array([surf.low_m, surf.high_m]) - coarse.h0_m[0]
+    _footprint_kernel(coef, _look_products(unit), levels, coarse.en0_m[0], hull, out)
+    return out
+
+
+@_jit(parallel=True)
+def _footprint_kernel(coef: Any, look9: Any, levels: Any, en0: Any, hull: Any, out: Any
+                      ) -> None:
+    for i in numba.prange(coef.shape[0]):
+        w, s, e, n = np.inf, np.inf, -np.inf, -np.inf
+        for j in range(look9.shape[1]):
+            be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+            for level in levels:
+                r = _first_at_or_below(coef[i, 2], bh, ch, level, 0.0)
+                if r == r:
+                    x = en0[0] + coef[i, 0] + r * (be + r * ce)
+                    y = en0[1] + coef[i, 1] + r * (bn + r * cn)
+                    w, e = min(w, x), max(e, x)
+                    s, n = min(s, y), max(n, y)
+        if w > e:
+            w = e = en0[0] + coef[i, 0]
+            s = n = en0[1] + coef[i, 1]
+        out[i, 0] = min(max(w, hull[0]), hull[2])
+        out[i, 1] = min(max(s, hull[1]), hull[3])
+        out[i, 2] = min(max(e, hull[0]), hull[2])
+        out[i, 3] = min(max(n, hull[1]), hull[3])
+
+
+def _block_boxes(foot: F64, lines: I64, start: I64, stop: I64, hull: F64) -> F64:
+    """EN boxes (blocks, 4: west, south, east, north) for lines [start, stop): the sampled
+    footprints of the lines around them, grown by BOX_MARGIN_M and BOX_MARGIN_FRACTION, within
+    the DEM."""
+    lo = np.searchsorted(lines, start - 8)
+    hi = np.maximum(np.searchsorted(lines, stop + 8), lo + 1)
+    pad = np.vstack([foot, foot[-1:]])
+    idx = np.stack([lo, hi], axis=1).ravel()
+    box = np.stack([np.minimum.reduceat(pad[:, 0], idx)[::2],
+                    np.minimum.reduceat(pad[:, 1], idx)[::2],
+                    np.maximum.reduceat(pad[:, 2], idx)[::2],
+                    np.maximum.reduceat(pad[:, 3], idx)[::2]], axis=1)
+    grow = BOX_MARGIN_M + BOX_MARGIN_FRACTION * np.maximum(box[:, 2] - box[:, 0],
+                                                           box[:, 3] - box[:, 1])
+    box += grow[:, None] * np.array([-1.0, -1.0, 1.0, 1.0])
+    return np.asarray(np.clip(box, np.tile(hull[:2], 2), np.tile(hull[2:], 2)))
+
+
+def _line_coefficients(maps: _Maps, centre: F64, rot: F64) -> F64:
+    """Per line i, in its block's frame: E, N, h (relative to the block origin) along ray j are
+    A + B·s + C·s² with B = u·l_j and C = l_jᵀQl_j. Packed (n, 30): A (3), u (3 × 3),
+    ½Q as (q00, q11, q22, q01, q02, q12) × 3, matching `_look_products`."""
+    blk = np.repeat(np.arange(maps.starts.size - 1), np.diff(maps.starts))
+    out = np.empty((centre.shape[0], 30))
+    _coefficients_kernel(blk, maps.origin_ecef_m, maps.rot, maps.a, maps.g, maps.hess, centre,
+                         rot, out)
+    return out
+
+
+@_jit()
+def _coefficients_kernel(blk: Any, origin: Any, rb: Any, a: Any, g: Any, hess: Any,
+                         centre: Any, rot: Any, out: Any) -> None:
+    """cp = R_b(c − O_b), M = R_b·R; A = a + g·cp + ½cpᵀH·cp, u = Mᵀ(g + H·cp), ½MᵀHM."""
+    cp = np.empty(3)
+    m = np.empty((3, 3))
+    w = np.empty(3)
+    for i in range(centre.shape[0]):
+        b = blk[i]
+        cp[:] = 0.0
+        m[:] = 0.0
+        for r in range(3):
+            for c in range(3):
+                cp[r] += rb[b, r, c] * (centre[i, c] - origin[b, c])
+                for v in range(3):
+                    m[r, c] += rb[b, r, v] * rot[i, v, c]
+        for k in range(3):
+            acc = a[b, k]
+            for r in range(3):
+                hc = 0.0
+                for c in range(3):
+                    hc += hess[b, k, r, c] * cp[c]
+                w[r] = g[b, k, r] + hc
+                acc += (g[b, k, r] + 0.5 * hc) * cp[r]
+            out[i, k] = acc
+            for c in range(3):
+                out[i, 3 + 3 * k + c] = m[0, c] * w[0] + m[1, c] * w[1] + m[2, c] * w[2]
+            for t in range(6):
+                x = 0 if t in (0, 3, 4) else (1 if t in (1, 5) else 2)
+                y = 0 if t == 0 else (1 if t in (1, 3) else 2)
+                q = 0.0
+                for r in range(3):
+                    for c in range(3):
+                        q += m[r, x] * hess[b, k, r, c] * m[c, y]
+                out[i, 12 + 6 * k + t] = 0.5 * q
+
+
+def _look_products(unit: F64) -> F64:
+    """(9, p): l0, l1, l2, l0², l1², l2², 2·l0·l1, 2·l0·l2, 2·l1·l2 of unit look vectors."""
+    l0, l1, l2 = unit
+    return np.ascontiguousarray(np.stack([l0, l1, l2, l0 * l0, l1 * l1, l2 * l2,
+                                          2 * l0 * l1, 2 * l0 * l2, 2 * l1 * l2]))
+
+
+def _ray_terms(coef: F64, look9: F64) -> tuple[F64, F64]:
+    """B and C (lines, pixels, 3) of every ray (numpy; the kernel inlines the same sums)."""
+    u = coef[:, 3:12].reshape(-1, 3, 3)
+    q = coef[:, 12:30].reshape(-1, 3, 6)
+    return (np.einsum("nki,ip->npk", u, look9[:3]), np.einsum("nkm,mp->npk", q, look9[3:]))
+
+
+def _kernel_tables(surf: _Surface, maps: _Maps) -> tuple[F64, F64]:
+    """Per block (b, 12): fractional grid offset of the block origin (x, y), its integer grid
+    origin (x, y), the valid box in local grid coordinates (x0, x1, y0, y1), E0, N0, h0.
+    Constants: 1/cell_e, 1/cell_n, lowest and highest DEM height."""
+    dem = surf.dem
+    gx = (maps.en0_m[:, 0] - dem.first_easting_m) / dem.cell_e_m
+    gy = (dem.first_northing_m - maps.en0_m[:, 1]) / dem.cell_n_m
+    ox, oy = np.round(gx), np.round(gy)
+    box = maps.box_en_m
+    with np.errstate(invalid="ignore"):
+        vx0 = np.clip((box[:, 0] - dem.first_easting_m) / dem.cell_e_m, 0, dem.cols - 1)
+        vx1 = np.clip((box[:, 2] - dem.first_easting_m) / dem.cell_e_m, 0, dem.cols - 1)
+        vy0 = np.clip((dem.first_northing_m - box[:, 3]) / dem.cell_n_m, 0, dem.rows - 1)
+        vy1 = np.clip((dem.first_northing_m - box[:, 1]) / dem.cell_n_m, 0, dem.rows - 1)
+    empty = ~np.isfinite(box).all(axis=1)
+    vx0[empty], vx1[empty] = 1.0, 0.0
+    blk = np.stack([gx - ox, gy - oy, ox, oy, vx0 - ox, vx1 - ox, vy0 - oy, vy1 - oy,
+                    maps.en0_m[:, 0], maps.en0_m[:, 1], maps.h0_m, np.zeros_like(ox)], axis=1)
+    consts = np.array([1.0 / dem.cell_e_m, 1.0 / dem.cell_n_m, surf.low_m, surf.high_m])
+    return np.ascontiguousarray(blk), consts
+
+
+# ---------------------------------------------------------------------------------------------
+# The kernel
+# ---------------------------------------------------------------------------------------------
+
+
+@_jit(inline=True)
+def _terms(coef: Any, look9: Any, i: int, j: int) -> tuple[float, float, float, float, float,
+                                                          float]:
+    """(B_E, C_E, B_N, C_N, B_h, C_h) of ray (i, j): E = A_E + B_E·s + C_E·s², etc."""
+    l0, l1, l2 = look9[0, j], look9[1, j], look9[2, j]
+    m0, m1, m2, m3, m4, m5 = (look9[3, j], look9[4, j], look9[5, j], look9[6, j], look9[7, j],
+                              look9[8, j])
+    be = coef[i, 3] * l0 + coef[i, 4] * l1 + coef[i, 5] * l2
+    bn = coef[i, 6] * l0 + coef[i, 7] * l1 + coef[i, 8] * l2
+    bh = coef[i, 9] * l0 + coef[i, 10] * l1 + coef[i, 11] * l2
+    ce = (coef[i, 12] * m0 + coef[i, 13] * m1 + coef[i, 14] * m2 + coef[i, 15] * m3
+          + coef[i, 16] * m4 + coef[i, 17] * m5)
+    cn = (coef[i, 18] * m0 + coef[i, 19] * m1 + coef[i, 20] * m2 + coef[i, 21] * m3
+          + coef[i, 22] * m4 + coef[i, 23] * m5)
+    ch = (coef[i, 24] * m0 + coef[i, 25] * m1 + coef[i, 26] * m2 + coef[i, 27] * m3
+          + coef[i, 28] * m4 + coef[i, 29] * m5)
+    return be, ce, bn, cn, bh, ch
+
+
+@_jit(inline=True)
+def _start_line(i: int, tid: int, coef: Any, look9: Any, s64: Any, cold: int, blk: Any, b: int,
+                consts: Any, lin: Any) -> None:
+    """Float64 set-up of line i: the start range s64[tid, 1] (the previous line's s64[tid, 0],
+    or where the middle ray reaches the block's reference height) and, in t = s − start, the
+    float32
+    quadratic models lin[tid, 0:9] of x, y (grid cells from the block's grid origin) and h
+    (relative to the block origin): x, x', x''/2, y, y', y''/2, h, h', h''/2. Rounding them to
+    float32 moves the point by < 0.1 mm (|x| < ~1000 cells)."""
+    fx, fy = blk[b, 0], blk[b, 1]
+    inv_e, inv_n = consts[0], consts[1]
+    ae, an, ah = coef[i, 0], coef[i, 1], coef[i, 2]
+    p = look9.shape[1]
+    _, _, _, _, bh_mid, _ = _terms(coef, look9, i, p // 2)
+    guess = -ah / bh_mid  # where the middle ray reaches the block's reference height
+    for j in range(p):
+        be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+        s = s64[tid, 0, j]
+        s = s if (s == s and cold == 0) else guess
+        s64[tid, 1, j] = s
+        lin[tid, 0, j] = np.float32((ae + s * (be + s * ce)) * inv_e + fx)
+        lin[tid, 1, j] = np.float32((be + 2.0 * ce * s) * inv_e)
+        lin[tid, 2, j] = np.float32(ce * inv_e)
+        lin[tid, 3, j] = np.float32(fy - (an + s * (bn + s * cn)) * inv_n)
+        lin[tid, 4, j] = np.float32(-(bn + 2.0 * cn * s) * inv_n)
+        lin[tid, 5, j] = np.float32(-cn * inv_n)
+        lin[tid, 6, j] = np.float32(ah + s * (bh + s * ch))
+        lin[tid, 7, j] = np.float32(bh + 2.0 * ch * s)
+        lin[tid, 8, j] = np.float32(ch)
+
+
+@_jit(inline=True)
+def _gap32(dem: Any, cols: int, base: Any, t: Any, m: Any, lim: Any, h0: Any
+           ) -> tuple[Any, Any, Any, Any, Any, Any, Any]:
+    """Float32, branch-free: (gap, d gap/dt, dB/dx, dB/dy, twist, cell x, cell y) at t along
+    the models m = (x, x', x''/2, y, y', y''/2, h, h', h''/2). Indices are clamped into the
+    DEM (a NaN lands on a valid cell): the caller checks the cell."""
+    x = m[0] + t * (m[1] + t * m[2])
+    y = m[3] + t * (m[4] + t * m[5])
+    cx = np.floor(x)
+    cy = np.floor(y)
+    cx = cx if cx >= lim[0] else lim[0]
+    cx = cx if cx <= lim[1] else lim[1]
+    cy = cy if cy >= lim[2] else lim[2]
+    cy = cy if cy <= lim[3] else lim[3]
+    u = x - cx
+    v = y - cy
+    k = base + np.int64(cy) * cols + np.int64(cx)
+    z00 = dem[k] - h0
+    z01 = dem[k + 1] - h0
+    z10 = dem[k + cols] - h0
+    z11 = dem[k + cols + 1] - h0
+    dxt = z01 - z00
+    twist = (z11 - z10) - dxt
+    top = z00 + u * dxt
+    by = (z10 + u * (z11 - z10)) - top
+    bx = dxt + v * twist
+    xd = m[1] + (t + t) * m[2]
+    yd = m[4] + (t + t) * m[5]
+    hd = m[7] + (t + t) * m[8]
+    gap = m[6] + t * (m[7] + t * m[8]) - (top + v * by)
+    return gap, hd - (bx * xd + by * yd), bx, by, twist, cx, cy
+
+
+@_jit(inline=True)
+def _newton_line(dem: Any, cols: int, tid: int, gl: int, lin: Any, blk: Any, b: int,
+                 consts: Any, st: Any, ratio: Any, tiles: Any) -> None:
+    """Two branch-free float32 Newton steps per ray (vectorised over the line; the corner
+    heights are gathers), then the acceptance test, and for the first-root test the square of
+    the ray's horizontal/vertical rate and the tile range of its path back up to the highest
+    DEM sample (empty when not accepted). The range offset goes to lin[tid, 9].
+
+    Accepted: the last step < MAX_NEWTON_STEP_M, taken inside one cell, where the gap is a
+    quadratic in t, so the remaining error is |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M; the
+    ray descends and crosses the surface downwards; its path lies in the block's box."""
+    f32 = np.float32
+    ox, oy = blk[b, 2], blk[b, 3]
+    rows = dem.size // cols
+    lim = (f32(-ox), f32(cols - 2.0 - ox), f32(-oy), f32(rows - 2.0 - oy))
+    box = (f32(blk[b, 4]), f32(blk[b, 5]), f32(blk[b, 6]), f32(blk[b, 7]))
+    h0 = f32(blk[b, 10])
+    top = f32(consts[3] - blk[b, 10])
+    ce, cn = f32(1.0 / consts[0]), f32(1.0 / consts[1])
+    gox, goy = f32(ox), f32(oy)
+    base = np.int64(oy) * cols + np.int64(ox)
+    inv_tile = f32(1.0 / TILE_CELLS)
+    pad = f32(0.5)  # cells: covers the path's curvature over any in-range stretch
+    big = np.int32(1 << 30)
+    for j in range(lin.shape[2]):
+        m = (lin[tid, 0, j], lin[tid, 1, j], lin[tid, 2, j], lin[tid, 3, j], lin[tid, 4, j],
+             lin[tid, 5, j], lin[tid, 6, j], lin[tid, 7, j], lin[tid, 8, j])
+        t = f32(0.0)
+        g, gd, _, _, _, _, _ = _gap32(dem, cols, base, t, m, lim, h0)
+        t = t - g / gd
+        g, gd, bx, by, tw, cx, cy = _gap32(dem, cols, base, t, m, lim, h0)
+        step = -g / gd
+        t = t + step
+        x = m[0] + t * (m[1] + t * m[2])
+        y = m[3] + t * (m[4] + t * m[5])
+        h = m[6] + t * (m[7] + t * m[8])
+        xd = m[1] + (t + t) * m[2]
+        yd = m[4] + (t + t) * m[5]
+        hd = m[7] + (t + t) * m[8]
+        gdd = (m[8] + m[8]) - f32(2.0) * (tw * xd * yd + bx * m[2] + by * m[5])
+        ok = ((x >= cx) & (x <= cx + f32(1.0)) & (y >= cy) & (y <= cy + f32(1.0))
+              & (abs(step) <= f32(MAX_NEWTON_STEP_M))
+              & (abs(gdd) * step * step <= f32(2.0 * ROOT_TOLERANCE_M) * abs(gd))
+              & (gd < f32(-1e-3)) & (hd < f32(0.0)))
+        back = (top - h) / hd
+        xa, xb = x, x + xd * back
+        ya, yb = y, y + yd * back
+        x0 = (xa if xa < xb else xb) - pad  # selects, not min/max: those do not vectorise
+        x1 = (xb if xa < xb else xa) + pad
+        y0 = (ya if ya < yb else yb) - pad
+        y1 = (yb if ya < yb else ya) + pad
+        ok = ok & (x0 >= box[0]) & (x1 <= box[1]) & (y0 >= box[2]) & (y1 <= box[3])
+        x1 = x1 if x1 < lim[1] else lim[1]
+        y1 = y1 if y1 < lim[3] else lim[3]
+        lin[tid, 9, j] = t
+        st[tid, gl, j] = np.uint8(1) if ok else np.uint8(0)
+        ratio[tid, gl, j] = ((xd * ce) ** 2 + (yd * cn) ** 2) / (hd * hd)
+        tiles[tid, 0, gl, j] = np.int32((x0 + gox) * inv_tile) if ok else big
+        tiles[tid, 1, gl, j] = np.int32((x1 + gox) * inv_tile) if ok else -1
+        tiles[tid, 2, gl, j] = np.int32((y0 + goy) * inv_tile) if ok else big
+        tiles[tid, 3, gl, j] = np.int32((y1 + goy) * inv_tile) if ok else -1
+
+
+@_jit(inline=True)
+def _output_line(i: int, gl: int, tid: int, lin: Any, blk: Any, b: int, consts: Any, s64: Any,
+                 out_e: Any, out_n: Any, out_h: Any, out_hit: Any, st: Any) -> None:
+    """Ground point of every ray of line i from its Newton offset (float64 from here on), the
+    next line's start ranges, and the acceptance flags as hits (the certification may still
+    send a ray to the safe path, which overwrites its output)."""
+    fx, fy = blk[b, 0], blk[b, 1]
+    e0, n0, h0 = blk[b, 8], blk[b, 9], blk[b, 10]
+    cell_e, cell_n = 1.0 / consts[0], 1.0 / consts[1]
+    for j in range(lin.shape[2]):
+        t = np.float64(lin[tid, 9, j])
+        s = s64[tid, 1, j] + t
+        s64[tid, 0, j] = s
+        x = lin[tid, 0, j] + t * (lin[tid, 1, j] + t * lin[tid, 2, j])
+        y = lin[tid, 3, j] + t * (lin[tid, 4, j] + t * lin[tid, 5, j])
+        out_e[i, j] = e0 + (x - fx) * cell_e
+        out_n[i, j] = n0 - (y - fy) * cell_n
+        out_h[i, j] = h0 + lin[tid, 6, j] + t * (lin[tid, 7, j] + t * lin[tid, 8, j])
+        ok = (st[tid, gl, j] == 1) & (s > 0.0)
+        st[tid, gl, j] = np.uint8(1) if ok else np.uint8(0)
+        out_hit[i, j] = np.uint8(1) if ok else np.uint8(0)
+
+
+@_jit()
+def _slope_bound(table: Any, log2: Any, tx0: Any, tx1: Any, ty0: Any, ty1: Any) -> float:
+    """Largest tile slope over tiles [ty0, ty1] × [tx0, tx1] (two lookups per tile row)."""
+    k = log2[tx1 - tx0 + 1]
+    right = tx1 - (1 << k) + 1
+    worst = 0.0
+    for r in range(ty0, ty1 + 1):
+        worst = max(worst, table[k, r, tx0], table[k, r, right])
+    return worst
+
+
+@_jit()
+def _certify_group(i0: int, lines: int, tid: int, dem: Any, cols: int, table: Any, log2: Any,
+                   coef: Any, look9: Any, blk: Any, b: int, consts: Any, st: Any, ratio: Any,
+                   tiles: Any,
+                   out_e: Any, out_n: Any, out_h: Any, out_hit: Any, line_flag: Any,
+                   counts: Any) -> None:
+    """First-root test for a group of lines, chunk by chunk: the steepest slope under the
+    accepted rays' paths; a ray passes if its rate × that slope < SLOPE_MARGIN. The rest take
+    the safe path."""
+    p = look9.shape[1]
+    for c0 in range(0, p, CHUNK_PIXELS):
+        c1 = min(c0 + CHUNK_PIXELS, p)
+        tx0, ty0 = np.int32(1 << 30), np.int32(1 << 30)
+        tx1, ty1 = np.int32(-1), np.int32(-1)
+        for g in range(lines):
+            for j in range(c0, c1):
+                a0, a1 = tiles[tid, 0, g, j], tiles[tid, 1, g, j]
+                b0, b1 = tiles[tid, 2, g, j], tiles[tid, 3, g, j]
+                tx0 = a0 if a0 < tx0 else tx0  # selects: integer min/max reductions vectorise
+                tx1 = a1 if a1 > tx1 else tx1
+                ty0 = b0 if b0 < ty0 else ty0
+                ty1 = b1 if b1 > ty1 else ty1
+        slope2 = np.inf  # squared: rays store their squared rate
+        if tx0 <= tx1 and ty0 <= ty1:
+            slope2 = _slope_bound(table, log2, tx0, tx1, ty0, ty1) ** 2
+        limit = np.float32(SLOPE_MARGIN**2 / slope2)
+        for g in range(lines):
+            passed = 0
+            for j in range(c0, c1):  # branch-free count first: most rows pass whole
+                passed += 1 if (st[tid, g, j] == 1) & (ratio[tid, g, j] < limit) else 0
+            counts[b, 0] += passed
+            if passed == c1 - c0:
+                continue
+            for j in range(c0, c1):
+                if not (st[tid, g, j] == 1 and ratio[tid, g, j] < limit):
+                    code = _safe_to_output(i0 + g, j, dem, cols, coef, look9, blk, b, consts,
+                                           out_e, out_n, out_h, out_hit)
+                    counts[b, 1 + code] += 1
+                    if code == _EXACT:
+                        line_flag[i0 + g] = 1
+
+
+@_jit()
+def _safe_to_output(i: int, j: int, dem: Any, cols: int, coef: Any, look9: Any, blk: Any,
+                    b: int, consts: Any, out_e: Any, out_n: Any, out_h: Any,
+                    out_hit: Any) -> int:
+    """Safe path for ray (i, j) and its output: the point, or NaN (+inf height marks a ray
+    left to the reference method)."""
+    be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+    ae, an, ah = coef[i, 0], coef[i, 1], coef[i, 2]
+    code, s = _safe_ray(dem, cols, ae, be, ce, an, bn, cn, ah, bh, ch, blk, b, consts)
+    if code == _HIT:
+        out_e[i, j] = blk[b, 8] + ae + s * (be + s * ce)
+        out_n[i, j] = blk[b, 9] + an + s * (bn + s * cn)
+        out_h[i, j] = blk[b, 10] + ah + s * (bh + s * ch)
+        out_hit[i, j] = 1
+    else:
+        out_e[i, j] = np.nan
+        out_n[i, j] = np.nan
+        out_h[i, j] = np.inf if code == _EXACT else np.nan
+        out_hit[i, j] = 0
+    return code
+
+
+@_jit()
+def _first_at_or_below(a: float, b: float, c: float, level: float, after: float) -> float:
+    """Smallest s ≥ after with a + b·s + c·s² ≤ level; NaN if none."""
+    k = a - level
+    if k + after * (b + after * c) <= 0.0:
+        return after
+    if c == 0.0:
+        return -k / b if b < 0.0 else np.nan
+    disc = b * b - 4.0 * c * k
+    if disc < 0.0:
+        return np.nan
+    q = -0.5 * (b + math.copysign(math.sqrt(disc), b))
+    r1, r2 = q / c, k / q if q != 0.0 else np.nan
+    lo, hi = min(r1, r2), max(r1, r2)
+    if lo >= after:
+        return lo
+    if c < 0.0 and hi >= after:
+        return hi
+    return np.nan
+
+
+@_jit()
+def _safe_ray(dem: Any, cols: int, ae: float, be: float, ce: float, an: float, bn: float,
+              cn: float, ah: float, bh: float, ch: float, blk: Any, b: int, consts: Any
+              ) -> tuple[int, float]:
+    """Walk the ray cell by cell from where it comes down to the DEM's highest sample, solving
+    the gap inside each cell (a quadratic in s over at most SAFE_SEGMENT_M), until the first
+    crossing (hit), the DEM's lowest sample, an edge or nodata (miss), or the map's box
+    (exact)."""
+    fx, fy, ox, oy = blk[b, 0], blk[b, 1], blk[b, 2], blk[b, 3]
+    vx0, vx1, vy0, vy1 = blk[b, 4], blk[b, 5], blk[b, 6], blk[b, 7]
+    h0 = blk[b, 10]
+    inv_e, inv_n = consts[0], consts[1]
+    lo_rel, hi_rel = consts[2] - h0, consts[3] - h0
+    rows = dem.size // cols
+    s = _first_at_or_below(ah, bh, ch, hi_rel, 0.0)
+    if not s >= 0.0:
+        return _MISS, np.nan
+    s_end = _first_at_or_below(ah, bh, ch, lo_rel - 1e-6, s)
+    if not s_end >= s:
+        s_end = s + 1e7  # stays in the height range: it will leave the DEM
+    first = True
+    for _ in range(10_000_000):
+        x = (ae + s * (be + s * ce)) * inv_e + fx
+        y = fy - (an + s * (bn + s * cn)) * inv_n
+        if not (x + ox >= 0.0 and x + ox <= cols - 1.0 and y + oy >= 0.0
+                and y + oy <= rows - 1.0):
+            return _MISS, np.nan
+        if not (x >= vx0 and x <= vx1 and y >= vy0 and y <= vy1):
+            return _EXACT, np.nan
+        xd = (be + 2.0 * ce * s) * inv_e
+        yd = -(bn + 2.0 * cn * s) * inv_n
+        cx = math.floor(x) if xd >= 0.0 else math.ceil(x) - 1.0
+        cy = math.floor(y) if yd >= 0.0 else math.ceil(y) - 1.0
+        cx = min(max(cx, -ox), cols - 2.0 - ox)
+        cy = min(max(cy, -oy), rows - 2.0 - oy)
+        k = np.int64(cy + oy) * cols + np.int64(cx + ox)
+        z00, z01 = np.float64(dem[k]) - h0, np.float64(dem[k + 1]) - h0
+        z10, z11 = np.float64(dem[k + cols]) - h0, np.float64(dem[k + cols + 1]) - h0
+        zmax = max(max(z00, z01), max(z10, z11))
+        if zmax != zmax:
+            return _MISS, np.nan
+        s_next = min(s + SAFE_SEGMENT_M, s_end)
+        if xd > 0.0:
+            s_next = min(s_next, s + (cx + 1.0 - x) / xd)
+        elif xd < 0.0:
+            s_next = min(s_next, s + (cx - x) / xd)
+        if yd > 0.0:
+            s_next = min(s_next, s + (cy + 1.0 - y) / yd)
+        elif yd < 0.0:
+            s_next = min(s_next, s + (cy - y) / yd)
+        s_next = max(s_next, s + 1e-9)
+        span = s_next - s
+        h_a = ah + s * (bh + s * ch)
+        h_b = ah + s_next * (bh + s_next * ch)
+        if min(h_a, h_b) - abs(ch) * span * span * 0.25 - 1e-9 <= zmax:
+            corners = (z00, z01, z10, z11, cx, cy)
+            g0 = _cell_gap(s, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy, inv_e, inv_n, corners)
+            if g0 <= 0.0:
+                return (_MISS, np.nan) if (first and s == 0.0) else (_HIT, s)
+            tau = _first_root_in(s, span, g0, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy,
+                                 inv_e, inv_n, corners)
+            if tau == tau:
+                return _HIT, s + tau
+        first = False
+        s = s_next
+        if s >= s_end:
+            return _MISS, np.nan
+    return _EXACT, np.nan
+
+
+@_jit()
+def _cell_gap(s: float, ae: float, be: float, ce: float, an: float, bn: float, cn: float,
+              ah: float, bh: float, ch: float, fx: float, fy: float, inv_e: float,
+              inv_n: float, corners: tuple[float, float, float, float, float, float]) -> float:
+    """Height of the ray above one cell's bilinear patch (extended beyond the cell) at s."""
+    z00, z01, z10, z11, cx, cy = corners
+    u = (ae + s * (be + s * ce)) * inv_e + fx - cx
+    v = fy - (an + s * (bn + s * cn)) * inv_n - cy
+    top = z00 + u * (z01 - z00)
+    bottom = z10 + u * (z11 - z10)
+    return float(ah + s * (bh + s * ch) - (top + v * (bottom - top)))
+
+
+@_jit()
+def _first_root_in(s: float, span: float, g0: float, ae: float, be: float, ce: float,
+                   an: float, bn: float, cn: float, ah: float, bh: float, ch: float, fx: float,
+                   fy: float, inv_e: float, inv_n: float,
+                   corners: tuple[float, float, float, float, float, float]) -> float:
+    """First τ in (0, span] where the gap (> 0 at τ = 0) reaches 0: the gap through three
+    points is a quadratic (exact up to terms ~1e-7 of the cell's size), bracketed, then
+    refined on the exact gap by regula falsi; NaN if it stays above."""
+    gm = _cell_gap(s + 0.5 * span, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy, inv_e, inv_n,
+                   corners)
+    g1 = _cell_gap(s + span, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy, inv_e, inv_n,
+                   corners)
+    qa = 2.0 * (g1 - 2.0 * gm + g0) / (span * span)
+    qb = (g1 - g0) / span - qa * span
+    hi, ghi = np.nan, np.nan
+    if g1 <= 0.0:
+        hi, ghi = span, g1
+    elif qa > 0.0:
+        tv = -qb / (2.0 * qa)
+        if 0.0 < tv < span:
+            gv = _cell_gap(s + tv, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy, inv_e, inv_n,
+                           corners)
+            if gv <= 0.0:
+                hi, ghi = tv, gv
+    if hi != hi:
+        return np.nan
+    lo, glo = 0.0, g0
+    side = 0  # Illinois: halve the stale end's value when one end repeats
+    for _ in range(100):
+        if hi - lo <= 1e-10 or ghi == 0.0:
+            break
+        t = (lo * ghi - hi * glo) / (ghi - glo)
+        if not (lo < t < hi):
+            t = 0.5 * (lo + hi)
+        gt = _cell_gap(s + t, ae, be, ce, an, bn, cn, ah, bh, ch, fx, fy, inv_e, inv_n, corners)
+        if gt > 0.0:
+            lo, glo = t, gt
+            if side == 1:
+                ghi *= 0.5
+            side = 1
+        else:
+            hi, ghi = t, gt
+            if side == -1:
+                glo *= 0.5
+            side = -1
+    return hi
+
+
+@_jit(parallel=True)
+def _cast_blocks(dem: Any, dem_safe: Any, cols: int, table: Any, log2: Any, coef: Any,
+                 look9: Any, starts: Any, blk: Any, consts: Any, out_e: Any, out_n: Any,
+                 out_h: Any, out_hit: Any, line_flag: Any, counts: Any, s64: Any, lin: Any,
+                 st: Any, ratio: Any, tiles: Any) -> None:
+    """Every block in parallel; within a block, lines in order (each ray starts from the
+    previous line's range), certified group by group.
+
+    Vectorisation needs LLVM to know that no store of a vectorised loop touches the DEM it
+    gathers from: numba marks a parallel region's array arguments noalias, so every scratch
+    array is an argument (one slice per thread: s64, lin, st, ratio, tiles), and `dem_safe`,
+    the same array as `dem`, is what escapes into the (scalar) calls."""
+    p = look9.shape[1]
+    for b in numba.prange(starts.size - 1):
+        tid = numba.get_thread_id()  # type: ignore[attr-defined]
+        i0 = starts[b]
+        for i in range(starts[b], starts[b + 1]):
+            gl = i - i0
+            cold = 1 if i == starts[b] else 0
+            _start_line(i, tid, coef, look9, s64, cold, blk, b, consts, lin)
+            _newton_line(dem, cols, tid, gl, lin, blk, b, consts, st, ratio, tiles)
+            for _ in range(cold * (COLD_PASSES - 1)):
+                for j in range(p):
+                    s64[tid, 0, j] = s64[tid, 1, j] + lin[tid, 9, j]
+                _start_line(i, tid, coef, look9, s64, 0, blk, b, consts, lin)
+                _newton_line(dem, cols, tid, gl, lin, blk, b, consts, st, ratio, tiles)
+            _output_line(i, gl, tid, lin, blk, b, consts, s64, out_e, out_n, out_h, out_hit, st)
+            if gl == GROUP_LINES - 1 or i == starts[b + 1] - 1:
+                _certify_group(i0, gl + 1, tid, dem_safe, cols, table, log2, coef, look9,
+                               blk, b, consts, st, ratio, tiles, out_e, out_n, out_h, out_hit,
+                               line_flag, counts)
+                i0 = i + 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Reference method
+# ---------------------------------------------------------------------------------------------
+
+
+def _resolve_exact(dem: Dem, out: GroundPoints, line_flag: U8, centre: F64, rot: F64,
+                   unit: F64) -> int:
+    """Rays the kernel left outside every fitted map (+inf height): reference method."""
+    lines = np.flatnonzero(line_flag)
+    if lines.size == 0:
+        return 0
+    li, pj = np.nonzero(np.isposinf(out.height_m[lines]))
+    li = lines[li]
+    d = np.einsum("nij,jn->ni", rot[li], unit[:, pj])
+    e, n, h = _reference_rays(dem, centre[li], d)
+    out.easting_m[li, pj], out.northing_m[li, pj], out.height_m[li, pj] = e, n, h
+    out.hit[li, pj] = np.isfinite(e)
+    return int(li.size)
+
+
+def _reference_rays(dem: Dem, centre: F64, direction: F64) -> tuple[F64, F64, F64]:
+    """(E, N, h) where each ray first meets the DEM, NaN for misses, by the rules of the module
+    docstring. Above the DEM's highest sample a step is the height above it (|dh/ds| ≤ 1);
+    within the height range it is gap / rate (rate bounds |d gap / ds| over the whole DEM), at
+    most half a cell (so no nodata cell is stepped over)."""
+    to_geo, to_map, _, _ = _transformers(dem.epsg)
+    d = direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    high = float(np.nanmax(dem.heights_m))
+    slopes = cell_slopes(dem)
+    rate = 1.02 * (1.0 + float(slopes[np.isfinite(slopes)].max(initial=0.0)))
+    cap = 0.5 * min(dem.cell_e_m, dem.cell_n_m)
+
+    def sample(s: F64, idx: I64) -> tuple[F64, F64, F64, F64, F64]:
+        p = centre[idx] + s[:, None] * d[idx]
+        lon, lat, h = (np.asarray(v) for v in to_geo.transform(p[:, 0], p[:, 1], p[:, 2]))
+        e, n = (np.asarray(v) for v in to_map.transform(lon, lat))
+        up = np.stack([np.cos(np.radians(lat)) * np.cos(np.radians(lon)),
+                       np.cos(np.radians(lat)) * np.sin(np.radians(lon)),
+                       np.sin(np.radians(lat))], axis=-1)
+        rising = np.einsum("ni,ni->n", d[idx], up) >= 0.0
+        return e, n, h, h - dem.height_at(e, n), rising.astype(np.float64)
+
+    m = centre.shape[0]
+    s = np.zeros(m)
+    lo = np.full(m, np.nan)
+    hi = np.full(m, np.nan)
+    active = np.ones(m, bool)
+    for _ in range(2_000_000):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        _, _, h, gap, rising = sample(s[idx], idx)
+        above = h > high
+        with np.errstate(invalid="ignore"):
+            crossed = ~above & (gap <= 0.0)
+            step = np.where(above, np.maximum(h - high, REFERENCE_MIN_STEP_M),
+                            np.clip(gap / rate, REFERENCE_MIN_STEP_M, cap))
+        miss = (above & (rising > 0.0)) | (~above & np.isnan(gap)) | (crossed & (s[idx] == 0.0))
+        found = crossed & ~miss
+        hi[idx[found]] = s[idx[found]]
+        active[idx[miss | found]] = False
+        go = ~(miss | found)
+        lo[idx[go]] = s[idx[go]]
+        s[idx[go]] += step[go]
+    else:
+        raise RuntimeError("reference ray march did not finish")
+    ok = np.flatnonzero(np.isfinite(hi))
+    a, b = lo[ok], hi[ok]
+    while ok.size and float((b - a).max()) > REFERENCE_TOLERANCE_M:
+        mid = 0.5 * (a + b)
+        gap = sample(mid, ok)[3]
+        with np.errstate(invalid="ignore"):
+            above = gap > 0.0
+        a, b = np.where(above, mid, a), np.where(above, b, mid)
+    e = np.full(m, np.nan)
+    n = np.full(m, np.nan)
+    h = np.full(m, np.nan)
+    if ok.size:
+        ee, nn, hh, gap, _ = sample(b, ok)
+        good = np.isfinite(gap)
+        e[ok[good]], n[ok[good]], h[ok[good]] = ee[good], nn[good], hh[good]
+    return e, n, h

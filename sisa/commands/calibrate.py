@@ -1,0 +1,296 @@
+"""`sisa calibrate`: boresight, self-calibration, time delay, antenna offset (and GPS shifts,
+per-strip attitude) from ground control, tie points and the DEM (docs/calibration.md).
+
+RUN_OR_FLIGHT is a run folder of `sisa simulate` or a flight log (MCAP, all parts in order).
+For a run folder the image measurements are simulated from its truth (sisa.gcpsim) unless --obs
+gives them; the ground points, DEM and starting sensor come from the run. For a flight log,
+--obs and --gcp are needed. The adjustment itself (postproc.calibrate) never reads truth.
+
+OUT/
+  sensor.toml         the calibrated sensor file (`sisa georef --sensor OUT/sensor.toml`), with
+                      the estimates ± σ and the strongest correlations as comments
+  calibration.json    estimates, σ, correlation matrix, residuals of every observation (px, m),
+                      adjusted points, check points (RMS and prediction), blunders, notes
+                      (+ the simulation's truth and settings for a run folder)
+  observations.csv    the image measurements used (id, segment, line, pixel, sigma_px)
+  points.csv          the ground points as given to the adjustment (tie points: nan)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sisa.commands import SubParsers, add_command
+from sisa.errors import InputError
+from sisa.outdir import staged_output_dir
+
+if TYPE_CHECKING:
+    from postproc.calib_data import GroundPoints, ImageObservations
+    from postproc.calibrate import CalibrationInput, CalibrationOptions, CalibrationResult
+    from postproc.sensorfile import SensorModel
+
+
+def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "calibrate", "calibrate boresight, self-calibration, time delay "
+                         "and offsets from ground control (least squares, blunder detection)",
+                         "sisa calibrate runs/garrotxa --out runs/garrotxa-cal "
+                         "--estimate boresight,selfcal --tie-points 300")
+    parser.add_argument("flight", nargs="+", type=Path, metavar="RUN_OR_FLIGHT",
+                        help="a run folder of `sisa simulate`, or the flight log (MCAP parts)")
+    parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
+                        help="ground points (id, kind, lat_deg, lon_deg, height_m); default "
+                             "RUN/terrain/ground_points.csv")
+    parser.add_argument("--obs", type=Path, default=None, metavar="CSV",
+                        help="image measurements (id, segment, line, pixel, sigma_px); a run "
+                             "folder without it gets simulated ones")
+    parser.add_argument("--scanner", type=Path, default=None, metavar="DIR",
+                        help="the scanner's recording (lines files); default RUN/scanner if "
+                             "there, else lines are numbered in frame-header order")
+    parser.add_argument("--sensor", type=Path, default=None, metavar="TOML",
+                        help="starting sensor file; default: the run's nominal sensor "
+                             "(no boresight, no self-calibration) or a nominal CASI-501")
+    parser.add_argument("--dem", type=Path, default=None, metavar="TIF",
+                        help="DEM (ellipsoidal) for surface control and check points; default "
+                             "RUN/terrain/dem.tif")
+    parser.add_argument("--no-dem", action="store_true", help="no DEM at all")
+    parser.add_argument("--estimate", default="boresight,selfcal", metavar="GROUPS",
+                        help="comma list of boresight, selfcal, delay, antenna, gps_block, "
+                             "gps_strip, attitude, drift (default: boresight,selfcal)")
+    _add_weights(parser)
+    _add_simulation(parser)
+    parser.set_defaults(handler=_run)
+
+
+def _add_weights(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("weights and priors")
+    g.add_argument("--gcp-sigma-m", default="0.5,0.5", metavar="H,V",
+                   help="σ of the surveyed coordinates, horizontal and vertical (default 0.5,0.5)")
+    g.add_argument("--dem-sigma-m", type=float, default=2.0, metavar="M",
+                   help="σ of a DEM height (default 2)")
+    g.add_argument("--snooping-k", type=float, default=4.0, metavar="K",
+                   help="reject observations whose standardised residual exceeds K (default 4)")
+    g.add_argument("--prior-x0-um", type=float, default=20.0, metavar="UM",
+                   help="prior σ of δx0 (default 20; 0 = none: φ and δx0 are then inseparable)")
+    g.add_argument("--prior-y0-um", type=float, default=0.0, metavar="UM",
+                   help="prior σ of δy0 (default 0 = none)")
+    g.add_argument("--prior-attitude-arcsec", type=float, default=20.0, metavar="AS",
+                   help="prior σ of per-strip attitude offsets (default 20)")
+    g.add_argument("--check-heights", action="store_true",
+                   help="check points enter the adjustment with only their height observed "
+                        "(seed 000's procedure); their horizontal position stays a check")
+    g.add_argument("--sweep-delay-ms", type=float, default=None, metavar="MS",
+                   help="also run the seed's delay sweep over ±MS (5 ms steps) for comparison")
+
+
+def _add_simulation(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("simulated measurements (run folder, no --obs)")
+    g.add_argument("--noise-px", type=float, default=0.3, help="σ of the measurements (0.3)")
+    g.add_argument("--tie-points", type=int, default=0, metavar="N",
+                   help="tie points in strip overlaps (default 0)")
+    g.add_argument("--max-views", type=int, default=2, help="segments a point is measured in")
+    g.add_argument("--sim-delay-ms", type=float, default=0.0, metavar="MS",
+                   help="inject a scanner delay: a line tagged t was exposed at t + MS")
+    g.add_argument("--sim-gcp-noise-m", default="0,0", metavar="H,V",
+                   help="survey error added to control/check coordinates (default 0,0)")
+    g.add_argument("--blunders", type=int, default=0, help="gross errors to inject (default 0)")
+    g.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+
+
+def _pair(text: str, what: str) -> tuple[float, float]:
+    try:
+        a, b = (float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"{what} {text!r}: give two numbers, e.g. 2.5,2.0") from None
+    if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0):
+        raise InputError(f"{what} {text!r}: values must be finite and ≥ 0")
+    return a, b
+
+
+def _is_run(paths: list[Path]) -> bool:
+    return len(paths) == 1 and paths[0].is_dir()
+
+
+def _flight_paths(args: argparse.Namespace) -> list[Path]:
+    if _is_run(args.flight):
+        log = args.flight[0] / "flight.mcap"
+        if not log.is_file():
+            raise InputError(f"{args.flight[0]}: no flight.mcap: not a run folder")
+        return [log]
+    for p in args.flight:
+        if not p.is_file():
+            raise InputError(f"{p}: no such flight log")
+    return list(args.flight)
+
+
+def _sensor(args: argparse.Namespace) -> SensorModel:
+    from postproc.sensorfile import SensorModel
+
+    if args.sensor is not None:
+        return SensorModel.load(args.sensor)
+    scn_path = args.flight[0] / "scenario.toml" if _is_run(args.flight) else None
+    if scn_path is not None and scn_path.is_file():
+        from emulators.scenario import load_scenario
+        from sisa.commands.process import sensor_of
+
+        return sensor_of(load_scenario(scn_path), nominal=True)
+    return SensorModel()
+
+
+def _default(args: argparse.Namespace, given: Path | None, rel: str, what: str) -> Path:
+    if given is not None:
+        return Path(given)
+    if _is_run(args.flight):
+        return Path(args.flight[0]) / rel
+    raise InputError(f"a flight log needs {what}")
+
+
+def _options(args: argparse.Namespace) -> CalibrationOptions:
+    from postproc.calib_params import PriorSigmas, parse_groups
+    from postproc.calibrate import CalibrationOptions
+
+    def prior(v: float) -> float | None:
+        return v if v > 0 else None
+
+    return CalibrationOptions(
+        groups=parse_groups(args.estimate), gcp_sigma_m=_pair(args.gcp_sigma_m, "--gcp-sigma-m"),
+        dem_sigma_m=args.dem_sigma_m, snooping_k=args.snooping_k,
+        check_heights=args.check_heights,
+        priors=PriorSigmas(principal_point_x_um=prior(args.prior_x0_um),
+                           principal_point_y_um=prior(args.prior_y0_um),
+                           attitude_arcsec=prior(args.prior_attitude_arcsec)))
+
+
+def _observations(args: argparse.Namespace, points: GroundPoints
+                  ) -> tuple[ImageObservations, GroundPoints, dict[str, Any]]:
+    """(measurements, points as the adjustment sees them, simulation info)."""
+    from postproc.calib_data import read_observations
+
+    if args.obs is not None:
+        return read_observations(args.obs), points, {}
+    if not _is_run(args.flight):
+        raise InputError("a flight log needs --obs (image measurements of the ground points)")
+    from sisa.gcpsim import SimSettings, simulate_observations
+
+    if args.noise_px < 0 or args.tie_points < 0 or args.blunders < 0 or args.max_views < 1:
+        raise InputError("--noise-px, --tie-points and --blunders must be ≥ 0, --max-views ≥ 1")
+    settings = SimSettings(noise_px=args.noise_px, max_views=args.max_views,
+                           tie_points=args.tie_points, delay_ms=args.sim_delay_ms,
+                           gcp_noise_m=_pair(args.sim_gcp_noise_m, "--sim-gcp-noise-m"),
+                           blunders=args.blunders, seed=args.seed)
+    sim = simulate_observations(args.flight[0], points, settings)
+    info = {"simulated": True, "truth": sim.truth,
+            "injected_blunders": [{"id": str(sim.obs.point_id[k]),
+                                   "segment": int(sim.obs.segment[k])}
+                                  for k in sim.blunder_rows.tolist()]}
+    return sim.obs, sim.points, info
+
+
+def build_input(args: argparse.Namespace) -> tuple[CalibrationInput, dict[str, Any]]:
+    """Sync and navigation from the log, points, measurements, DEM and starting sensor."""
+    from postproc.calib_data import SegmentClock, read_ground_points
+    from postproc.calibrate import CalibrationInput
+    from postproc.dem import Dem
+    from postproc.georef import merged_wanted
+    from postproc.navigation import NAV_WANTED, nav_from_columns
+    from postproc.sync import synchronise
+    from postproc.syncio import read_scanner_lines
+    from postproc.synclog import WANTED as SYNC_WANTED
+    from postproc.synclog import sync_input_from_columns
+    from recorder.reader import read_topics
+
+    sensor = _sensor(args)
+    paths = _flight_paths(args)
+    points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
+    obs, points, info = _observations(args, points)
+    scanner = args.scanner
+    if scanner is None and _is_run(args.flight) and (args.flight[0] / "scanner").is_dir():
+        scanner = args.flight[0] / "scanner"
+    cols = read_topics(paths, merged_wanted(SYNC_WANTED, NAV_WANTED))
+    sync = synchronise(sync_input_from_columns(cols),
+                       read_scanner_lines(scanner) if scanner is not None else None)
+    traj = nav_from_columns(cols, sync.ins, antenna_offset_m=sensor.mounting.antenna_offset_m)
+    dem = None
+    if not args.no_dem and (args.dem is not None or _is_run(args.flight)):
+        dem_path = _default(args, args.dem, "terrain/dem.tif", "--dem")
+        dem = Dem.read(dem_path) if dem_path.is_file() or args.dem else None
+    info["line_times"] = ("sync of the flight log, lines from "
+                          + ("the scanner's lines files" if scanner else "frame-header order"))
+    return CalibrationInput(traj, SegmentClock.from_line_times(sync.lines), points, obs,
+                            sensor, dem), info
+
+
+def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
+    from postproc.calib_report import high_correlations, look_angles, parameter_rows
+
+    out = [f"σ0 {res.sigma0:.3f} ({res.dof} dof), {res.counts['observations_used']} "
+           f"measurements of {res.counts['control_points']} control and "
+           f"{res.counts['tie_points']} tie points in {res.counts['strips']} strips, "
+           f"{len(res.blunders)} blunders rejected"]
+    tv = _truth_values(truth) if truth else {}
+    for p in parameter_rows(res):
+        if p["segment"] is None:
+            t = f"   (truth {tv[p['name']]:.4g})" if p["name"] in tv else ""
+            out.append(f"  {p['name']:<12} {p['estimate']:12.4f} ± {p['sigma']:<10.4f} "
+                       f"{p['unit']}{t}")
+    for h in high_correlations(res)[:4]:
+        out.append(f"  correlation {h['a']} ↔ {h['b']} {h['r']:+.3f}")
+    look = look_angles(res)
+    out.append(f"  look offsets (what the images fix): along δx0 − f'φ "
+               f"{look['along_um']['value']:.2f} ± {look['along_um']['sigma']:.2f} µm, across "
+               f"δy0 + f'ω {look['across_um']['value']:.2f} ± {look['across_um']['sigma']:.2f} µm")
+    if res.check:
+        c = res.check
+        out.append(f"  check points: {c['observations']} measurements of {c['points']} points, "
+                   f"RMS along {c['rms_along_m']:.2f} m ({c['rms_along_px']:.2f} px), across "
+                   f"{c['rms_across_m']:.2f} m ({c['rms_across_px']:.2f} px); predicted "
+                   f"{c['predicted_rms_along_m']:.2f} / {c['predicted_rms_across_m']:.2f} m")
+    return out
+
+
+def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
+    b = truth["boresight_with_ins_bias_arcsec"]
+    return {"omega": b[0], "phi": b[1], "kappa": b[2], "delta_focal": truth["delta_focal_mm"],
+            "delta_x0": truth["delta_principal_point_um"][0],
+            "delta_y0": truth["delta_principal_point_um"][1],
+            "time_delay": truth["time_delay_ms"]}
+
+
+def _run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from postproc.calib_data import write_ground_points, write_observations
+    from postproc.calib_report import load_check, report_json, sensor_toml
+    from postproc.calibrate import calibrate, sweep_delay
+
+    started = time.perf_counter()
+    opt = _options(args)
+    with staged_output_dir(args.out) as out:
+        inp, info = build_input(args)
+        res = calibrate(inp, opt)
+        if args.sweep_delay_ms is not None:
+            span = abs(args.sweep_delay_ms)
+            info["delay_sweep"] = sweep_delay(inp, opt, np.arange(-span, span + 1e-9, 5.0))
+        text = sensor_toml(res)
+        load_check(text)
+        (out / "sensor.toml").write_text(text, encoding="utf-8")
+        report = report_json(res, {"settings": {"estimate": args.estimate,
+                                                "gcp_sigma_m": list(opt.gcp_sigma_m),
+                                                "dem_sigma_m": opt.dem_sigma_m,
+                                                "dem": inp.dem is not None}, **info})
+        (out / "calibration.json").write_text(json.dumps(report, indent=1) + "\n",
+                                              encoding="utf-8")
+        write_observations(out / "observations.csv", inp.obs)
+        write_ground_points(out / "points.csv", inp.points)
+    print(f"{args.out}: calibrated in {time.perf_counter() - started:.1f} s")
+    for line in headline(res, info.get("truth")):
+        print(line)
+    if "delay_sweep" in info:
+        print(f"  delay sweep (seed method): minimum RMS at {info['delay_sweep']['best_ms']:.1f} "
+              "ms")
+    return 0

@@ -1,0 +1,104 @@
+"""`sisa process RUN`: the post-processing of a simulated run, end to end — sync,
+georeferencing and products as `sisa georef`, with the run's scenario as the sensor file, plus
+an accuracy report against the run's truth.
+
+RUN/process/ (or --out)
+  ...                  everything `sisa georef` writes
+  accuracy.json        every-pixel and check-point errors along/across/height, m and px
+  report.html          the report: map, attitude, sync residuals, clock drift, errors, mosaic
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sisa.commands import SubParsers, add_command
+from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
+from sisa.errors import InputError
+from sisa.outdir import staged_output_dir
+
+if TYPE_CHECKING:
+    from emulators.scenario import Scenario
+    from postproc.sensorfile import SensorModel
+
+
+def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
+    parser = add_command(sub, "process", "sync, georeference and report on a simulated run, "
+                         "with its accuracy against truth",
+                         "sisa process runs/bench")
+    parser.add_argument("run", type=Path, metavar="RUN", help="a run folder of `sisa simulate`")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="new output folder (default: RUN/process)")
+    parser.add_argument("--nominal", action="store_true",
+                        help="georeference with the nominal sensor (no boresight or "
+                             "self-calibration), as an uncalibrated system would")
+    add_georef_args(parser)
+    parser.set_defaults(handler=_run, dem=None)
+
+
+def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:
+    """The sensor file a run's scenario implies (its true geometry and mounting, or the nominal
+    ones)."""
+    from postproc.sensorfile import SensorModel
+    from sisa.sensor import Mounting, ScannerGeometry
+
+    geometry = ScannerGeometry(**{k: getattr(scn.scanner, k)
+                                  for k in ScannerGeometry.model_fields})
+    mounting = scn.mounting
+    if nominal:
+        geometry = geometry.model_copy(update={"delta_focal_mm": 0.0,
+                                               "delta_principal_point_um": (0.0, 0.0)})
+        mounting = Mounting(lever_arm_m=mounting.lever_arm_m,
+                            antenna_offset_m=mounting.antenna_offset_m)
+    name = f"{scn.block.name} scenario ({'nominal' if nominal else 'as simulated'})"
+    return SensorModel(name=name, scanner=geometry, mounting=Mounting(**mounting.model_dump()))
+
+
+def _headline(result: Any, acc: dict[str, Any] | None) -> list[tuple[str, str]]:
+    rows = [("georeferencing", headline(result))]
+    if acc is not None:
+        p, c = acc["pixels"], acc["check_points"]
+        rows.append(("every pixel vs truth, RMS along / across / height",
+                     f"{p['along']['rms_px']:.4f} / {p['across']['rms_px']:.4f} / "
+                     f"{p['height']['rms_px']:.4f} px ({p['pixels']} pixels)"))
+        if c.get("points"):
+            rows.append(("check points, RMS along / across / height",
+                         f"{c['along']['rms_px']:.3f} / {c['across']['rms_px']:.3f} / "
+                         f"{c['height']['rms_px']:.3f} px ({c['points']} observations, "
+                         f"{c['distinct']} points)"))
+    return rows
+
+
+def _run(args: argparse.Namespace) -> int:
+    from emulators.scenario import load_scenario
+    from postproc.report import write_report
+    from sisa.accuracy import run_accuracy
+
+    started = time.perf_counter()
+    run: Path = args.run
+    if not (run / "flight.mcap").is_file():
+        raise InputError(f"{run}: not a run folder of `sisa simulate` (no flight.mcap)")
+    scn = load_scenario(run / "scenario.toml")
+    args.dem = run / "terrain" / "dem.tif"
+    options = options_from_args(args, sensor_of(scn, nominal=args.nominal))
+    out = args.out if args.out is not None else run / "process"
+    with staged_output_dir(out) as tmp:
+        result = run_georef([run / "flight.mcap"], run / "scanner", tmp, options)
+        acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
+        if acc is not None:
+            public = {k: v for k, v in acc.items() if not k.startswith("_")}
+            (tmp / "accuracy.json").write_text(json.dumps(public, indent=1) + "\n",
+                                               encoding="utf-8")
+        rows = _headline(result, acc)
+        write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
+                     title=f"SISA processing report — {scn.block.name}", accuracy=acc,
+                     headline=rows)
+    print(f"report: {out / 'report.html'}")
+    for name, value in rows:
+        print(f"  {name}: {value}")
+    print(f"  ({time.perf_counter() - started:.1f} s)")
+    return 0

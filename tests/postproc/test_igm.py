@@ -1,0 +1,248 @@
+"""IGM files: round trip through GDAL, all-or-nothing writes, and `gdalwarp -geoloc` on the
+geolocation VRT landing every cell on a pixel centred near it (no half-pixel shift)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from pyproj import CRS
+from rasterio.errors import NotGeoreferencedWarning
+
+from postproc.igm import IGM_BAND_NAMES, IgmWriter, igm_epsg, open_igm, write_geolocation_vrt
+from postproc.ortho import OrthoGrid
+from sisa.errors import InputError
+
+EPSG = 32631  # UTM 31N (Garrotxa, Bellmunt)
+GDALWARP = shutil.which("gdalwarp")
+GDALINFO = shutil.which("gdalinfo")
+pytestmark = pytest.mark.filterwarnings("ignore", category=NotGeoreferencedWarning)
+
+
+@dataclass(frozen=True)
+class Strip:
+    """A synthetic segment: pixel-centre positions (lines, pixels) and its raw image."""
+
+    easting_m: np.ndarray
+    northing_m: np.ndarray
+    height_m: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.easting_m.shape
+
+
+def synthetic_strip(lines: int, pixels: int, *, spacing_m: float = 1.0, along_m: float = 1.0,
+                    heading_deg: float = 30.0, turn_deg: float = 12.0, jitter_m: float = 0.35,
+                    yaw_deg: float = 1.5, surge_m: float = 0.2, smooth_lines: int = 1,
+                    origin_m: tuple[float, float] = (461_000.0, 4_661_000.0),
+                    miss: bool = True, seed: int = 1) -> Strip:
+    """A gently turning strip flown at `heading_deg` (clockwise from grid north), with
+    turbulence (sideways, yaw and along-track jitter; yaw and surge low-passed over
+    `smooth_lines`: with 1 they are white from line to line, harsher than any aircraft, so
+    lines cross), wider pixels towards the edges, and a DEM miss (NaN) at one edge for a run
+    of lines. Pixel 0 is on the right of the flight direction."""
+    rng = np.random.default_rng(seed)
+    s = np.arange(lines) * along_m
+    heading = np.radians(heading_deg + turn_deg * s / max(s[-1], 1.0))
+    east_c = origin_m[0] + np.cumsum(np.sin(heading)) * along_m
+    north_c = origin_m[1] + np.cumsum(np.cos(heading)) * along_m
+    lateral = jitter_m * _noise(rng, lines, 9)
+    yaw = heading + np.radians(yaw_deg) * _noise(rng, lines, smooth_lines)
+    surge = surge_m * _noise(rng, lines, smooth_lines)
+    c = (pixels - 1) / 2
+    q = (c - np.arange(pixels)) / max(c, 1.0)
+    across = (c - np.arange(pixels)) * spacing_m * (1 + 0.1 * q**2)  # metres to the right
+    right_e, right_n = np.cos(yaw)[:, None], -np.sin(yaw)[:, None]
+    fwd_e, fwd_n = np.sin(heading)[:, None], np.cos(heading)[:, None]
+    off = across[None, :] + lateral[:, None]
+    east = east_c[:, None] + off * right_e + surge[:, None] * fwd_e
+    north = north_c[:, None] + off * right_n + surge[:, None] * fwd_n
+    height = 120.0 + 5.0 * np.sin(east / 50.0) + 3.0 * np.cos(north / 40.0)
+    if miss:
+        lo = lines // 3
+        east[lo:lo + 12, -4:] = np.nan
+        north[lo:lo + 12, -4:] = np.nan
+        height[lo:lo + 12, -4:] = np.nan
+    return Strip(east, north, height)
+
+
+def _noise(rng: np.random.Generator, n: int, smooth: int) -> np.ndarray:
+    """Unit-variance noise, low-passed over `smooth` samples."""
+    x = np.convolve(rng.normal(size=n + smooth - 1), np.ones(smooth), mode="valid")
+    return x / x.std()
+
+
+def write_igm(strip: Strip, stem: Path, epsg: int = EPSG, block: int = 97) -> Path:
+    lines, pixels = strip.shape
+    with IgmWriter(stem, lines, pixels, epsg) as w:
+        for lo in range(0, lines, block):
+            w.write_block(lo, strip.easting_m[lo:lo + block], strip.northing_m[lo:lo + block],
+                          strip.height_m[lo:lo + block])
+    return Path(f"{stem}.bil")
+
+
+WAVELENGTHS_NM = (460.0, 550.0, 640.0, 850.0)
+
+
+def write_raw(path: Path, lines: int, pixels: int, *, marker: int = 7,
+              wavelengths_nm: tuple[float, ...] = WAVELENGTHS_NM) -> np.ndarray:
+    """An ENVI BIL uint16 image as the scanner writes it; band 1 = line + 1, band 2 =
+    pixel + 1 (so any resampler's choice can be decoded), band 3 = `marker`, others texture."""
+    bands = len(wavelengths_nm)
+    i, j = np.mgrid[0:lines, 0:pixels]
+    img = np.empty((lines, bands, pixels), dtype=np.uint16)
+    img[:, 0], img[:, 1] = i + 1, j + 1
+    if bands > 2:
+        img[:, 2] = marker
+    for b in range(3, bands):
+        img[:, b] = 1000 + (37 * i + 11 * j * b) % 900
+    img.astype("<u2").tofile(path)
+    names = ", ".join(f"band {b + 1} ({w:.1f} nm)" for b, w in enumerate(wavelengths_nm))
+    path.with_suffix(".hdr").write_text(
+        "ENVI\ndescription = {synthetic segment}\n"
+        f"samples = {pixels}\nlines = {lines}\nbands = {bands}\nheader offset = 0\n"
+        "file type = ENVI Standard\ndata type = 12\ninterleave = bil\nbyte order = 0\n"
+        "data ignore value = 0\nwavelength units = Nanometers\n"
+        "wavelength = {" + ", ".join(f"{w:.2f}" for w in wavelengths_nm) + "}\n"
+        "band names = {" + names + "}\n", encoding="ascii")
+    return img
+
+
+def gdal_ok(path: Path) -> None:
+    assert GDALINFO is not None, "gdalinfo (GDAL command-line tools) is needed"
+    proc = subprocess.run([GDALINFO, str(path)], capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+
+
+# -- round trip --------------------------------------------------------------------------------
+
+def test_igm_round_trip_through_gdal(tmp_path: Path) -> None:
+    strip = synthetic_strip(250, 40)
+    path = write_igm(strip, tmp_path / "seg_igm")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seg_igm.bil", "seg_igm.hdr"]
+    gdal_ok(path)
+    with rasterio.open(path) as ds:
+        assert (ds.count, ds.height, ds.width) == (3, 250, 40)
+        assert ds.dtypes == ("float64",) * 3
+        assert ds.descriptions == IGM_BAND_NAMES
+        assert all(np.isnan(v) for v in ds.nodatavals)
+        for band, want in enumerate((strip.easting_m, strip.northing_m, strip.height_m), 1):
+            np.testing.assert_array_equal(ds.read(band), want)
+        envi = ds.tags(ns="ENVI")
+        assert CRS.from_wkt(envi["coordinate_system_string"].strip("{}")).to_epsg() == EPSG
+        assert "CENTRE" in envi["description"]
+        assert "ellipsoidal" in envi["description"]
+    assert igm_epsg(path) == EPSG
+    mm = open_igm(path)
+    assert mm.shape == (250, 3, 40)
+    np.testing.assert_array_equal(mm[:, 1], strip.northing_m)
+
+
+def test_pixel_with_any_bad_coordinate_is_all_nan(tmp_path: Path) -> None:
+    e = np.full((2, 3), 450_000.0)
+    n = np.full((2, 3), 4_650_000.0)
+    h = np.full((2, 3), 100.0)
+    h[1, 2] = np.inf
+    with IgmWriter(tmp_path / "x", 2, 3, EPSG) as w:
+        w.write_block(0, e, n, h)
+    igm = open_igm(tmp_path / "x.bil")
+    assert np.isnan(igm[1, :, 2]).all()
+    assert np.isfinite(igm[0]).all()
+    assert np.isfinite(igm[1, :, :2]).all()
+
+
+def test_failed_or_short_write_leaves_nothing(tmp_path: Path) -> None:
+    e = np.zeros((5, 4)) + 450_000.0
+    def fail_midway() -> None:
+        with IgmWriter(tmp_path / "a", 10, 4, EPSG) as w:
+            w.write_block(0, e, e, e)
+            raise RuntimeError("disk on fire")
+
+    with pytest.raises(RuntimeError):
+        fail_midway()
+    with pytest.raises(InputError, match="only 5 of 10 lines"), \
+            IgmWriter(tmp_path / "b", 10, 4, EPSG) as w:
+        w.write_block(0, e, e, e)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_blocks_must_follow_each_other(tmp_path: Path) -> None:
+    e = np.zeros((5, 4)) + 450_000.0
+    w = IgmWriter(tmp_path / "a", 10, 4, EPSG)
+    w.write_block(0, e, e, e)
+    with pytest.raises(InputError, match="expected 5"):
+        w.write_block(6, e, e, e)
+    with pytest.raises(InputError, match="expected"):
+        w.write_block(5, e[:, :3], e[:, :3], e[:, :3])
+    w.abort()
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InputError, match="not a projected CRS"):
+        IgmWriter(tmp_path / "c", 1, 1, 4326)
+
+
+# -- gdalwarp -geoloc on the VRT ---------------------------------------------------------------
+
+def _warp_offsets(vrt: Path, strip: Strip, grid: OrthoGrid, cwd: Path) -> np.ndarray:
+    """(cells, 2) east/north offset: ground position of the pixel gdalwarp chose − centre."""
+    assert GDALWARP is not None, "gdalwarp (GDAL command-line tools) is needed"
+    out = cwd / f"warp_{vrt.stem}.tif"
+    w, s, e, n = grid.bounds_m
+    proc = subprocess.run(
+        [GDALWARP, "-q", "-overwrite", "-geoloc", "-r", "near", "-t_srs", f"EPSG:{grid.epsg}",
+         "-te", repr(w), repr(s), repr(e), repr(n), "-tr", repr(grid.cell_m), repr(grid.cell_m),
+         str(vrt), str(out)], cwd=cwd, capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(out) as ds:
+        assert ds.transform == grid.transform
+        line1, pix1 = ds.read(1).astype(np.int64), ds.read(2).astype(np.int64)
+    rows, cols = np.nonzero((line1 > 0) & (pix1 > 0))
+    li, pj = line1[rows, cols] - 1, pix1[rows, cols] - 1
+    de = strip.easting_m[li, pj] - grid.centre_x_m(cols)
+    dn = strip.northing_m[li, pj] - grid.centre_y_m(rows)
+    return np.stack([de, dn], axis=1)
+
+
+def test_gdalwarp_geoloc_lands_on_pixel_centres(tmp_path: Path) -> None:
+    # GDAL inverts the geolocation arrays approximately: strong line-to-line jitter makes its
+    # nearest pixel wander (up to 1.9 cells here with yaw 1.5°); keep the turbulence mild.
+    strip = synthetic_strip(300, 48, miss=False, yaw_deg=0.3, surge_m=0.05)
+    work = tmp_path / "made_here"
+    work.mkdir()
+    igm = write_igm(strip, work / "seg_igm")
+    write_raw(work / "seg.bil", *strip.shape)
+    write_geolocation_vrt(work / "seg_geoloc.vrt", work / "seg.bil", igm, EPSG)
+    moved = tmp_path / "moved" / "elsewhere"
+    shutil.move(work, moved)  # relative paths: the folder can move
+    elsewhere = tmp_path / "cwd"
+    elsewhere.mkdir()
+    grid = OrthoGrid.covering((np.nanmin(strip.easting_m), np.nanmin(strip.northing_m),
+                               np.nanmax(strip.easting_m), np.nanmax(strip.northing_m)), 1.0,
+                              EPSG)
+    off = _warp_offsets(moved / "seg_geoloc.vrt", strip, grid, elsewhere)
+    assert off.shape[0] > 0.8 * 300 * 48  # the swath is covered
+    assert np.abs(off).max() <= 1.0  # within one cell of the centre, east and north
+    assert np.hypot(*off.mean(axis=0)) < 0.05  # and no systematic (half-pixel) shift
+
+    # The same warp with the pixel-corner convention is shifted by about half a pixel in
+    # both directions: the test above would catch a convention error.
+    text = (moved / "seg_geoloc.vrt").read_text()
+    assert "PIXEL_CENTER" in text
+    corner = moved / "corner.vrt"
+    corner.write_text(text.replace("PIXEL_CENTER", "TOP_LEFT_CORNER"))
+    off_c = _warp_offsets(corner, strip, grid, elsewhere)
+    assert np.hypot(*off_c.mean(axis=0)) > 0.4
+
+
+def test_vrt_refuses_mismatched_igm(tmp_path: Path) -> None:
+    strip = synthetic_strip(30, 8)
+    igm = write_igm(strip, tmp_path / "igm")
+    write_raw(tmp_path / "img.bil", 31, 8)
+    with pytest.raises(InputError, match="IGM is 30 x 8"):
+        write_geolocation_vrt(tmp_path / "v.vrt", tmp_path / "img.bil", igm, EPSG)
+    assert not (tmp_path / "v.vrt").exists()

@@ -1,0 +1,248 @@
+"""postproc.raycast: the fast ray–DEM intersection against independent oracles — its own slow
+reference (pyproj at every point), the emulator's forward model (emulators.render), and
+hand-worked cases — on the bench terrain and on a synthetic steep DEM with cliffs and a narrow
+ridge that occludes rays."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from pyproj import Transformer
+
+from emulators.render import exact_ground_point
+from emulators.scenario import load_scenario
+from emulators.terrain import Terrain
+from postproc.dem import Dem
+from postproc.raycast import CastStats, GroundPoints, intersect, reference_intersect
+from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
+
+F64 = npt.NDArray[np.float64]
+UTM31N = 32631
+TOLERANCE_M = 1e-3
+
+
+def ecef_of(epsg: int, e: F64, n: F64, h: F64) -> F64:
+    lon, lat = Transformer.from_crs(epsg, 4326, always_xy=True).transform(e, n)
+    return np.stack(Transformer.from_crs(4979, 4978, always_xy=True).transform(lon, lat, h), -1)
+
+
+def poses(epsg: int, east_m: npt.ArrayLike, north_m: npt.ArrayLike, height_m: npt.ArrayLike,
+          roll_rad: F64, pitch_rad: F64, heading_rad: F64) -> tuple[F64, F64]:
+    """Perspective centres (ECEF) and camera → ECEF rotations for the nominal mounting."""
+    lon, lat = Transformer.from_crs(epsg, 4326, always_xy=True).transform(east_m, north_m)
+    x, y, z = Transformer.from_crs(4979, 4978, always_xy=True).transform(lon, lat, height_m)
+    r_ne = ned_to_ecef_matrix(np.radians(lat), np.radians(lon))
+    rot = r_ne @ body_to_ned_matrix(roll_rad, pitch_rad, heading_rad) @ R_NOMINAL_C_TO_B
+    return np.stack([x, y, z], axis=-1), rot
+
+
+def strip(dem: Dem, lines: int, agl_m: float, seed: int, step_m: float = 1.2
+          ) -> tuple[F64, F64, F64]:
+    """A CASI strip flown north over the middle of the DEM with ~0.3° attitude noise."""
+    rng = np.random.default_rng(seed)
+    w, s, e, _ = dem.bounds_m
+    north = s + 400.0 + step_m * np.arange(lines)
+    east = np.full(lines, 0.5 * (w + e)) + rng.uniform(-200.0, 200.0)
+    height = np.full(lines, float(np.nanmax(dem.heights_m)) + agl_m)
+    att = np.radians(0.3) * np.cumsum(rng.standard_normal((3, lines)), axis=1) / 5.0
+    centre, rot = poses(dem.epsg, east, north, height, att[0], att[1], att[2])
+    return centre, rot, ScannerGeometry().look_vectors_camera()
+
+
+def range_and_distance_m(dem: Dem, centre: F64, got: GroundPoints, ref: GroundPoints
+                         ) -> tuple[F64, F64]:
+    """|range difference| along each ray and 3-D distance between the points, rays both hit."""
+    both = got.hit & ref.hit
+    p_got = ecef_of(dem.epsg, got.easting_m[both], got.northing_m[both], got.height_m[both])
+    p_ref = ecef_of(dem.epsg, ref.easting_m[both], ref.northing_m[both], ref.height_m[both])
+    c = np.broadcast_to(centre[:, None, :], (*both.shape, 3))[both]
+    dr = np.abs(np.linalg.norm(p_got - c, axis=-1) - np.linalg.norm(p_ref - c, axis=-1))
+    return dr, np.linalg.norm(p_got - p_ref, axis=-1)
+
+
+def assert_matches_reference(dem: Dem, centre: F64, rot: F64, look: F64,
+                             got: GroundPoints) -> GroundPoints:
+    ref = reference_intersect(dem, centre, rot, look)
+    np.testing.assert_array_equal(got.hit, ref.hit)
+    dr, d3 = range_and_distance_m(dem, centre, got, ref)
+    assert dr.max(initial=0.0) < TOLERANCE_M
+    assert d3.max(initial=0.0) < TOLERANCE_M
+    for a in (got.easting_m, got.northing_m, got.height_m):
+        assert np.isnan(a[~got.hit]).all()
+    return ref
+
+
+@pytest.fixture(scope="module")
+def bench_terrain() -> Terrain:
+    return Terrain.from_scenario(load_scenario("bench"))
+
+
+@pytest.fixture(scope="module")
+def bench_dem(bench_terrain: Terrain, tmp_path_factory: pytest.TempPathFactory) -> Dem:
+    path = tmp_path_factory.mktemp("dem") / "bench.tif"
+    bench_terrain.write_dem(path)
+    return Dem.read(path)
+
+
+@pytest.fixture(scope="module")
+def bench_strip(bench_dem: Dem) -> tuple[F64, F64, F64]:
+    return strip(bench_dem, 600, 900.0, seed=4)
+
+
+def test_fast_path_matches_the_reference_on_the_bench_dem(
+        bench_dem: Dem, bench_strip: tuple[F64, F64, F64]) -> None:
+    centre, rot, look = bench_strip
+    stats = CastStats()
+    got = intersect(bench_dem, centre, rot, look, stats=stats)
+    assert got.hit.all()
+    assert stats.fast > 0.99 * got.hit.size
+    lines = np.sort(np.random.default_rng(8).choice(centre.shape[0], 5, replace=False))
+    sub = GroundPoints(got.easting_m[lines], got.northing_m[lines], got.height_m[lines],
+                       got.hit[lines])
+    assert_matches_reference(bench_dem, centre[lines], rot[lines], look, sub)
+
+
+def test_agrees_with_the_emulators_forward_model(bench_terrain: Terrain, bench_dem: Dem,
+                                                 bench_strip: tuple[F64, F64, F64]) -> None:
+    """emulators.render.exact_ground_point marches the emulator's own terrain sampler."""
+    centre, rot, look = bench_strip
+    got = intersect(bench_dem, centre, rot, look)
+    rng = np.random.default_rng(9)
+    li = rng.integers(0, centre.shape[0], 300)
+    pj = rng.integers(0, look.shape[1], 300)
+    d = np.einsum("nij,jn->ni", rot[li], look[:, pj])
+    exact = exact_ground_point(bench_terrain, centre[li], d)
+    assert not np.isnan(exact).any()
+    mine = np.stack([got.easting_m[li, pj], got.northing_m[li, pj], got.height_m[li, pj]], -1)
+    assert np.abs(mine - exact).max() < TOLERANCE_M
+
+
+def test_out_buffers_are_reused_and_checked(bench_dem: Dem,
+                                            bench_strip: tuple[F64, F64, F64]) -> None:
+    centre, rot, look = bench_strip
+    first = intersect(bench_dem, centre[:40], rot[:40], look)
+    out = GroundPoints.empty(40, look.shape[1])
+    again = intersect(bench_dem, centre[:40], rot[:40], look, out=out)
+    assert again is out
+    np.testing.assert_array_equal(out.easting_m, first.easting_m)
+    np.testing.assert_array_equal(out.hit, first.hit)
+    with pytest.raises(ValueError, match="out buffers"):
+        intersect(bench_dem, centre[:41], rot[:41], look, out=out)
+    with pytest.raises(ValueError, match="expected centre"):
+        intersect(bench_dem, centre[:40], rot[:39], look)
+
+
+def test_lines_without_a_pose_give_nan(bench_dem: Dem,
+                                       bench_strip: tuple[F64, F64, F64]) -> None:
+    centre, rot, look = (a.copy() for a in bench_strip)
+    full = intersect(bench_dem, centre[:30], rot[:30], look)
+    centre[[3, 17]] = np.nan
+    rot[20] = np.nan
+    got = intersect(bench_dem, centre[:30], rot[:30], look)
+    assert not got.hit[[3, 17, 20]].any()
+    assert np.isnan(got.easting_m[[3, 17, 20]]).all()
+    keep = np.setdiff1d(np.arange(30), [3, 17, 20])
+    np.testing.assert_allclose(got.easting_m[keep], full.easting_m[keep], atol=1e-4)
+    ref = reference_intersect(bench_dem, centre[2:5], rot[2:5], look[:, ::64])
+    assert not ref.hit[1].any()
+    assert ref.hit[[0, 2]].all()
+
+
+def test_vertical_ray_over_flat_ellipsoidal_dem_by_hand() -> None:
+    """Flat DEM at h = 250 m: a ray along the ellipsoid normal from 700 m above meets it at the
+    camera's own map position (pyproj) and height 250 m."""
+    h = np.full((400, 400), 250.0, np.float32)
+    dem = Dem(h, 400_001.0, 4_600_799.0, 2.0, 2.0, UTM31N)
+    e0, n0 = 400_351.3, 4_600_402.7
+    lon, lat = Transformer.from_crs(UTM31N, 4326, always_xy=True).transform(e0, n0)
+    centre = np.array([Transformer.from_crs(4979, 4978, always_xy=True).transform(
+        lon, lat, 950.0)])
+    r_ne = ned_to_ecef_matrix(math.radians(lat), math.radians(lon))
+    rot = (r_ne @ np.diag([1.0, 1.0, -1.0]) @ np.diag([1.0, 1.0, -1.0]))[None]  # z → down
+    look = np.array([[0.0], [0.0], [1.0]])  # along camera z = NED down
+    for method in (intersect, reference_intersect):
+        gp = method(dem, centre, rot, look)
+        assert gp.hit.all()
+        assert gp.easting_m[0, 0] == pytest.approx(e0, abs=1e-4)
+        assert gp.northing_m[0, 0] == pytest.approx(n0, abs=1e-4)
+        assert gp.height_m[0, 0] == pytest.approx(250.0, abs=1e-4)
+
+
+# ---------------------------------------------------------------------------------------------
+# A steep DEM: a cliff and a narrow ridge that comes and goes along track
+# ---------------------------------------------------------------------------------------------
+
+
+def steep_dem() -> Dem:
+    """2 m cells, base 300 m sloping gently; a 6 m wide ridge, 60 m tall in 6 m sections with
+    4 m gaps along north, 80 m west of the strip; an 80 m cliff 150 m east of it."""
+    rows, cols = 500, 400
+    e = np.arange(cols) * 2.0
+    n = np.arange(rows) * 2.0
+    base = 300.0 + 0.05 * e[None, :] + 0.02 * n[:, None]
+    ridge = ((np.abs(e - 320.0) <= 3.0)[None, :] & ((n % 10.0) < 6.0)[:, None]) * 60.0
+    cliff = (e >= 550.0)[None, :] * 80.0
+    heights = (base + ridge + cliff).astype(np.float32)
+    return Dem(heights, 400_001.0, 4_600_999.0, 2.0, 2.0, UTM31N)
+
+
+def fan(lines: int, north0_m: float, step_m: float, height_m: float, east_m: float,
+        pixels: int, half_angle_deg: float) -> tuple[F64, F64, F64]:
+    """Level flight north; look vectors fanned ±half_angle across track."""
+    north = north0_m + step_m * np.arange(lines)
+    centre, rot = poses(UTM31N, np.full(lines, east_m), north, np.full(lines, height_m),
+                        np.zeros(lines), np.zeros(lines), np.zeros(lines))
+    ang = np.radians(np.linspace(-half_angle_deg, half_angle_deg, pixels))
+    look = np.stack([np.zeros(pixels), np.tan(ang), -np.ones(pixels)])
+    return centre, rot, look
+
+
+def test_occluding_ridge_and_cliff_give_the_first_intersection() -> None:
+    dem = steep_dem()
+    """Lines cross the ridge's sections and gaps in turn, so a pixel that saw the ground
+    behind the ridge on one line is stopped by the ridge on the next: starting from the
+    neighbour's range would find the later crossing."""
+    dem = steep_dem()
+    centre, rot, look = fan(30, 4_600_300.0, 1.7, 780.0, 400_401.0, 128, 40.0)
+    stats = CastStats()
+    got = intersect(dem, centre, rot, look, stats=stats)
+    assert stats.safe_hit > 0  # the steep parts cannot be certified by the fast path
+    assert_matches_reference(dem, centre, rot, look, got)
+    on_ridge = got.hit & (np.abs(got.easting_m - 400_321.0) < 4.0) & (got.height_m > 330.0)
+    behind_before = np.zeros_like(on_ridge)
+    behind_before[1:] = on_ridge[1:] & (got.easting_m[:-1] < 400_314.0)
+    assert on_ridge.sum() >= 10
+    assert behind_before.sum() >= 3
+
+
+def test_rays_off_the_dem_into_nodata_or_above_the_horizon_miss(bench_dem: Dem) -> None:
+    heights = bench_dem.heights_m.copy()
+    heights[300:340, 150:200] = np.nan  # a hole near the strip
+    dem = Dem(heights, bench_dem.first_easting_m, bench_dem.first_northing_m,
+              bench_dem.cell_e_m, bench_dem.cell_n_m, bench_dem.epsg)
+    _w, s, e, n = dem.bounds_m
+    hole_e = dem.first_easting_m + 175 * dem.cell_e_m
+    hole_n = dem.first_northing_m - 320 * dem.cell_n_m
+    top = float(np.nanmax(heights))
+    # camera 1: over the hole; camera 2: near the east edge looking out; camera 3: looks up
+    east = np.array([hole_e, e - 150.0, hole_e - 800.0])
+    north = np.array([hole_n, 0.5 * (s + n), hole_n])
+    height = np.full(3, top + 500.0)
+    centre, rot = poses(dem.epsg, east, north, height, np.zeros(3), np.zeros(3), np.zeros(3))
+    ang = np.radians(np.linspace(-50.0, 50.0, 41))
+    look = np.stack([np.zeros(41), np.tan(ang), -np.ones(41)])
+    up = np.array([[0.0, 0.0], [0.3, -0.3], [1.0, 1.0]])  # camera z is up
+    got = intersect(dem, centre, rot, look)
+    assert not got.hit[0, 15:26].any()  # straight down into the hole
+    assert got.hit[0, :3].all()
+    assert got.hit[0, -3:].all()
+    assert not got.hit[1, :8].any()
+    assert got.hit[1, -8:].all()
+    assert_matches_reference(dem, centre, rot, look, got)
+    sky = intersect(dem, centre, rot, up)
+    assert not sky.hit.any()
+    assert np.isnan(sky.easting_m).all()

@@ -1,0 +1,90 @@
+"""End to end on a short error-free flight: simulate → sync → georeference → products → report.
+With no navigation errors, every pixel must land where the emulator's own forward model (a
+different ray caster in a different frame) says it looked."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import rasterio
+
+SHORT_ERROR_FREE = """
+base = "bench"
+[block]
+strip_length_m = 1200.0
+[flight]
+static_alignment_s = 40.0
+"""
+
+
+def _sisa(*args, check=True):
+    proc = subprocess.run([sys.executable, "-m", "sisa.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=600)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
+    root = tmp_path_factory.mktemp("process")
+    scn = root / "short.toml"
+    scn.write_text(SHORT_ERROR_FREE, encoding="utf-8")
+    _sisa("simulate", "--scenario", scn, "--error-free", "--out", root / "run")
+    out = _sisa("process", root / "run").stdout
+    return root / "run", root / "run" / "process", out
+
+
+def test_every_pixel_within_a_hundredth_of_a_pixel(processed):
+    _, out, stdout = processed
+    acc = json.loads((out / "accuracy.json").read_text())
+    pixels = acc["pixels"]
+    assert pixels["pixels"] > 500 * 512
+    for comp in ("along", "across", "height"):
+        assert pixels[comp]["max_abs_px"] < 0.01, (comp, pixels[comp])
+    assert acc["check_points"]["points"] >= 3
+    for comp in ("along", "across", "height"):
+        assert acc["check_points"][comp]["max_abs_px"] < 0.01
+    assert "report:" in stdout
+    assert "every pixel vs truth" in stdout
+
+
+def test_products_are_read_by_gdal(processed):
+    _, out, _ = processed
+    summary = json.loads((out / "georef_summary.json").read_text())
+    assert summary["segments"]
+    for seg in summary["segments"]:
+        for key in ("igm", "ortho", "glt", "geolocation_vrt"):
+            with rasterio.open(out / seg["files"][key]) as ds:
+                assert ds.width > 0
+                assert ds.height > 0
+        with rasterio.open(out / seg["files"]["ortho"]) as ds:
+            assert ds.crs.to_epsg() == int(summary["crs"].split(":")[1])
+            band = ds.read(1, masked=True)
+            assert 0.2 < band.count() / band.size <= 1.0  # a swath, with nodata around it
+    with rasterio.open(out / "mosaic.tif") as ds:
+        assert ds.nodata is not None
+        assert np.ma.count(ds.read(1, masked=True)) > 0
+    features = json.loads((out / "footprints.geojson").read_text())["features"]
+    assert len(features) == len(summary["segments"])
+
+
+def test_report_has_every_section(processed):
+    _, out, _ = processed
+    page = (out / "report.html").read_text()
+    for title in ("Trajectory and footprints", "Attitude", "Time synchronisation",
+                  "Ground accuracy against truth", "Ortho mosaic"):
+        assert title in page
+    assert page.count("data:image/png;base64,") >= 5
+
+
+def test_an_existing_output_is_refused_and_left_alone(processed):
+    run, out, _ = processed
+    before = sorted(p.name for p in out.iterdir())
+    proc = _sisa("process", run, check=False)
+    assert proc.returncode == 2
+    assert "already exists" in proc.stderr
+    assert proc.stderr.count("\n") == 1
+    assert sorted(p.name for p in out.iterdir()) == before

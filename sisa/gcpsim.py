@@ -63,13 +63,13 @@ class SimulatedObservations:
 
 
 @dataclass(frozen=True)
-class _Segment:
+class TruthSegment:
     number: int
     line: I64
     t_ns: I64
 
 
-def _segments(run: Path) -> list[_Segment]:
+def truth_segments(run: Path) -> list[TruthSegment]:
     path = run / "truth" / "frames.csv"
     if not path.is_file():
         raise InputError(f"{run}: no truth/frames.csv: not a simulated run folder")
@@ -79,12 +79,12 @@ def _segments(run: Path) -> list[_Segment]:
     for s in np.unique(fr["segment"][keep]).tolist():
         sel = keep & (fr["segment"] == s)
         order = np.argsort(fr["line_index"][sel])
-        out.append(_Segment(int(s), fr["line_index"][sel][order].astype(np.int64),
+        out.append(TruthSegment(int(s), fr["line_index"][sel][order].astype(np.int64),
                             fr["t_mid_gps_ns"][sel][order].astype(np.int64)))
     return out
 
 
-class _Projector:
+class TruthProjector:
     """The emulator's forward model for one scenario."""
 
     def __init__(self, scn: Scenario, traj: TruthTrajectory) -> None:
@@ -104,7 +104,7 @@ class _Projector:
         p = self.camera(t_ns, x)
         return np.asarray(-self.f_m * p[:, 0] / p[:, 2] - self.x0_m, np.float64)
 
-    def crossing(self, seg: _Segment, x: F64) -> tuple[F64, I64]:
+    def crossing(self, seg: TruthSegment, x: F64) -> tuple[F64, I64]:
         """(pixel, crossing time) of every point in a segment; NaN pixel where unseen."""
         t_lo, t_hi = int(seg.t_ns[0]), int(seg.t_ns[-1])
         grid = np.arange(t_lo, t_hi + 1, COARSE_STEP_NS, dtype=np.int64)
@@ -128,14 +128,14 @@ class _Projector:
         return np.where(ok, pixel, np.nan), t
 
 
-def _fractional_line(seg: _Segment, t_tag_ns: I64) -> F64:
+def _fractional_line(seg: TruthSegment, t_tag_ns: I64) -> F64:
     rel = (seg.t_ns - seg.t_ns[0]).astype(np.float64)
     q = (t_tag_ns - seg.t_ns[0]).astype(np.float64)
     inside = (q >= rel[0]) & (q <= rel[-1])
     return np.where(inside, np.interp(q, rel, seg.line.astype(np.float64)), np.nan)
 
 
-def _views(proj: _Projector, segs: list[_Segment], x: F64, delay_ns: int
+def _views(proj: TruthProjector, segs: list[TruthSegment], x: F64, delay_ns: int
            ) -> list[tuple[int, int, float, float]]:
     """(point row, segment, line, pixel) of every view, exact."""
     out = []
@@ -218,12 +218,12 @@ def simulate_observations(run: Path, points: GroundPoints, settings: SimSettings
     """Measurements of `points` (control and check) and of new tie points, from the truth."""
     scn = load_scenario(run / "scenario.toml")
     traj = TruthTrajectory.from_scenario(scn)
-    segs = _segments(run)
+    segs = truth_segments(run)
     rng = np.random.default_rng([settings.seed, 7])
     pts = points
     if settings.tie_points > 0:
         pts = GroundPoints.concat(points, _tie_candidates(run, points, settings.tie_points, rng))
-    proj = _Projector(scn, traj)
+    proj = TruthProjector(scn, traj)
     views = _views(proj, segs, pts.ecef_m, round(settings.delay_ms * 1e6))
     views = _limit_views(views, settings.max_views, scn.scanner.centre_pixel)
     views = _keep_ties(views, pts, settings.tie_points)

@@ -27,7 +27,7 @@ from pyproj import CRS, Transformer
 from postproc.dem import Dem
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
-from postproc.igm import IgmWriter, igm_bounds, open_igm, write_geolocation_vrt
+from postproc.igm import IgmWriter, igm_bounds, write_geolocation_vrt
 from postproc.mosaic import mosaic
 from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
 from postproc.ortho import OrthoGrid, orthorectify
@@ -273,8 +273,7 @@ class GeorefJob:
         seg.files["geolocation_vrt"] = vrt.name
         if not self.opt.products:
             return
-        igm = open_igm(seg.igm)
-        grid = OrthoGrid.covering(igm_bounds(igm), cell_m, self.epsg)
+        grid = OrthoGrid.covering(igm_bounds(seg.igm), cell_m, self.epsg)
         tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
         orthorectify(seg.igm, seg.image, grid, tif, glt)
         png = Path(f"{stem}_quicklook.png")
@@ -305,7 +304,7 @@ class GeorefJob:
         features = []
         for seg in done:
             self.products(seg, cell_m)
-            features.append(footprint_feature(open_igm(seg.igm), self.epsg, properties={
+            features.append(footprint_feature(seg.igm, self.epsg, properties={
                 "segment": seg.segment, "lines": seg.lines,
                 "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
         write_footprints_geojson(self.out / "footprints.geojson", features)
@@ -313,7 +312,7 @@ class GeorefJob:
         if self.opt.products and done:
             mosaic_path = self.out / "mosaic.tif"
             mosaic([(d.igm, d.image) for d in done],
-                   OrthoGrid.covering(_union_bounds([open_igm(d.igm) for d in done]), cell_m,
+                   OrthoGrid.covering(_union_bounds([d.igm for d in done]), cell_m,
                                       self.epsg), mosaic_path)
             write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
         summary = self._summary(result, done, cell_m)
@@ -369,7 +368,7 @@ def _median(parts: list[F64]) -> float:
     return float(np.median(vals)) if vals.size else math.nan
 
 
-def _union_bounds(igms: list[Any]) -> tuple[float, float, float, float]:
+def _union_bounds(igms: list[Path]) -> tuple[float, float, float, float]:
     b = [igm_bounds(i) for i in igms]
     return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
             max(x[3] for x in b))

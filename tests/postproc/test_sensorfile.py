@@ -32,7 +32,9 @@ def test_bad_files_give_one_line_naming_the_field(tmp_path, text, words):
     with pytest.raises(InputError) as err:
         SensorModel.load(path)
     msg = str(err.value)
-    assert words in msg and str(path) in msg and "\n" not in msg
+    assert words in msg
+    assert str(path) in msg
+    assert "\n" not in msg
 
 
 def test_missing_file(tmp_path):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 import rasterio
 from pyproj import CRS, Transformer
+from rasterio.errors import NotGeoreferencedWarning
 
 from postproc.dem import Dem
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
@@ -111,8 +113,10 @@ def segment_image(scanner_dir: Path, segment: int) -> Path:
 def image_shape(path: Path) -> tuple[int, int, int]:
     """(lines, bands, pixels) from the ENVI header, through GDAL."""
     try:
-        with rasterio.open(path) as ds:
-            return int(ds.height), int(ds.count), int(ds.width)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a raw image has no map
+            with rasterio.open(path) as ds:
+                return int(ds.height), int(ds.count), int(ds.width)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: not a readable ENVI image: {exc}") from None
 

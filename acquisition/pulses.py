@@ -71,7 +71,6 @@ class EdgeStreamDecoder:
             raw = bytes(self._buf[:EDGE_SIZE])
             edge = self._parse(raw)
             if edge is None:
-                self._drop(1)
                 continue
             out.append(Decoded(raw, edge))
             self.stats.count_message(edge.line.name)
@@ -82,23 +81,26 @@ class EdgeStreamDecoder:
         _magic, line, _flags, seq, t_ns, _res = _EDGE.unpack_from(raw)
         (crc,) = struct.unpack_from("<H", raw, _EDGE.size)
         if crc != crc16_ccitt_false(raw[: _EDGE.size]):
-            report_error(self.policy, self.stats, "checksum", "edge CRC mismatch",
-                         self._offset, raw)
+            self._reject(1, "checksum", "edge CRC mismatch", raw)
             return None
         try:
             return Edge(PulseLine(line), seq, t_ns)
         except ValueError:
-            report_error(self.policy, self.stats, "framing", f"unknown pulse line {line}",
-                         self._offset, raw)
+            self._reject(1, "framing", f"unknown pulse line {line}", raw)
             return None
 
     def _skip_to_magic(self) -> None:
         at = self._buf.find(EDGE_MAGIC, 1)
         skip = len(self._buf) - 1 if at < 0 else at
-        report_error(self.policy, self.stats, "framing", "bytes before edge magic",
-                     self._offset, bytes(self._buf[:skip]))
-        self.stats.bytes_skipped += skip
-        self._drop(skip)
+        self._reject(skip, "framing", "bytes before edge magic", bytes(self._buf[:skip]))
+
+    def _reject(self, n: int, kind: str, message: str, raw: bytes) -> None:
+        """Skip n bytes (the search goes on after them), then count the error: under RAISE the
+        decoder has already moved past the bad bytes, so feeding can go on."""
+        offset = self._offset
+        self.stats.bytes_skipped += n
+        self._drop(n)
+        report_error(self.policy, self.stats, kind, message, offset, raw)
 
     def _drop(self, n: int) -> None:
         del self._buf[:n]

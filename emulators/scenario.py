@@ -7,6 +7,7 @@ with one line that names the field and its allowed range before anything runs.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from enum import StrEnum
 from importlib import resources
@@ -214,6 +215,19 @@ class FaultProfile(StrictModel):
         return self == FaultProfile()
 
 
+def _first_non_finite(value: Any, where: str = "") -> str | None:
+    """Dotted name of the first NaN or infinity in a dumped model (TOML can write both)."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else where
+    if isinstance(value, dict):
+        children = [(f"{where}.{k}" if where else str(k), v) for k, v in value.items()]
+    elif isinstance(value, list | tuple):
+        children = [(f"{where}[{i}]", v) for i, v in enumerate(value)]
+    else:
+        return None
+    return next((bad for name, v in children if (bad := _first_non_finite(v, name))), None)
+
+
 class Scenario(StrictModel):
     """Everything a simulated flight needs; see `sisa scenario schema` for the full schema."""
 
@@ -227,6 +241,13 @@ class Scenario(StrictModel):
     mounting: Mounting = Mounting()
     sisa: SisaSettings = SisaSettings()
     faults: FaultProfile = FaultProfile()
+
+    @model_validator(mode="after")
+    def _all_finite(self) -> Scenario:
+        where = _first_non_finite(self.model_dump())
+        if where is not None:
+            raise ValueError(f"{where}: must be a finite number (not NaN or infinity)")
+        return self
 
 
 def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
@@ -249,11 +270,11 @@ def _format_validation_error(source: str, exc: ValidationError) -> str:
     loc = ".".join(str(p) for p in err["loc"])
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
     if err["type"] == "extra_forbidden":
-        return f"{source}: unknown field '{loc}'{more}"
+        return f"{source}: unknown field {loc!r}{more}"  # repr: a key may hold a newline
     msg = err["msg"].removeprefix("Value error, ")
     got = err.get("input")
     shown = "" if isinstance(got, dict) else f" (got {got!r})"
-    return f"{source}: {loc}: {msg}{shown}{more}"
+    return f"{source}: {loc + ': ' if loc else ''}{msg}{shown}{more}"
 
 
 def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scenario:
@@ -280,6 +301,6 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ConfigError(f"no preset or scenario file named {text!r} (presets: {PRESETS})")
     try:
         table = tomllib.loads(path.read_text("utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except (OSError, ValueError) as exc:  # TOMLDecodeError, bad UTF-8, an int > 4300 digits
         raise ConfigError(f"{path}: not a readable TOML file: {exc}") from None
     return scenario_from_table(table, source=str(path))

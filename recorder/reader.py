@@ -1,12 +1,14 @@
 """The tolerant flight-log reader: every complete chunk of a file, even one cut short by a crash.
 
 Why it is built this way:
-- A log from a power cut has no summary and ends inside a record. It is read front to back with
-  mcap's non-seeking `StreamReader` (chunks emitted whole), over a source that returns a record
-  only when all its bytes are there, so a half-written tail ends the file instead of becoming
-  garbage. Each chunk is checked (length, CRC) before any of its messages is used; a bad chunk is
-  skipped and counted, a record longer than `record_size_limit` stops the file (a corrupt length
-  must not allocate gigabytes), unknown records are skipped.
+- A log from a power cut has no summary and ends inside a record. It is read front to back, one
+  record at a time, over a source that returns a record only when all its bytes are there, so a
+  half-written tail ends the file instead of becoming garbage; each record is parsed (by mcap)
+  from its own bytes only, so a damaged inner length is skipped with its record and cannot eat
+  the records after it. Each chunk is checked (length, CRC) before any of its messages is used;
+  a bad chunk is skipped and counted, a length beyond `record_size_limit` stops the file (a
+  corrupt length must not allocate gigabytes; nor may a compressed chunk inflate past its
+  declared size), unknown records are skipped.
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
   numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
 - `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the median
@@ -16,17 +18,22 @@ Why it is built this way:
 from __future__ import annotations
 
 import base64
+import dataclasses
+import io
 import json
 import struct
 from array import array
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, BinaryIO, Final, TypeVar, cast
+from typing import Any, BinaryIO, Final, TypeVar
 
+import lz4.frame  # type: ignore[import-untyped]  # no stubs; mcap depends on it
 import numpy as np
 import numpy.typing as npt
-from mcap.exceptions import EndOfFile, McapError
+import zstandard
+from mcap.exceptions import McapError, RecordLengthLimitExceeded
+from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -42,6 +49,9 @@ MAX_PROBLEMS_KEPT: Final = 20
 _SEQUENCE_MOD: Final = 2**32
 _BATCH: Final = 4096
 _PARSE_ERRORS: Final = (McapError, ValueError, struct.error, UnicodeDecodeError, KeyError)
+_JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, RecursionError)
+_RECORD_HEAD: Final = 9  # opcode u8, length u64
+_KNOWN_OPCODES: Final = frozenset(int(op) for op in Opcode)
 
 PathArg = Path | str
 Paths = PathArg | Sequence[PathArg]
@@ -150,6 +160,10 @@ class LogStats:
                       key=lambda g: g.start_ns)
 
 
+class _OverLimitError(ValueError):
+    """A length field beyond the record size limit: the file cannot be read past it."""
+
+
 class _WholeRecords:
     """A file source that returns all the bytes asked for or none: a record cut by the end of
     the file then reads as end-of-file, never as a short record. A length field beyond the file
@@ -163,7 +177,7 @@ class _WholeRecords:
 
     def read(self, n: int) -> bytes:
         if n > self._limit:
-            raise ValueError(f"a field of {n} bytes exceeds the limit {self._limit}")
+            raise _OverLimitError(f"a field of {n} bytes exceeds the limit {self._limit}")
         if n > self._size - self.position:
             return b""
         data = self._fh.read(n)
@@ -171,6 +185,20 @@ class _WholeRecords:
             return b""
         self.position += n
         return data
+
+
+class _RecordBytes(io.BytesIO):
+    """One record's bytes. A field claiming more than the size limit stops the file as it does
+    in the file itself; a smaller one that overruns the record only damages the record."""
+
+    def __init__(self, data: bytes, limit: int) -> None:
+        super().__init__(data)
+        self._limit = limit
+
+    def read(self, n: int | None = -1) -> bytes:
+        if n is not None and n > self._limit:
+            raise _OverLimitError(f"a field of {n} bytes exceeds the limit {self._limit}")
+        return super().read(n)
 
 
 def _paths(path_or_paths: Paths) -> list[Path]:
@@ -238,7 +266,7 @@ class LogReader:
         ts = self.stats.topics.get(topic)
         if ts is None:
             ts = self.stats.topics[topic] = TopicStats(topic, channel.schema_name)
-            self._times[topic] = array("q")
+            self._times[topic] = array("Q")
         ts.count += 1  # the rest of the timing is filled in at the end of the pass
         self._times[topic].append(msg.log_time)
         expected = self._next_seq.get(topic)
@@ -249,12 +277,12 @@ class LogReader:
 
     def _finish(self) -> None:
         for topic, ts in self.stats.topics.items():
-            times = np.sort(np.frombuffer(self._times[topic], dtype=np.int64))
+            times = np.sort(np.frombuffer(self._times[topic], dtype=np.uint64))
             _fill_timing(ts, times)
         self._times.clear()
 
 
-def _fill_timing(ts: TopicStats, times: npt.NDArray[np.int64]) -> None:
+def _fill_timing(ts: TopicStats, times: npt.NDArray[np.uint64]) -> None:
     """Count, span, median interval and the gaps longer than GAP_FACTOR x the median."""
     ts.count = len(times)
     if not ts.count:
@@ -286,22 +314,49 @@ class _FileScan:
         with open_log(self.path) as fh:
             source = _WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
             fs.bytes_readable = source.position
-            reader = StreamReader(cast(IO[bytes], source), skip_magic=True, emit_chunks=True,
-                                  record_size_limit=self.limit)
-            footer_seen = False
             try:
-                for record in reader.records:
+                for record in self._records(source):
                     batch = self._on_record(record, source.position)
                     fs.bytes_readable = source.position
-                    footer_seen = footer_seen or isinstance(record, Footer)
                     yield from batch
-                fs.complete = True
-                fs.bytes_readable = source.position
-            except EndOfFile:
-                if footer_seen:
-                    self._problem("no closing magic after the footer")
-            except _PARSE_ERRORS as exc:
+            except _PARSE_ERRORS as exc:  # a length beyond the size limit: no way to go on
                 self._problem(f"unreadable record after byte {fs.bytes_readable}: {exc}")
+            if fs.complete:
+                fs.bytes_readable = source.position
+
+    def _records(self, source: _WholeRecords) -> Iterator[object]:
+        """Top-level records, each parsed from its own bytes only, so damage inside a record (an
+        inner length gone wrong) is skipped with it instead of running on into the records
+        after it. Ends where the data does, or after the footer and the closing magic."""
+        while True:
+            head = source.read(_RECORD_HEAD)
+            if not head:
+                return  # the end of what was written
+            length = int.from_bytes(head[1:], "little")
+            if length > self.limit:
+                raise RecordLengthLimitExceeded(head[0], length, self.limit)
+            body = source.read(length)
+            if len(body) != length:
+                return  # cut short inside the record
+            if head[0] not in _KNOWN_OPCODES:
+                continue  # a record type from a later MCAP version: skipped, as the spec says
+            try:
+                record = next(StreamReader(_RecordBytes(head + body, self.limit), skip_magic=True,
+                                           emit_chunks=True, record_size_limit=None).records)
+            except _OverLimitError:
+                raise
+            except _PARSE_ERRORS as exc:
+                if head[0] == Opcode.CHUNK:
+                    self.fstats.chunks_skipped += 1
+                self._problem(f"damaged record (opcode {head[0]:#04x}) ending at byte "
+                              f"{source.position} skipped: {exc}")
+                continue
+            yield record
+            if isinstance(record, Footer):
+                self.fstats.complete = source.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+                if not self.fstats.complete:
+                    self._problem("no closing magic after the footer")
+                return
 
     def _on_record(self, record: object, end: int) -> list[tuple[ChannelInfo, Message]]:
         if isinstance(record, Chunk):
@@ -330,9 +385,7 @@ class _FileScan:
     def _chunk(self, chunk: Chunk, end: int) -> list[tuple[ChannelInfo, Message]]:
         """All the chunk's messages, or none if the chunk is damaged."""
         try:
-            if chunk.compression == "" and len(chunk.data) != chunk.uncompressed_size:
-                raise ValueError("size does not match its header")
-            records = breakup_chunk(chunk, validate_crc=True)
+            records = breakup_chunk(_uncompressed(chunk, self.limit), validate_crc=True)
         except _PARSE_ERRORS as exc:
             self.fstats.chunks_skipped += 1
             self._problem(f"chunk ending at byte {end} skipped: {exc}")
@@ -358,6 +411,37 @@ class _FileScan:
             self.fstats.problems.append(text)
 
 
+def _uncompressed(chunk: Chunk, limit: int) -> Chunk:
+    """The chunk with its records uncompressed, never inflated past the size it declares (nor
+    the record size limit): a damaged size or a compression bomb must not allocate gigabytes."""
+    if chunk.uncompressed_size > limit:
+        raise ValueError(f"declares {chunk.uncompressed_size} bytes uncompressed (limit {limit})")
+    data = chunk.data
+    if chunk.compression:
+        data = _inflate(chunk.compression, data, chunk.uncompressed_size + 1)
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError("size does not match its header")
+    return dataclasses.replace(chunk, compression="", data=data)
+
+
+def _inflate(compression: str, data: bytes, max_bytes: int) -> bytes:
+    """At most `max_bytes` of the decompressed data."""
+    try:
+        if compression == "zstd":
+            out = bytearray()
+            with zstandard.ZstdDecompressor().stream_reader(data) as reader:
+                while len(out) < max_bytes and (piece := reader.read(max_bytes - len(out))):
+                    out += piece
+            return bytes(out)
+        if compression == "lz4":
+            inflated: bytes = lz4.frame.LZ4FrameDecompressor().decompress(data,
+                                                                          max_length=max_bytes)
+            return inflated
+    except (zstandard.ZstdError, RuntimeError) as exc:
+        raise ValueError(f"{compression}: {exc}") from None
+    raise ValueError(f"unknown compression {compression!r}")
+
+
 # --- decoding -----------------------------------------------------------------------------------
 
 def _schema_properties(channel: ChannelInfo) -> dict[str, Any] | None:
@@ -365,7 +449,7 @@ def _schema_properties(channel: ChannelInfo) -> dict[str, Any] | None:
         return None
     try:
         props = json.loads(channel.schema_data).get("properties")
-    except (ValueError, AttributeError):
+    except (ValueError, AttributeError, RecursionError):
         return None
     return props if isinstance(props, dict) else None
 
@@ -386,16 +470,16 @@ class _Decoder:
     def __call__(self, data: bytes) -> dict[str, Any] | None:
         try:
             obj = json.loads(data)
+            if not isinstance(obj, dict):
+                return None
             for name in self.b64:
                 obj[name] = base64.b64decode(obj[name])
-        except (ValueError, KeyError, TypeError):
+            if self.numbers and (b'"NaN"' in data or b'Infinity"' in data):
+                for name in self.numbers:
+                    if isinstance(obj.get(name), str):
+                        obj[name] = float(obj[name])
+        except _JSON_ERRORS:
             return None
-        if not isinstance(obj, dict):
-            return None
-        if self.numbers and (b'"NaN"' in data or b'Infinity"' in data):
-            for name in self.numbers:
-                if isinstance(obj.get(name), str):
-                    obj[name] = float(obj[name])
         return obj
 
 
@@ -430,17 +514,19 @@ def read_messages(path_or_paths: Paths, cls: type[M], topic: Topic | str | None 
                   ) -> Iterator[M]:
     """Every readable message of type `cls` (on every topic carrying it, or only `topic`)."""
     decoders = _Decoders()
-    for channel, msg in LogReader(path_or_paths).raw():
+    reader = LogReader(path_or_paths)
+    for channel, msg in reader.raw():
         if channel.schema_name != cls.schema_name or (topic is not None and channel.topic != topic):
             continue
+        where = f"{reader.stats.files[-1].path}: {channel.topic}"
         obj = decoders.decode(channel, msg.data)
         if obj is None:
-            raise DecodeError(f"{channel.topic}: message at log time {msg.log_time} is not "
+            raise DecodeError(f"{where}: message at log time {msg.log_time} is not "
                               f"valid {cls.schema_name} JSON", raw=msg.data)
         try:
             item = cls(**obj)
         except TypeError as exc:
-            raise DecodeError(f"{channel.topic}: fields do not match {cls.schema_name}: {exc}",
+            raise DecodeError(f"{where}: fields do not match {cls.schema_name}: {exc}",
                               raw=msg.data) from None
         yield item
 
@@ -505,9 +591,10 @@ class _ColumnBuilder:
             objs = json.loads(b"[" + b",".join(datas) + b"]")
             arrays = {name: _to_array(_column_values(objs, path), dtype, path[0] in self.b64)
                       for name, path, dtype in self.columns}
-        except (ValueError, KeyError, TypeError) as exc:
+            times = np.array(log_times, dtype=np.int64)
+        except _JSON_ERRORS as exc:
             raise DecodeError(f"a message does not match its schema: {exc}") from None
-        self.parts["log_time_ns"].append(np.array(log_times, dtype=np.int64))
+        self.parts["log_time_ns"].append(times)
         for name, arr in arrays.items():
             self.parts[name].append(arr)
 
@@ -565,7 +652,7 @@ class _TopicBatches:
         columns = self.builder.result()
         missing = [f for f in self.fields or () if f not in columns]
         if missing:
-            raise DecodeError(f"{topic}: the log's schema has no field {', '.join(missing)}")
+            raise DecodeError(f"the log's schema has no field {', '.join(missing)}")
         return columns
 
 
@@ -576,11 +663,21 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
     A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
     with a value of the wrong type, raises DecodeError."""
     batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
-    for channel, msg in LogReader(path_or_paths).raw():
-        batch = batches.get(channel.topic)
-        if batch is not None:
-            batch.add(channel, msg.log_time, msg.data)
-    return {topic: batch.result(topic) for topic, batch in batches.items()}
+    reader = LogReader(path_or_paths)
+    topic = ""
+    try:  # an error names the file (the part being read) and the topic
+        for channel, msg in reader.raw():
+            batch = batches.get(channel.topic)
+            if batch is not None:
+                topic = channel.topic
+                batch.add(channel, msg.log_time, msg.data)
+        out = {}
+        for topic, batch in batches.items():
+            out[topic] = batch.result(topic)
+    except DecodeError as exc:
+        where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
+        raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
+    return out
 
 
 def topics_in(stats: LogStats) -> Iterable[str]:

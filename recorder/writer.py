@@ -5,7 +5,9 @@ Why it is built this way:
   at least every `flush_interval_s` (time.monotonic) the open chunk is closed, written and the file
   fsync'd, also when no message arrives (a background thread). A file killed mid-write is readable
   up to its last complete chunk by `recorder.reader`, and `recorder.recover` makes it whole.
-- A recording is never overwritten: files are created with O_EXCL.
+- A recording is never overwritten: files are created with O_EXCL, and each appears under its
+  name (a hard link) only once its header is on disk, so a power cut never leaves a file that is
+  not MCAP.
 - Long flights split by log time or by size into NAME.mcap, NAME_001.mcap, NAME_002.mcap, ...;
   each part is a complete MCAP file with its own schemas, channels and metadata.
 - A disk error (ENOSPC, EIO, EFBIG) keeps what is on disk and ends as one `RecorderError`.
@@ -28,6 +30,7 @@ import os
 import re
 import threading
 import time
+import uuid
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -212,6 +215,28 @@ def _open_new(path: Path) -> BinaryIO:
     return open(path, "xb")
 
 
+def _link_new(tmp: Path, path: Path) -> None:
+    """Give the file `tmp` the name `path` too, failing if `path` exists."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise InputError(f"{path} already exists: recordings are never overwritten") from None
+    except OSError as exc:  # a file system without hard links (FAT on a flash card)
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV) or path.exists():
+            raise
+        os.rename(tmp, path)
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make a new name in `folder` survive a power cut (best effort)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 @dataclass
 class _Part:
     """One open MCAP file of the recording and the channels registered in it."""
@@ -225,19 +250,31 @@ class _Part:
 
     @classmethod
     def create(cls, path: Path, chunk_size: int, metadata: Mapping[str, str]) -> _Part:
+        """A new file that appears under its name only with its header and metadata on disk
+        (written to a hidden file, fsync'd, then hard-linked, which never replaces a file): a
+        power cut while a part is started leaves no file that is not MCAP."""
+        tmp = path.with_name(f".{path.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:8]}")
         try:
-            fh = _open_new(path)
-        except FileExistsError:
-            raise InputError(f"{path} already exists: recordings are never overwritten") from None
+            fh = _open_new(tmp)
         except OSError as exc:
             raise InputError(f"cannot create {path}: {exc.strerror or exc}") from None
-        mcap = Writer(fh, chunk_size=chunk_size, compression=CompressionType.NONE)
-        part = cls(path, fh, mcap)
-        mcap.start(profile="", library=f"{RECORDER_ID}; {LIBRARY_IDENTIFIER}")
-        mcap.add_metadata(METADATA_NAME, dict(metadata))
-        fh.flush()  # a recording killed in its first second is still an MCAP file
-        os.fsync(fh.fileno())
-        return part
+        try:
+            mcap = Writer(fh, chunk_size=chunk_size, compression=CompressionType.NONE)
+            mcap.start(profile="", library=f"{RECORDER_ID}; {LIBRARY_IDENTIFIER}")
+            mcap.add_metadata(METADATA_NAME, dict(metadata))
+            fh.flush()  # a recording killed in its first second is still an MCAP file
+            os.fsync(fh.fileno())
+            _link_new(tmp, path)
+        except BaseException as exc:
+            with contextlib.suppress(OSError, ValueError):
+                fh.close()
+            if isinstance(exc, OSError) and not exc.filename:
+                raise OSError(exc.errno, exc.strerror, str(path)) from exc  # say which file
+            raise
+        finally:
+            tmp.unlink(missing_ok=True)
+        _fsync_dir(path.parent)
+        return cls(path, fh, mcap)
 
     def channel(self, topic: Topic, schema_name: str) -> int:
         key = (topic, schema_name)
@@ -445,8 +482,9 @@ class FlightRecorder:
         self._part.abandon()
         self._closed = True
         reason = (exc.strerror if isinstance(exc, OSError) else None) or exc
+        where = (exc.filename if isinstance(exc, OSError) else None) or self._part.path
         self._error = RecorderError(
-            f"cannot write {self._part.path}: {reason} (after "
+            f"cannot write {where}: {reason} (after "
             f"{self.messages_written} messages); the file is readable up to its last complete "
             f"chunk and `sisa log recover` makes it whole")
         self._error.__cause__ = exc

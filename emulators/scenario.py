@@ -7,7 +7,6 @@ with one line that names the field and its allowed range before anything runs.
 
 from __future__ import annotations
 
-import math
 import tomllib
 from enum import StrEnum
 from importlib import resources
@@ -17,7 +16,7 @@ from typing import Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from sisa.errors import ConfigError
-from sisa.sensor import Mounting, ScannerGeometry, StrictModel, Vec3
+from sisa.sensor import Mounting, ScannerGeometry, StrictModel, Vec3, first_non_finite
 from sisa.timescale import parse_gps_datetime
 
 PRESETS = ("bench", "garrotxa", "bellmunt")
@@ -215,19 +214,6 @@ class FaultProfile(StrictModel):
         return self == FaultProfile()
 
 
-def _first_non_finite(value: Any, where: str = "") -> str | None:
-    """Dotted name of the first NaN or infinity in a dumped model (TOML can write both)."""
-    if isinstance(value, float):
-        return None if math.isfinite(value) else where
-    if isinstance(value, dict):
-        children = [(f"{where}.{k}" if where else str(k), v) for k, v in value.items()]
-    elif isinstance(value, list | tuple):
-        children = [(f"{where}[{i}]", v) for i, v in enumerate(value)]
-    else:
-        return None
-    return next((bad for name, v in children if (bad := _first_non_finite(v, name))), None)
-
-
 class Scenario(StrictModel):
     """Everything a simulated flight needs; see `sisa scenario schema` for the full schema."""
 
@@ -244,7 +230,7 @@ class Scenario(StrictModel):
 
     @model_validator(mode="after")
     def _all_finite(self) -> Scenario:
-        where = _first_non_finite(self.model_dump())
+        where = first_non_finite(self.model_dump())
         if where is not None:
             raise ValueError(f"{where}: must be a finite number (not NaN or infinity)")
         return self

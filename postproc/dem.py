@@ -15,6 +15,7 @@ Conventions (docs/conventions.md):
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -23,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 import rasterio
 from pyproj import Transformer
-from rasterio.errors import RasterioError
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from rasterio.windows import Window
 
 from sisa.errors import InputError
@@ -140,11 +141,25 @@ def bilinear_centres(grid: npt.NDArray[Any], x: F64, y: F64) -> F64:
 # ---------------------------------------------------------------------------------------------
 
 
+def dem_extent(path: str | Path) -> tuple[int, tuple[float, float, float, float]]:
+    """(EPSG, bounds of the cell centres) of a DEM file, checked as `Dem.read` checks it but
+    without reading heights: what a job needs before it knows which window to read."""
+    path = Path(path)
+    with _open(path, "DEM") as ds:
+        epsg = _projected_epsg(ds, path)
+        first_e, first_n, cell_e, cell_n = _grid_of(ds, path)
+        last_e = first_e + (ds.width - 1) * cell_e
+        last_n = first_n - (ds.height - 1) * cell_n
+    return epsg, (first_e, last_n, last_e, first_n)
+
+
 def _open(path: Path, what: str) -> Any:
     if not path.is_file():
         raise InputError(f"{path}: {what} file not found")
     try:
-        ds = rasterio.open(path)
+        with warnings.catch_warnings():  # a raster without a CRS is refused below, in words
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            ds = rasterio.open(path)
     except RasterioError as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(f"{path}: not a readable {what} raster ({reason})") from None

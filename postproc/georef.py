@@ -26,7 +26,7 @@ import rasterio
 from pyproj import CRS, Transformer
 from rasterio.errors import NotGeoreferencedWarning
 
-from postproc.dem import Dem
+from postproc.dem import Dem, dem_extent
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import IgmWriter, igm_bounds, write_geolocation_vrt
@@ -128,14 +128,7 @@ class GeorefJob:
         self.scanner_dir = Path(scanner_dir)
         self.out = Path(out_dir)
         self.opt = options
-        with rasterio.open(options.dem) if Path(options.dem).is_file() else _missing(
-                options.dem) as ds:
-            if ds.crs is None or not ds.crs.is_projected:
-                raise InputError(f"{options.dem}: the DEM must be in a projected CRS (UTM)")
-            self.dem_epsg = int(ds.crs.to_epsg() or 0)
-            self.dem_bounds = tuple(ds.bounds)
-        if not self.dem_epsg:
-            raise InputError(f"{options.dem}: the DEM's CRS has no EPSG code")
+        self.dem_epsg, self.dem_bounds = dem_extent(options.dem)
         self.epsg = options.epsg or self.dem_epsg
         try:
             crs = CRS.from_epsg(self.epsg)
@@ -376,7 +369,3 @@ def _union_bounds(igms: list[Path]) -> tuple[float, float, float, float]:
     b = [igm_bounds(i) for i in igms]
     return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
             max(x[3] for x in b))
-
-
-def _missing(path: Path) -> Any:
-    raise InputError(f"{path}: no such DEM file")

@@ -23,10 +23,10 @@ import tomllib
 from pathlib import Path
 
 import tomli_w
-from pydantic import Field, ValidationError
+from pydantic import Field, ValidationError, model_validator
 
 from sisa.errors import InputError
-from sisa.sensor import Mounting, ScannerGeometry, StrictModel
+from sisa.sensor import Mounting, ScannerGeometry, StrictModel, first_non_finite
 
 
 class SensorModel(StrictModel):
@@ -49,17 +49,27 @@ class SensorModel(StrictModel):
             data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
         except OSError as exc:
             raise InputError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        except ValueError as exc:  # TOMLDecodeError, bad UTF-8, an integer of > 4300 digits
             raise InputError(f"{path}: not a TOML sensor file: {exc}") from None
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
             err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"]) or "(top level)"
-            raise InputError(f"{path}: {where}: {err['msg']}") from None
+            where = ".".join(str(p) for p in err["loc"])
+            if "\n" in where:  # a quoted TOML key may hold a newline: keep the error one line
+                where = repr(where)
+            msg = str(err["msg"]).removeprefix("Value error, ")
+            raise InputError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
 
     def to_toml(self) -> str:
         return tomli_w.dumps(self.model_dump(mode="json"))
+
+    @model_validator(mode="after")
+    def _all_finite(self) -> SensorModel:
+        where = first_non_finite(self.model_dump())
+        if where is not None:
+            raise ValueError(f"{where}: must be a finite number (not NaN or infinity)")
+        return self
 
     def check_pixels(self, pixels: int, where: str) -> None:
         """A sensor file for another instrument must not be applied to this recording."""

@@ -14,7 +14,8 @@ Conventions (docs/conventions.md):
 
 from __future__ import annotations
 
-from typing import Annotated
+import math
+from typing import Annotated, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -99,3 +100,16 @@ def rot_y(angle_rad: float) -> npt.NDArray[np.float64]:
 def rot_z(angle_rad: float) -> npt.NDArray[np.float64]:
     c, s = np.cos(angle_rad), np.sin(angle_rad)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def first_non_finite(value: Any, where: str = "") -> str | None:
+    """Dotted name of the first NaN or infinity in a dumped model (TOML can write both)."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else where
+    if isinstance(value, dict):
+        children = [(f"{where}.{k}" if where else str(k), v) for k, v in value.items()]
+    elif isinstance(value, list | tuple):
+        children = [(f"{where}[{i}]", v) for i, v in enumerate(value)]
+    else:
+        return None
+    return next((bad for name, v in children if (bad := first_non_finite(v, name))), None)

@@ -134,16 +134,10 @@ IN_A_CHILD = [  # what changes the process (signal handlers, switch interval) ru
     _case("emulate --scenario {d}/picture.png --out {d}/emu", "{d}/picture.png"),
 ]
 
-KNOWN_BUGS = [  # strict xfails: when one starts to pass, take it out of here
-    pytest.param(_case("emulate --can nosuch:chan --out {d}/emu", "nosuch:chan"),
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "sisa/commands/emulate.py creates --out before opening the CAN bus, so a "
-                     "bus that cannot be opened leaves an empty output folder behind"))),
-    pytest.param(_case("georef {d}/flight.mcap --scanner {d}/folder --dem {d}/picture.png "
-                       "--out {d}/geo", "{d}/picture.png"),
-                 marks=pytest.mark.xfail(strict=True, reason=(
-                     "sisa georef: a DEM that GDAL cannot read (a PNG) ends in a rasterio "
-                     "traceback, exit 1"))),
+FOUND_BY_THIS_SUITE = [  # were bugs; fixed
+    _case("emulate --can nosuch:chan --out {d}/emu", "nosuch:chan"),
+    _case("georef {d}/flight.mcap --scanner {d}/folder --dem {d}/picture.png --out {d}/geo",
+          "{d}/picture.png"),
 ]
 
 
@@ -181,9 +175,9 @@ def _run_child(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=120, check=False, cwd=cwd, env=env)
 
 
-@pytest.mark.parametrize("case", [*IN_A_CHILD, *KNOWN_BUGS],
-                         ids=[c.id for c in IN_A_CHILD] + ["known-bug: emulate --can nosuch:chan",
-                                                           "known-bug: georef PNG DEM"])
+@pytest.mark.parametrize("case", [*IN_A_CHILD, *FOUND_BY_THIS_SUITE],
+                         ids=[c.id for c in IN_A_CHILD] + ["found: emulate --can nosuch:chan",
+                                                           "found: georef PNG DEM"])
 def test_bad_arguments_in_a_child_process(case: Case, inputs: Path) -> None:
     argv, says = _expand(case, inputs)
     before = _tree(inputs)

@@ -4,6 +4,7 @@ the scenario. The scanner's own recording and the truth tables go to the run fol
 from __future__ import annotations
 
 import argparse
+import shutil
 import signal
 import threading
 import time
@@ -53,9 +54,14 @@ def _run(args: argparse.Namespace) -> int:
     if args.out.exists():
         raise InputError(f"{args.out} already exists: choose a new output folder")
     args.out.mkdir(parents=True)
-    system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner", real_time=True)
-    runner = Runner(system.devices, lambda out: (), speed=args.speed)
-    bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port)
+    try:
+        system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner",
+                                real_time=True)
+        runner = Runner(system.devices, lambda out: (), speed=args.speed)
+        bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port)
+    except BaseException:  # a bus or port that cannot be opened: leave nothing behind
+        shutil.rmtree(args.out, ignore_errors=True)
+        raise
     runner.sink = system.faulty(bridge)
     stop = threading.Event()
 

@@ -418,14 +418,6 @@ def check_scenario_file(data: bytes) -> int:
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def _is_known_sensor_bug(exc: BaseException) -> bool:
-    """KNOWN BUG in postproc/sensorfile.py (not ours to fix): `SensorModel.load` catches
-    TOMLDecodeError but tomllib raises a plain ValueError for an integer of more than 4300 digits,
-    so the file ends in a traceback. `test_known_bug_sensor_file_with_a_huge_integer` is a strict
-    xfail: once the loader is fixed it fails, and this exemption must go."""
-    return type(exc) is ValueError and "integer string conversion" in str(exc)
-
-
 def check_sensor_file(data: bytes) -> int:
     """SensorModel.load: a model with finite numbers, or one InputError line naming the file."""
     assert SensorModel is not None
@@ -435,20 +427,13 @@ def check_sensor_file(data: bytes) -> int:
         path.write_bytes(data)
         try:
             model = SensorModel.load(path)
-        except ValueError as exc:
-            if not _is_known_sensor_bug(exc):
-                raise
-            return 1
         except InputError as exc:
             text = str(exc)
-            # KNOWN BUG in postproc/sensorfile.py: an unknown key holding a newline is quoted
-            # as is, so the error spans lines (test_known_bug_sensor_file_key_with_a_newline)
-            assert "\n" not in text or "Extra inputs" in text, f"a multi-line error: {text!r}"
+            assert "\n" not in text, f"a multi-line error: {text!r}"
             assert str(path) in text
             return 1
-        # KNOWN BUG in postproc/sensorfile.py: NaN and infinity load (TOML writes both), see
-        # test_known_bug_sensor_file_with_nan; the check comes back when that test XPASSes.
-        return 0 if _finite_everywhere(model.model_dump()) else 1
+        assert _finite_everywhere(model.model_dump()), "a sensor file with NaN or inf loaded"
+        return 0
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -497,10 +482,7 @@ def test_the_seed_recordings_read_whole() -> None:
 
 
 @pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
-@pytest.mark.xfail(strict=True, raises=ValueError,
-                   reason="known bug in postproc/sensorfile.py: tomllib's ValueError for an "
-                          "integer of > 4300 digits escapes SensorModel.load")
-def test_known_bug_sensor_file_with_a_huge_integer(tmp_path: Path) -> None:
+def test_sensor_file_with_a_huge_integer_is_one_line(tmp_path: Path) -> None:
     assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text("time_delay_ms = " + "9" * 4400 + "\n")
@@ -509,9 +491,7 @@ def test_known_bug_sensor_file_with_a_huge_integer(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
-@pytest.mark.xfail(strict=True, reason="known bug in postproc/sensorfile.py: NaN and infinity "
-                                       "load silently (lever arm, boresight, time delay)")
-def test_known_bug_sensor_file_with_nan(tmp_path: Path) -> None:
+def test_sensor_file_with_nan_is_refused(tmp_path: Path) -> None:
     assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text("[mounting]\nlever_arm_m = [nan, 0.0, inf]\n")
@@ -549,9 +529,7 @@ def test_a_damaged_chunk_loses_only_its_own_messages(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
-@pytest.mark.xfail(strict=True, reason="known bug in postproc/sensorfile.py: an unknown key "
-                                       "holding a newline makes a multi-line error")
-def test_known_bug_sensor_file_key_with_a_newline(tmp_path: Path) -> None:
+def test_sensor_file_key_with_a_newline_is_one_line(tmp_path: Path) -> None:
     assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text('"lever\\narm" = 0\n')

@@ -71,6 +71,25 @@ class StreamCounters:
         self.window_messages += 1
 
 
+# which health streams each device link feeds (the pulse link carries both pulse lines)
+SOURCE_STREAMS: dict[str, tuple[str, ...]] = {
+    "gps": ("gps",), "scanner": ("scanner",), "ins": ("ins",), "pulses": ("pps", "ppf"),
+}
+STREAM_SOURCE = {stream: source for source, streams in SOURCE_STREAMS.items()
+                 for stream in streams}
+
+
+@dataclass
+class LinkCounters:
+    """Disconnects and reconnects of one device link."""
+
+    disconnects: int = 0
+    reconnects: int = 0
+    lost_t_host_ns: int | None = None  # while the device is away: when it went
+    down_ns: int = 0  # total time away (closed outages)
+    outages: list[tuple[int, int]] = field(default_factory=list)  # (went, came back), host ns
+
+
 @dataclass(frozen=True)
 class AcquisitionConfig:
     leap_s: int
@@ -106,6 +125,7 @@ class Acquisition:
             "pps": StreamCounters(1.0),
             "ppf": StreamCounters(config.line_rate_hz),
         }
+        self.links = {source: LinkCounters() for source in SOURCE_STREAMS}
         self._utc_date: dt.date | None = None
         self._last_fix_gps_ns: int | None = None
         self._last_in: dict[PulseLine, tuple[int, int]] = {}  # line → (board_ns, t_edge_ns)
@@ -247,6 +267,40 @@ class Acquisition:
             self.log(PulseEdgeLog(self._t_host_now_ns, target.name, fwd.board_ns, 0),
                      Topic.PULSE_OUT)
 
+    # --- device links ----------------------------------------------------------------------
+
+    def on_link_lost(self, t_host_ns: int, source: str, error: str) -> None:
+        """A device went away (its reader reopens it): logged at once in the health channel."""
+        link = self.links[source]
+        link.disconnects += 1
+        link.lost_t_host_ns = t_host_ns
+        self._link_event(t_host_ns, source, "link_lost", t_host_ns, -1, error)
+
+    def on_link_restored(self, t_host_ns: int, source: str, lost_t_host_ns: int,
+                         attempts: int) -> None:
+        """The device is back after [lost_t_host_ns, t_host_ns]."""
+        link = self.links[source]
+        link.reconnects += 1
+        link.lost_t_host_ns = None
+        link.down_ns += t_host_ns - lost_t_host_ns
+        link.outages.append((lost_t_host_ns, t_host_ns))
+        self._link_event(t_host_ns, source, "link_restored", lost_t_host_ns, t_host_ns,
+                         f"reopened after {attempts} attempt(s)")
+
+    def _link_event(self, t_host_ns: int, source: str, event: str, lost_ns: int,
+                    restored_ns: int, detail: str) -> None:
+        counters = [self.streams[name] for name in SOURCE_STREAMS[source]]
+        stats = [c.stats for c in counters]
+        link = self.links[source]
+        self.log(StreamHealth(
+            t_host_ns, source, sum(c.messages for c in counters),
+            sum(c.rate_hz for c in counters), sum(c.expected_hz for c in counters),
+            sum(c.gaps for c in counters), sum(s.checksum_errors for s in stats),
+            sum(s.framing_errors for s in stats), sum(s.bytes_skipped for s in stats),
+            sum(c.drops for c in counters), sum(c.deadline_misses for c in counters),
+            event=event, link_lost_ns=lost_ns, link_restored_ns=restored_ns,
+            disconnects=link.disconnects, reconnects=link.reconnects, link_error=detail), None)
+
     # --- lifecycle -------------------------------------------------------------------------
 
     def _start(self, t_host_ns: int) -> None:
@@ -279,9 +333,13 @@ class Acquisition:
         for name, c in self.streams.items():
             s = c.stats
             c.rate_hz = c.window_messages / window_s
+            link = self.links[STREAM_SOURCE[name]]
+            lost = -1 if link.lost_t_host_ns is None else link.lost_t_host_ns
             self.log(StreamHealth(t_host_ns, name, c.messages, c.rate_hz,
                                   c.expected_hz, c.gaps, s.checksum_errors, s.framing_errors,
-                                  s.bytes_skipped, c.drops, c.deadline_misses), None)
+                                  s.bytes_skipped, c.drops, c.deadline_misses,
+                                  link_lost_ns=lost, disconnects=link.disconnects,
+                                  reconnects=link.reconnects), None)
             c.window_messages = 0
         self._next_health_ns = t_host_ns + self.config.health_interval_ns
 

@@ -212,7 +212,9 @@ class SyncModeSwitch(LoggedMessage):
 
 @dataclass(frozen=True)
 class StreamHealth(LoggedMessage):
-    """Per-stream counters, written about once a second while recording."""
+    """Per-stream counters, written about once a second while recording; also written at once,
+    with `event` set, when a device goes away or comes back (its stream is then the source:
+    gps, scanner, ins, or pulses for the pulse link that carries pps and ppf)."""
 
     topic: ClassVar[Topic] = Topic.HEALTH
     schema_name: ClassVar[str] = "sisa.StreamHealth"
@@ -227,6 +229,12 @@ class StreamHealth(LoggedMessage):
     bytes_skipped: int
     drops: int
     deadline_misses: int
+    event: str = ""  # "" a periodic report | "link_lost" | "link_restored"
+    link_lost_ns: int = -1  # host time the device went away (events; reports while it is away)
+    link_restored_ns: int = -1  # host time it came back (link_restored events)
+    disconnects: int = 0  # times the device went away since the recording started
+    reconnects: int = 0  # times it came back
+    link_error: str = ""  # link_lost: why (the read error); link_restored: the reopen attempts
 
 
 LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (

@@ -19,12 +19,15 @@ from sisa.errors import InputError
 if TYPE_CHECKING:
     from rich.table import Table
 
-    from acquisition.live import Arrival, LiveSources
+    from acquisition.live import Arrival, LinkEvent, LiveSources, Source
     from acquisition.runner import Acquisition
 
 STATUS_PERIOD_S = 1.0
 TICK_S = 0.1
-IDLE_STOP_S = 3.0
+# A device that goes away is reopened by its reader while the others keep recording; the
+# recording ends on Ctrl-C / SIGTERM / --duration, or when *every* device has been away with
+# nothing arriving for this long (the flight, or the emulator feeding the bench, is over).
+ALL_GONE_STOP_S = 10.0
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -109,13 +112,13 @@ class _EdgeClock:
 def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
           args: argparse.Namespace) -> None:
     from acquisition.clocks import wall_clock_ns
-    from acquisition.live import Source
+    from acquisition.live import LinkEvent
 
     status = _Status(acq, args.out, quiet=args.quiet)
     edge_clock = _EdgeClock()
     started = time.monotonic()
     next_tick = next_status = started
-    closed: set[Source] = set()
+    down: set[Source] = set()
     last_arrival = started
     while not stop[0]:
         try:
@@ -124,10 +127,10 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
             item = None
         now = time.monotonic()
         if item is not None:
-            last_arrival = now
-            if item.payload is None:
-                closed.add(item.source)
+            if isinstance(item.payload, LinkEvent):
+                _link_event(acq, item.t_host_ns, item.source, item.payload, down)
             else:
+                last_arrival = now
                 _dispatch(acq, item, edge_clock)
         if now >= next_tick:
             t_host = wall_clock_ns()
@@ -140,10 +143,28 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
             next_status = now + STATUS_PERIOD_S
         if args.duration is not None and now - started >= args.duration:
             break
-        if closed >= sources.open_sources and now - last_arrival > IDLE_STOP_S:
-            break  # every source has gone away: the flight (or the emulator) is over
+        if down >= sources.open_sources and now - last_arrival > ALL_GONE_STOP_S:
+            break  # every device has gone away and stayed away: the flight is over
     acq.finish(wall_clock_ns())
     status.close()
+
+
+def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEvent,
+                down: set[Source]) -> None:
+    """A device went away or came back: into the health channel, and said on stderr."""
+    from acquisition.live import LinkState
+
+    if event.state is LinkState.LOST:
+        down.add(source)
+        acq.on_link_lost(t_host_ns, str(source), event.error)
+        print(f"sisa record: {source} lost ({event.error}); reconnecting", file=sys.stderr,
+              flush=True)
+    else:
+        down.discard(source)
+        acq.on_link_restored(t_host_ns, str(source), event.lost_t_host_ns, event.attempts)
+        away_s = (t_host_ns - event.lost_t_host_ns) / 1e9
+        print(f"sisa record: {source} reconnected after {away_s:.1f} s", file=sys.stderr,
+              flush=True)
 
 
 def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
@@ -184,12 +205,18 @@ class _Status:
         from rich.table import Table
 
         table = Table(title=f"sisa record → {self.out}", expand=False)
+        from acquisition.runner import STREAM_SOURCE
+
         for col in ("stream", "messages", "rate Hz", "expected Hz", "gaps", "errors", "drops",
-                    "late"):
+                    "late", "link"):
             table.add_column(col, justify="right")
         for name, c in self.acq.streams.items():
+            link = self.acq.links[STREAM_SOURCE[name]]
+            state = "away" if link.lost_t_host_ns is not None else "up"
             table.add_row(name, str(c.messages), f"{c.rate_hz:.1f}", f"{c.expected_hz:.1f}",
-                          str(c.gaps), str(c.stats.errors), str(c.drops), str(c.deadline_misses))
+                          str(c.gaps), str(c.stats.errors), str(c.drops), str(c.deadline_misses),
+                          f"{state} ({link.reconnects} reconnects)" if link.disconnects
+                          else state)
         free_gb = shutil.disk_usage(self.out.parent).free / 1e9
         pps = self.acq.last_pps_gps_ns
         table.caption = (f"sync mode {self.acq.filter.mode}, session {self.acq.session}, "
@@ -211,8 +238,14 @@ def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
     errors = sum(c.stats.errors for c in s.values())
     drops = sum(c.drops for c in s.values())
     late = sum(c.deadline_misses for c in s.values())
+    lost = sum(link.disconnects for link in acq.links.values())
+    back = sum(link.reconnects for link in acq.links.values())
+    per_link = ", ".join(f"{name} {link.disconnects}/{link.reconnects}"
+                         for name, link in acq.links.items() if link.disconnects)
     print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
           f"frame headers {s['scanner'].messages}, PPS {s['pps'].messages}, ppf "
           f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
+          f"{lost} disconnects, {back} reconnects"
+          f"{f' ({per_link} lost/back)' if per_link else ''}, "
           f"{acq.session + 1} sync session(s); cpu {cpu_s:.2f} s in {wall_s:.1f} s "
           f"({100 * cpu_s / max(wall_s, 1e-9):.1f}% of a core)", flush=True)

@@ -190,7 +190,10 @@ def _invert(te: F64, tn: F64, e: float, n: float, i: int, j: int) -> tuple[float
         d_du = (1 - v) * (g[1, :, 0] - g[0, :, 0]) + v * (g[1, :, 1] - g[0, :, 1])
         d_dv = (1 - u) * (g[0, :, 1] - g[0, :, 0]) + u * (g[1, :, 1] - g[1, :, 0])
         jac = np.stack([d_du, d_dv], axis=1)
-        step = np.linalg.solve(jac, np.array([e, n]) - p)
+        try:
+            step = np.linalg.solve(jac, np.array([e, n]) - p)
+        except np.linalg.LinAlgError:  # degenerate pixels (a missed ray): not found here
+            return math.nan, math.nan
         li, pj = li + float(step[0]), pj + float(step[1])
         if abs(step[0]) + abs(step[1]) < 1e-9:
             break

@@ -56,7 +56,7 @@ U8 = npt.NDArray[np.uint8]
 B1 = npt.NDArray[np.bool_]
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
-BLOCK_LINES: Final = 256  # lines sharing one fitted map (and one parallel work item)
+BLOCK_LINES: Final = 512  # lines sharing one fitted map (and one parallel work item)
 GROUP_LINES: Final = 16  # lines certified together (first-root test) before the next group
 CHUNK_PIXELS: Final = 64  # pixels whose paths share one slope bound
 TILE_CELLS: Final = 8  # DEM cells per side of the tiles holding slope maxima
@@ -133,12 +133,11 @@ def intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64, look_camera
     unnormalised camera-frame look vectors. Coordinates in the DEM's CRS, accurate to
     < 1 mm of range. A line whose pose is NaN (no time) gives NaN, hit False. `out` buffers
     are reused when given (shape (n, p)); `stats`, when given, is filled in."""
-    centre, rot, look = _checked_rays(centre_ecef_m, r_ecef_from_camera, look_camera)
+    centre, rot, look, posed = _checked_rays(centre_ecef_m, r_ecef_from_camera, look_camera)
     n, p = centre.shape[0], look.shape[1]
     out = _output(out, n, p)
     if n == 0 or p == 0:
         return out
-    posed = _posed(centre, rot)
     if not posed.all():  # lines without a pose: NaN, the others as usual
         sub = intersect(dem, centre[posed], rot[posed], look, stats=stats)
         for full, part in ((out.easting_m, sub.easting_m), (out.northing_m, sub.northing_m),
@@ -172,9 +171,10 @@ def reference_intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64,
     (ECEF → geodetic → map) at every point of a march whose steps cannot skip a crossing
     (gap / (1 + steepest DEM slope), at most half a cell in the DEM's height range), then
     bisection to REFERENCE_TOLERANCE_M."""
-    centre, rot, look = _checked_rays(centre_ecef_m, r_ecef_from_camera, look_camera)
+    centre, rot, look, posed_lines = _checked_rays(centre_ecef_m, r_ecef_from_camera,
+                                                   look_camera)
     n, p = centre.shape[0], look.shape[1]
-    posed = np.repeat(_posed(centre, rot), p)
+    posed = np.repeat(posed_lines, p)
     d = np.einsum("nij,jp->npi", rot, look).reshape(-1, 3)
     c = np.repeat(centre, p, axis=0)
     c[~posed], d[~posed] = [0.0, 0.0, 1e7], [0.0, 0.0, 1.0]  # unposed: far up, looking up
@@ -195,7 +195,8 @@ def _scratch(pixels: int) -> tuple[F64, F32, U8, F32, npt.NDArray[np.int32]]:
             np.empty((t, 4, GROUP_LINES, pixels), np.int32))
 
 
-def _checked_rays(centre: F64, rot: F64, look: F64) -> tuple[F64, F64, F64]:
+def _checked_rays(centre: F64, rot: F64, look: F64) -> tuple[F64, F64, F64, B1]:
+    """Contiguous float64 inputs and the lines with a pose (finite centre and rotation)."""
     c = np.ascontiguousarray(centre, dtype=np.float64)
     r = np.ascontiguousarray(rot, dtype=np.float64)
     lk = np.ascontiguousarray(look, dtype=np.float64)
@@ -205,15 +206,32 @@ def _checked_rays(centre: F64, rot: F64, look: F64) -> tuple[F64, F64, F64]:
                          f"{c.shape}, {r.shape}, {lk.shape}")
     if not np.isfinite(lk).all() or (lk.shape[1] and not (np.linalg.norm(lk, axis=0) > 0.0).all()):
         raise ValueError("look vectors must be finite and non-zero")
-    ok = _posed(c, r)
-    if ok.any() and np.abs(np.swapaxes(r[ok], 1, 2) @ r[ok] - np.eye(3)).max() > 1e-6:
+    ok = np.empty(n, np.bool_)
+    if _pose_check(c, r, ok.view(np.uint8)) > 1e-6:
         raise ValueError("r_ecef_from_camera must be rotation matrices")
-    return c, r, lk
+    return c, r, lk, ok
 
 
-def _posed(centre: F64, rot: F64) -> B1:
-    """Lines with a finite pose (a line without one, NaN, gives NaN ground points)."""
-    return np.asarray(np.isfinite(centre).all(axis=1) & np.isfinite(rot).all(axis=(1, 2)))
+@_jit()
+def _pose_check(centre: Any, rot: Any, posed: Any) -> float:
+    """One pass over the poses: posed[i] = 1 where centre and rotation are finite (a line
+    without a pose, NaN, gives NaN ground points); returns the largest |RᵀR − I| of the posed
+    lines (0 if none)."""
+    worst = 0.0
+    for i in range(centre.shape[0]):
+        fin = True
+        for a in range(3):
+            fin = fin and math.isfinite(centre[i, a])
+            for c in range(3):
+                fin = fin and math.isfinite(rot[i, a, c])
+        posed[i] = 1 if fin else 0
+        if fin:
+            for a in range(3):
+                for c in range(3):
+                    d = (rot[i, 0, a] * rot[i, 0, c] + rot[i, 1, a] * rot[i, 1, c]
+                         + rot[i, 2, a] * rot[i, 2, c]) - (1.0 if a == c else 0.0)
+                    worst = max(worst, abs(d))
+    return worst
 
 
 def _output(out: GroundPoints | None, n: int, p: int) -> GroundPoints:
@@ -342,6 +360,7 @@ _FIT: Final = np.linalg.pinv(_monomials(_NODES))
 _CHECKS: Final = np.concatenate([
     np.array(list(itertools.product((-1.0, 1.0), repeat=3))),
     np.random.default_rng(20_260_615).uniform(-1.0, 1.0, (8, 3))])
+_CHECK_MONOMIALS: Final = _monomials(_CHECKS)
 
 
 @dataclass(frozen=True)
@@ -383,13 +402,13 @@ def _fit_maps(boxes: F64, low_m: float, high_m: float, epsg: int) -> _Maps:
 
     def exact(u: F64) -> F64:
         q = centre[:, None] + u[None] * half[:, None]
-        x = origin[:, None] + np.einsum("bji,bkj->bki", rot, q)
+        x = origin[:, None] + q @ rot
         lon, lat, hh = to_geo.transform(x[..., 0], x[..., 1], x[..., 2])
         ee, nn = to_map.transform(lon, lat)
         return np.stack([ee - en0[:, None, 0], nn - en0[:, None, 1], hh - h0[:, None]], -1)
 
-    coef = np.einsum("tm,bmk->btk", _FIT, exact(_NODES))  # (b, 10 terms, 3)
-    err = np.abs(np.einsum("mt,btk->bmk", _monomials(_CHECKS), coef) - exact(_CHECKS))
+    coef = _FIT @ exact(_NODES)  # (b, 10 terms, 3)
+    err = np.abs(_CHECK_MONOMIALS @ coef - exact(_CHECKS))
     a, g, hess = _expand(coef, centre, half)
     return _Maps(np.zeros(0, np.int64), origin, rot, a, g, hess, en0, h0, boxes.copy(),
                  err.max(axis=(1, 2)))
@@ -399,7 +418,7 @@ def _map_to_enu(e: F64, n: F64, h: F64, origin: F64, rot: F64, epsg: int) -> F64
     _, _, from_map, to_ecef = _transformers(epsg)
     lon, lat = from_map.transform(e, n)
     x = np.stack(to_ecef.transform(lon, lat, h), axis=-1)
-    return np.asarray(np.einsum("bij,bkj->bki", rot, x - origin[:, None]))
+    return np.asarray((x - origin[:, None]) @ np.swapaxes(rot, 1, 2))
 
 
 def _expand(coef: F64, centre: F64, half: F64) -> tuple[F64, F64, F64]:
@@ -436,11 +455,15 @@ def _fit_block_maps(surf: _Surface, centre: F64, rot: F64, unit: F64) -> _Maps:
     dem = surf.dem
     n = centre.shape[0]
     hull = np.array(dem.bounds_m, dtype=np.float64)
-    lines = np.unique(np.append(np.arange(0, n, 8), n - 1))
-    pix = np.unique(np.append(np.arange(0, unit.shape[1], 16), unit.shape[1] - 1))
+    lines = _every(n, 8)
+    pix = _every(unit.shape[1], 16)
     foot = _footprints(surf.coarse_map, centre[lines], rot[lines], unit[:, pix], surf, hull)
-    start = np.arange(0, n, BLOCK_LINES)
-    stop = np.minimum(start + BLOCK_LINES, n)
+    # equal blocks, as many as a multiple of the threads: the kernel's static schedule is
+    # balanced
+    threads = numba.get_num_threads()
+    count = min(n, math.ceil(math.ceil(n / BLOCK_LINES) / threads) * threads)
+    bounds = (np.arange(count + 1, dtype=np.int64) * n) // count
+    start, stop = bounds[:-1], bounds[1:]
     parts: list[tuple[I64, _Maps]] = []
     for _ in range(64):
         maps = _fit_maps(_block_boxes(foot, lines, start, stop, hull), surf.low_m, surf.high_m,
@@ -458,6 +481,12 @@ def _fit_block_maps(surf: _Surface, centre: F64, rot: F64, unit: F64) -> _Maps:
     bad = maps.error_m > MAP_TOLERANCE_M
     maps.box_en_m[bad] = [np.inf, np.inf, -np.inf, -np.inf]
     return _with_starts(maps, np.append(starts[order], n).astype(np.int64))
+
+
+def _every(n: int, k: int) -> I64:
+    """0, k, 2k, ... and n - 1 (sorted, unique)."""
+    idx = np.arange(0, n, k, dtype=np.int64)
+    return idx if idx[-1] == n - 1 else np.append(idx, np.int64(n - 1))
 
 
 def _take(maps: _Maps, keep: B1) -> _Maps:
@@ -544,14 +573,25 @@ def _line_coefficients(maps: _Maps, centre: F64, rot: F64) -> F64:
     return out
 
 
-@_jit()
+@_jit(parallel=True)
 def _coefficients_kernel(blk: Any, origin: Any, rb: Any, a: Any, g: Any, hess: Any,
                          centre: Any, rot: Any, out: Any) -> None:
+    """Lines in parallel chunks (see `_coefficients_chunk`)."""
+    n = centre.shape[0]
+    chunks = -(-n // 512)
+    for k in numba.prange(chunks):
+        _coefficients_chunk(k * 512, min(n, k * 512 + 512), blk, origin, rb, a, g, hess,
+                            centre, rot, out)
+
+
+@_jit()
+def _coefficients_chunk(i0: int, i1: int, blk: Any, origin: Any, rb: Any, a: Any, g: Any,
+                        hess: Any, centre: Any, rot: Any, out: Any) -> None:
     """cp = R_b(c − O_b), M = R_b·R; A = a + g·cp + ½cpᵀH·cp, u = Mᵀ(g + H·cp), ½MᵀHM."""
     cp = np.empty(3)
     m = np.empty((3, 3))
     w = np.empty(3)
-    for i in range(centre.shape[0]):
+    for i in range(i0, i1):
         b = blk[i]
         cp[:] = 0.0
         m[:] = 0.0

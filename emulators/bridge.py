@@ -38,6 +38,55 @@ class CanTarget:
         return cls(*parse_can_spec(text))
 
 
+class CanOutput:
+    """The INS's side of the bus: an SLCAN adapter on a new pty, or any python-can bus; a frame
+    the bus refuses is counted, not raised (a real INS does not stop for a bus error)."""
+
+    def __init__(self, target: CanTarget) -> None:
+        self.target = target
+        self.slcan: SlcanAdapter | None = None
+        self.bus: can.BusABC | None = None
+        self.frames_failed = 0
+        if target.interface == "slcan":
+            self.slcan = SlcanAdapter()
+            return
+        try:
+            self.bus = can.Bus(interface=target.interface, channel=target.channel)
+        except (can.CanError, ValueError, OSError, ImportError) as exc:
+            raise ConfigError(f"cannot open CAN {target.interface}:{target.channel}: "
+                              f"{exc}") from None
+
+    def send(self, msg: can.Message) -> None:
+        if self.slcan is not None:
+            self.slcan.send(msg)
+        elif self.bus is not None:
+            try:
+                self.bus.send(msg)
+            except can.CanError:
+                self.frames_failed += 1
+
+    @property
+    def channel(self) -> str:
+        if self.slcan is not None:
+            return f"slcan:{self.slcan.name}"
+        return f"{self.target.interface}:{self.target.channel}"
+
+    @property
+    def frames_dropped(self) -> int:
+        return (self.slcan.frames_dropped if self.slcan is not None else 0) + self.frames_failed
+
+    @property
+    def host_open(self) -> bool:
+        """Whether the host has opened the channel (only an SLCAN adapter can tell)."""
+        return self.slcan is None or self.slcan.is_open
+
+    def close(self) -> None:
+        if self.slcan is not None:
+            self.slcan.close()
+        if self.bus is not None:
+            self.bus.shutdown()
+
+
 class RealTimeBridge:
     """The sink of a real-time run: owns the ports and routes every output to its wire."""
 
@@ -45,19 +94,8 @@ class RealTimeBridge:
                  pulse_port: int = 0) -> None:
         self.gps = PtyPort()
         self.scanner = PtyPort()
-        self.slcan: SlcanAdapter | None = None
-        self.bus: can.BusABC | None = None
-        if can_target.interface == "slcan":
-            self.slcan = SlcanAdapter()
-        else:
-            try:
-                self.bus = can.Bus(interface=can_target.interface, channel=can_target.channel)
-            except (can.CanError, ValueError, OSError, ImportError) as exc:
-                raise ConfigError(f"cannot open CAN {can_target.interface}:"
-                                  f"{can_target.channel}: {exc}") from None
-        self.can_target = can_target
+        self.can = CanOutput(can_target)
         self.pulses = PulseEndpoint(inbox.put, port=pulse_port)
-        self.can_frames_failed = 0
 
     def __call__(self, out: Output) -> Sequence[Edge]:
         payload = out.payload
@@ -66,28 +104,13 @@ class RealTimeBridge:
         elif out.port is Port.SCANNER_SERIAL and isinstance(payload, bytes):
             self.scanner.write(payload)
         elif isinstance(payload, can.Message):
-            self._send_can(payload)
+            self.can.send(payload)
         elif isinstance(payload, Edge):
             self.pulses.send(payload)
         return ()
 
-    def _send_can(self, msg: can.Message) -> None:
-        if self.slcan is not None:
-            self.slcan.send(msg)
-        elif self.bus is not None:
-            try:
-                self.bus.send(msg)
-            except can.CanError:
-                self.can_frames_failed += 1
-
-    @property
-    def can_channel(self) -> str:
-        if self.slcan is not None:
-            return f"slcan:{self.slcan.name}"
-        return f"{self.can_target.interface}:{self.can_target.channel}"
-
     def endpoints(self) -> dict[str, str]:
-        return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": self.can_channel,
+        return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": self.can.channel,
                 "pulses": self.pulses.address}
 
     def write_endpoints(self, path: Path) -> None:
@@ -95,9 +118,6 @@ class RealTimeBridge:
 
     def close(self) -> None:
         self.pulses.close()
-        if self.slcan is not None:
-            self.slcan.close()
-        if self.bus is not None:
-            self.bus.shutdown()
+        self.can.close()
         self.gps.close()
         self.scanner.close()

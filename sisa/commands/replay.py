@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
     from acquisition.pulses import Edge
     from emulators.bridge import CanTarget
-    from emulators.ports import PtyPort, SlcanAdapter
+    from emulators.ports import PtyPort
     from recorder.replay import (
         CanFrame,
         GpsClock,
@@ -246,21 +246,16 @@ class _ReplayPorts:
     """The endpoints of `sisa emulate` (emulators.ports pieces), driven from the schedule."""
 
     def __init__(self, can_target: CanTarget, pulse_port: int) -> None:
-        from emulators.ports import PtyPort, SlcanAdapter
+        from emulators.bridge import CanOutput
+        from emulators.ports import PtyPort
 
         self.edges_back = 0  # the sync unit's pulses sent to us: the flight has them already
         self.gps: PtyPort = PtyPort()
         self.scanner: PtyPort = PtyPort()
-        self.slcan: SlcanAdapter | None = None
-        self.bus: can.BusABC | None = None
-        self.can_target = can_target
-        self.can_failed = 0
+        self.can: CanOutput | None = None
         self.pulses: _EdgeLink | None = None
         try:
-            if can_target.interface == "slcan":
-                self.slcan = SlcanAdapter()
-            else:
-                self.bus = _open_bus(can_target)
+            self.can = CanOutput(can_target)
             self.pulses = _verbatim_pulses(self._edge_back, pulse_port)
         except BaseException:
             self.close()
@@ -270,55 +265,34 @@ class _ReplayPorts:
         self.edges_back += 1
 
     def send_can(self, msg: can.Message) -> None:
-        import can
-
-        if self.slcan is not None:
-            self.slcan.send(msg)
-        elif self.bus is not None:
-            try:
-                self.bus.send(msg)
-            except can.CanError:
-                self.can_failed += 1
+        if self.can is not None:
+            self.can.send(msg)
 
     def clients_ready(self, wires: set[str]) -> bool:
         """Every wire that can tell has a client: the pulse link is connected and the CAN
         host opened the channel (`sisa record` opens both after its serial ports)."""
         pulses_ok = "pulses" not in wires or self.pulses is None or self.pulses.has_client
-        can_ok = "ins" not in wires or self.slcan is None or self.slcan.is_open
+        can_ok = "ins" not in wires or self.can is None or self.can.host_open
         return pulses_ok and can_ok
 
     def endpoints(self) -> dict[str, str]:
-        if self.slcan is not None:
-            ins = f"slcan:{self.slcan.name}"
-        else:
-            ins = f"{self.can_target.interface}:{self.can_target.channel}"
+        ins = self.can.channel if self.can is not None else ""
         pulses = self.pulses.address if self.pulses is not None else ""
         return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": ins, "pulses": pulses}
 
     def dropped(self) -> str:
         edges = self.pulses.edges_dropped if self.pulses is not None else 0
-        frames = (self.slcan.frames_dropped if self.slcan is not None else 0) + self.can_failed
+        frames = self.can.frames_dropped if self.can is not None else 0
         return (f"pty bytes {self.gps.bytes_dropped + self.scanner.bytes_dropped}, "
                 f"CAN frames {frames}, edges {edges}")
 
     def close(self) -> None:
         if self.pulses is not None:
             self.pulses.close()
-        if self.slcan is not None:
-            self.slcan.close()
-        if self.bus is not None:
-            self.bus.shutdown()
+        if self.can is not None:
+            self.can.close()
         self.gps.close()
         self.scanner.close()
-
-
-def _open_bus(target: CanTarget) -> can.BusABC:
-    import can
-
-    try:
-        return can.Bus(interface=target.interface, channel=target.channel)
-    except (can.CanError, ValueError, OSError, ImportError) as exc:
-        raise ConfigError(f"cannot open CAN {target.interface}:{target.channel}: {exc}") from None
 
 
 # --- keyboard -------------------------------------------------------------------------------------

@@ -5,8 +5,6 @@ and keep everything up to 1.5 s before the kill. A disk error must end as one Re
 with the file readable up to the failure.
 """
 
-import errno
-import io
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +21,7 @@ from recorder.writer import FlightRecorder
 from sisa.cli import main
 from sisa.errors import RecorderError
 from tests.recorder.crash_child import fix, ins, kill_many
+from tests.recorder.fakedisk import Disk
 
 MAX_LOSS_NS = 1_500_000_000
 ROOT = Path(__file__).resolve().parents[2]
@@ -89,43 +88,8 @@ def test_sisa_log_recover_never_overwrites_and_leaves_nothing_on_bad_input(kille
 
 # --- disk full ----------------------------------------------------------------------------------
 
-class _FillingRaw(io.RawIOBase):
-    """A real file that takes `room` bytes, writes what fits of the next write, then ENOSPC."""
-
-    def __init__(self, path: Path, room: int) -> None:
-        self._fh = open(path, "xb", buffering=0)  # noqa: SIM115
-        self.room = room
-
-    def writable(self) -> bool:
-        return True
-
-    def write(self, data) -> int:
-        if self.room <= 0:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        n = self._fh.write(bytes(data)[: self.room])
-        self.room -= n
-        return n
-
-    def fileno(self) -> int:
-        return self._fh.fileno()
-
-    def seekable(self) -> bool:
-        return True
-
-    def seek(self, pos: int, whence: int = 0) -> int:
-        return self._fh.seek(pos, whence)
-
-    def tell(self) -> int:
-        return self._fh.tell()
-
-    def close(self) -> None:
-        self._fh.close()
-        super().close()
-
-
 def _fill_disk(monkeypatch, room):
-    monkeypatch.setattr(writer_module, "_open_new",
-                        lambda path: io.BufferedWriter(_FillingRaw(path, room)))
+    monkeypatch.setattr(writer_module, "_open_new", Disk(room).open)
 
 
 def test_disk_full_is_one_recorder_error_and_the_file_reads_up_to_it(tmp_path, monkeypatch):

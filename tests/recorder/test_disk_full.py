@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import os
 import pty
 import subprocess
@@ -31,56 +30,12 @@ from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
 from sisa.errors import RecorderError
 from tests.recorder.crash_child import fix, ins
+from tests.recorder.fakedisk import Disk
 
 T0 = 1_700_000_000 * 10**9
 MESSAGES = 3000  # INS records at 500 Hz of log time, a fix every 25th
 FLUSH_EVERY = 200
 ROOT = Path(__file__).resolve().parents[2]
-
-
-class Disk:
-    """A file system with `room` bytes left in all: a write that does not fit writes what does
-    (as the kernel does), the next one raises ENOSPC."""
-
-    def __init__(self, room: int) -> None:
-        self.room = room
-        self.files: list[Path] = []
-
-    def open(self, path: Path) -> io.BufferedWriter:
-        self.files.append(path)
-        return io.BufferedWriter(_DiskFile(self, path))
-
-
-class _DiskFile(io.RawIOBase):
-    def __init__(self, disk: Disk, path: Path) -> None:
-        self._disk = disk
-        self._fh = open(path, "xb", buffering=0)  # noqa: SIM115 - closed by close()
-
-    def writable(self) -> bool:
-        return True
-
-    def write(self, data: bytes | bytearray | memoryview) -> int:  # type: ignore[override]
-        if self._disk.room <= 0:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        n = self._fh.write(bytes(data)[: self._disk.room])
-        self._disk.room -= n
-        return n
-
-    def fileno(self) -> int:
-        return self._fh.fileno()
-
-    def seekable(self) -> bool:
-        return True
-
-    def seek(self, pos: int, whence: int = 0) -> int:
-        return self._fh.seek(pos, whence)
-
-    def tell(self) -> int:
-        return self._fh.tell()
-
-    def close(self) -> None:
-        self._fh.close()
-        super().close()
 
 
 @dataclass

@@ -9,8 +9,6 @@ an existing file): an interrupted recover leaves nothing half-written, and nothi
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,7 +18,7 @@ from mcap.records import Message
 from mcap.writer import CompressionType, Writer
 
 from recorder.reader import ChannelInfo, LogReader, LogStats
-from recorder.writer import DEFAULT_CHUNK_SIZE, RECORDER_ID
+from recorder.writer import DEFAULT_CHUNK_SIZE, RECORDER_ID, fsync_dir, link_new
 from sisa.errors import InputError, RecorderError
 
 
@@ -83,29 +81,6 @@ class _Copier:
         self.mcap.finish()  # type: ignore[no-untyped-call]
 
 
-def _publish(tmp: Path, out: Path) -> None:
-    """Give `tmp` the name `out` without ever replacing an existing file."""
-    try:
-        os.link(tmp, out)
-    except FileExistsError:
-        raise InputError(f"{out} already exists: recover never overwrites") from None
-    except OSError as exc:  # a file system without hard links
-        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV) or out.exists():
-            raise
-        os.replace(tmp, out)
-        return
-    tmp.unlink()
-
-
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
     """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`."""
     src, out = Path(in_path), Path(out_path)
@@ -123,12 +98,12 @@ def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
             copier.finish(src, reader.stats)
             fh.flush()
             os.fsync(fh.fileno())
-        _publish(tmp, out)
+        link_new(tmp, out, "recover never overwrites")
     except OSError as exc:
         raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from exc
     finally:
         tmp.unlink(missing_ok=True)
-    _fsync_dir(out.parent)
+    fsync_dir(out.parent)
     return _report(src, out, reader.stats)
 
 

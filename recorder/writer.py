@@ -215,19 +215,21 @@ def _open_new(path: Path) -> BinaryIO:
     return open(path, "xb")
 
 
-def _link_new(tmp: Path, path: Path) -> None:
-    """Give the file `tmp` the name `path` too, failing if `path` exists."""
+def link_new(tmp: Path, path: Path, refusal: str) -> None:
+    """Give the complete file `tmp` the name `path` too, never replacing an existing file
+    (InputError '<path> already exists: <refusal>'); on a file system without hard links
+    (FAT on a flash card) `tmp` is renamed instead. The caller removes `tmp` if it is left."""
     try:
         os.link(tmp, path)
     except FileExistsError:
-        raise InputError(f"{path} already exists: recordings are never overwritten") from None
-    except OSError as exc:  # a file system without hard links (FAT on a flash card)
+        raise InputError(f"{path} already exists: {refusal}") from None
+    except OSError as exc:
         if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV) or path.exists():
             raise
         os.rename(tmp, path)
 
 
-def _fsync_dir(folder: Path) -> None:
+def fsync_dir(folder: Path) -> None:
     """Make a new name in `folder` survive a power cut (best effort)."""
     with contextlib.suppress(OSError):
         fd = os.open(folder, os.O_RDONLY)
@@ -264,7 +266,7 @@ class _Part:
             mcap.add_metadata(METADATA_NAME, dict(metadata))
             fh.flush()  # a recording killed in its first second is still an MCAP file
             os.fsync(fh.fileno())
-            _link_new(tmp, path)
+            link_new(tmp, path, "recordings are never overwritten")
         except BaseException as exc:
             with contextlib.suppress(OSError, ValueError):
                 fh.close()
@@ -273,7 +275,7 @@ class _Part:
             raise
         finally:
             tmp.unlink(missing_ok=True)
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
         return cls(path, fh, mcap)
 
     def channel(self, topic: Topic, schema_name: str) -> int:

@@ -138,23 +138,6 @@ class TruthGround:
         return e, n, h
 
 
-def pixel_accuracy(truth: TruthGround, seg: SegmentResult, seed: int = 0) -> ErrorStats:
-    """Every pixel of one segment: IGM minus truth, along/across/height."""
-    igm = open_igm(seg.igm)
-    t = truth.line_times(seg.segment, seg.lines)
-    px = np.array([seg.gsd_along_m, seg.gsd_across_m, seg.gsd_across_m])
-    stats = ErrorStats()
-    rng = np.random.default_rng(seed)
-    for lo in range(0, seg.lines, BLOCK_LINES):
-        hi = min(lo + BLOCK_LINES, seg.lines)
-        te, tn, th = truth.ground(t[lo:hi])
-        blk = np.asarray(igm[lo:hi])
-        along, right = along_across_axes(te, tn)
-        err = decompose(blk[:, 0] - te, blk[:, 1] - tn, blk[:, 2] - th, along, right)
-        stats.add(err, px, rng)
-    return stats
-
-
 @dataclass
 class CheckPoint:
     id: str
@@ -200,43 +183,61 @@ def _invert(te: F64, tn: F64, e: float, n: float, i: int, j: int) -> tuple[float
     return li, pj
 
 
-def check_point_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, Any]
-                         ) -> list[CheckPoint]:
-    """Check points inside this segment's swath: found in the image through the truth, the IGM
-    interpolated there, compared with the surveyed coordinates."""
+def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, Any],
+                     seed: int = 0) -> tuple[ErrorStats, list[CheckPoint]]:
+    """One segment against truth, the truth cast once per block of lines: every pixel (IGM
+    minus truth, along/across/height) and the check points inside its swath (found in the image
+    through the truth, the IGM interpolated there, compared with the surveyed coordinates)."""
     igm = open_igm(seg.igm)
     t = truth.line_times(seg.segment, seg.lines)
     px = np.array([seg.gsd_along_m, seg.gsd_across_m, seg.gsd_across_m])
+    stats = ErrorStats()
+    rng = np.random.default_rng(seed)
     found: list[CheckPoint] = []
-    pe, pn, ph = points["easting_m"], points["northing_m"], points["height_m"]
     for lo in range(0, seg.lines, BLOCK_LINES):
         hi = min(lo + BLOCK_LINES + 1, seg.lines)  # one line of overlap between blocks
-        te, tn, _ = truth.ground(t[lo:hi])
-        if not np.isfinite(te).any():
+        own = min(BLOCK_LINES, hi - lo)  # the lines this block reports pixels for
+        te, tn, th = truth.ground(t[lo:hi])
+        blk = np.asarray(igm[lo:hi])
+        along, right = along_across_axes(te, tn)
+        err = decompose(blk[:own, 0] - te[:own], blk[:own, 1] - tn[:own],
+                        blk[:own, 2] - th[:own], along[:own], right[:own])
+        stats.add(err, px, rng)
+        for pid, line, pixel, err_m in _check_points_in_block(te, tn, blk, points,
+                                                              last=hi >= seg.lines):
+            if not any(c.id == pid for c in found):
+                found.append(CheckPoint(pid, seg.segment, lo + line, pixel, err_m, err_m / px))
+    return stats, found
+
+
+def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *, last: bool
+                           ) -> list[tuple[str, float, float, F64]]:
+    """(id, line in the block, pixel, along/across/height error in m) of the check points whose
+    nearest pixel lies inside this block."""
+    out: list[tuple[str, float, float, F64]] = []
+    if not np.isfinite(te).any():
+        return out
+    pe, pn, ph = points["easting_m"], points["northing_m"], points["height_m"]
+    inside = ((pe > np.nanmin(te)) & (pe < np.nanmax(te)) & (pn > np.nanmin(tn))
+              & (pn < np.nanmax(tn)))
+    for k in np.flatnonzero(inside):
+        d2 = (te - pe[k]) ** 2 + (tn - pn[k]) ** 2
+        if not np.isfinite(d2).any():
             continue
-        inside = ((pe > np.nanmin(te)) & (pe < np.nanmax(te)) & (pn > np.nanmin(tn))
-                  & (pn < np.nanmax(tn)))
-        for k in np.flatnonzero(inside):
-            d2 = (te - pe[k]) ** 2 + (tn - pn[k]) ** 2
-            if not np.isfinite(d2).any():
-                continue
-            i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
-            if (i in (0, te.shape[0] - 1) and hi < seg.lines) or j in (0, te.shape[1] - 1):
-                continue  # on a block edge or the swath edge: not inside this block
-            li, pj = _invert(te, tn, float(pe[k]), float(pn[k]), int(i), int(j))
-            if not (0 <= li <= te.shape[0] - 1 and 0 <= pj <= te.shape[1] - 1):
-                continue
-            est = _bilinear(np.asarray(igm[lo:hi]), li, pj)
-            along, right = along_across_axes(te[max(int(li) - 2, 0):int(li) + 3],
-                                             tn[max(int(li) - 2, 0):int(li) + 3])
-            a, r = along[len(along) // 2], right[len(right) // 2]
-            de, dn, dh = est[0] - pe[k], est[1] - pn[k], est[2] - ph[k]
-            err = np.array([de * a[0] + dn * a[1], de * r[0] + dn * r[1], dh])
-            if any(c.id == points["id"][k] and c.segment == seg.segment for c in found):
-                continue
-            found.append(CheckPoint(str(points["id"][k]), seg.segment, lo + li, pj, err,
-                                    err / px))
-    return found
+        i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
+        if (i in (0, te.shape[0] - 1) and not last) or j in (0, te.shape[1] - 1):
+            continue  # on a block edge or the swath edge: not inside this block
+        li, pj = _invert(te, tn, float(pe[k]), float(pn[k]), int(i), int(j))
+        if not (0 <= li <= te.shape[0] - 1 and 0 <= pj <= te.shape[1] - 1):
+            continue
+        est = _bilinear(blk, li, pj)
+        along, right = along_across_axes(te[max(int(li) - 2, 0):int(li) + 3],
+                                         tn[max(int(li) - 2, 0):int(li) + 3])
+        a, r = along[len(along) // 2], right[len(right) // 2]
+        de, dn, dh = est[0] - pe[k], est[1] - pn[k], est[2] - ph[k]
+        err = np.array([de * a[0] + dn * a[1], de * r[0] + dn * r[1], dh])
+        out.append((str(points["id"][k]), li, pj, err))
+    return out
 
 
 def read_ground_points(path: Path) -> dict[str, Any]:
@@ -283,10 +284,10 @@ def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, An
         chk["easting_m"], chk["northing_m"] = (
             np.asarray(v) for v in to_out.transform(chk["easting_m"], chk["northing_m"]))
     for seg in result.segments:
-        stats = pixel_accuracy(truth, seg, seed=seg.segment)
+        stats, found = segment_accuracy(truth, seg, chk, seed=seg.segment)
         per_segment.append({"segment": seg.segment, **stats.summary()})
         total.merge(stats)
-        checks += check_point_accuracy(truth, seg, chk)
+        checks += found
     return {"pixels": total.summary(), "segments": per_segment,
             "check_points": check_point_summary(checks),
             "check_point_list": [{"id": c.id, "segment": c.segment, "line": c.line,

@@ -12,6 +12,7 @@ Nothing here reads simulation truth.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import warnings
@@ -182,6 +183,16 @@ class GeorefJob:
         eo.valid[:] &= timed
         return eo, t
 
+    @functools.cached_property
+    def dem_height_range_m(self) -> tuple[float, float]:
+        """Lowest and highest DEM heights (from a 1/16 overview, ±50 m), read once per job."""
+        with rasterio.open(self.opt.dem) as ds:
+            coarse = ds.read(1, out_shape=(max(ds.height // 16, 1), max(ds.width // 16, 1)),
+                             masked=True)
+        if not coarse.count():
+            return 0.0, 0.0
+        return float(coarse.min()) - 50.0, float(coarse.max()) + 50.0
+
     def dem_window(self, eo: LineEo) -> Dem:
         """The DEM under the segment's swath: edge and centre rays of every 64th line met with
         the DEM's lowest and highest heights, plus a margin."""
@@ -189,11 +200,7 @@ class GeorefJob:
         pick = np.flatnonzero(eo.valid)[::64]
         if pick.size == 0:
             raise InputError("no line of the segment has a time and a pose")
-        with rasterio.open(self.opt.dem) as ds:
-            coarse = ds.read(1, out_shape=(max(ds.height // 16, 1), max(ds.width // 16, 1)),
-                             masked=True)
-        h_lo = float(coarse.min()) - 50.0 if coarse.count() else 0.0
-        h_hi = float(coarse.max()) + 50.0 if coarse.count() else 0.0
+        h_lo, h_hi = self.dem_height_range_m
         to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
         to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
         c = eo.centre_ecef_m[pick]

@@ -1,24 +1,29 @@
-"""Real-time sources for the acquisition: one reader thread per port or bus, all feeding one
-queue that a single thread drains in arrival order (the sync filter needs one ordered stream).
+"""Real-time sources for the acquisition: every port and bus watched by one event loop.
 
-Every item is stamped with the host clock the moment its read returns. Pulse edges come from the
-timing-board link (TCP on loopback) and the sync unit's output edges go back on the same link.
+`LiveSources.poll` waits on all device handles at once (`select`), reads whatever has arrived
+and returns it as `Arrival`s in the order read; the caller (one thread: the sync filter needs
+one ordered stream) decodes and records them. One loop instead of a reader thread per device:
+no hand-over of every read between threads, which at a few hundred reads a second is most of
+a threaded recorder's CPU. Each item is stamped with the host clock the moment its read
+returns. Pulse edges come from the timing-board link (TCP on loopback) and the sync unit's
+output edges go back on the same link.
 
 A device that goes away (a read error or end of file: a pty whose other side closed, an unplugged
-USB adapter, a CAN channel lost, the pulse link dropped) does not end its reader: the reader
-queues a `LinkEvent` (lost), then keeps reopening the same port / channel / address with a bounded
-back-off (`RETRY_FIRST_S` doubling to `RETRY_MAX_S`) until it opens again, and queues a second
-`LinkEvent` (restored). Each source retries in its own thread, so the others keep recording.
-Only the first open, at start, is strict: a port that cannot be opened then is an input error.
+USB adapter, a CAN channel lost, the pulse link dropped) does not stop the others: `poll`
+returns a `LinkEvent` (lost) for it, then keeps reopening the same port / channel / address with
+a bounded back-off (`RETRY_FIRST_S` doubling to `RETRY_MAX_S`) between waits, and returns a
+second `LinkEvent` (restored) when it opens again. Only the first open, at start, is strict: a
+port that cannot be opened then is an input error. A python-can interface without a file
+descriptor to wait on is asked for frames every `UNWAITABLE_POLL_S`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import queue
+import selectors
 import socket
-import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
@@ -34,10 +39,11 @@ from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
 from acquisition.slcan_bulk import BulkSlcanBus
 from sisa.errors import InputError
 
-READ_TIMEOUT_S = 0.05
+READ_SIZE = 65536
 RETRY_FIRST_S = 0.2  # first reopen attempt this long after the loss ...
 RETRY_MAX_S = 2.0  # ... then doubling up to this
-RECONNECT_TIMEOUT_S = 1.0  # a TCP connect attempt while reconnecting
+RECONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt while reconnecting (loopback: refused at once)
+UNWAITABLE_POLL_S = 0.002  # a CAN interface without a file descriptor is polled this often
 
 H = TypeVar("H")
 
@@ -67,36 +73,44 @@ class LinkEvent:
 
 @dataclass(frozen=True)
 class Arrival:
-    """One read: bytes (serial), a CAN frame, an edge, or a change of the source's link."""
+    """One read: bytes (serial), the CAN frames that had arrived, an edge, or a change of the
+    source's link."""
 
     t_host_ns: int
     source: Source
-    payload: bytes | can.Message | Edge | LinkEvent
+    payload: bytes | list[can.Message] | Edge | LinkEvent
 
 
 class _LostError(Exception):
-    """The device behind a reader went away."""
+    """The device behind a source went away."""
 
 
 class _Link(Generic[H]):
-    """How to open, read and close one source; `read` returns payloads or raises `_LostError`."""
+    """One source: how to open it, the descriptor to wait on (None: poll it), how to read what
+    has arrived without blocking (payloads, or `_LostError`), how to close it; and its state."""
 
-    def __init__(self, open_: Callable[[], H], read: Callable[[H], list[Any]],
+    def __init__(self, source: Source, open_: Callable[[], H],
+                 fileno: Callable[[H], int | None], read: Callable[[H], list[Any]],
                  close: Callable[[H], None]) -> None:
-        self.open, self.read, self.close = open_, read, close
+        self.source = source
+        self.open, self.fileno, self.read, self.close = open_, fileno, read, close
+        self.handle: H | None = None
+        self.fd: int | None = None
+        self.lost_ns = 0
+        self.retry_at_s = 0.0
+        self.retry_delay_s = 0.0
+        self.attempts = 0
 
 
 class LiveSources:
-    """Opens the ports, runs the reader threads, and sends edges back to the timing board."""
+    """Opens the ports, waits on them all in `poll`, and sends edges back to the timing board."""
 
     def __init__(self, gps_port: str | None, scanner_port: str | None, ins_bus: str | None,
                  pulses: str | None) -> None:
-        self.arrivals: queue.SimpleQueue[Arrival] = queue.SimpleQueue()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._closers: dict[Source, Callable[[], None]] = {}
-        self._lock = threading.Lock()
+        self._selector = selectors.DefaultSelector()
+        self._links: dict[Source, _Link[Any]] = {}
         self._pulse_sock: socket.socket | None = None
+        self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
         self.open_sources: set[Source] = set()
         self.down: set[Source] = set()  # sources whose device is away right now
         self.retry_first_s = RETRY_FIRST_S
@@ -114,99 +128,112 @@ class LiveSources:
             self.close()
             raise
 
-    # --- one reader per source, reconnecting ---------------------------------------------------
+    # --- the loop ------------------------------------------------------------------------------
 
-    def _start(self, source: Source, link: _Link[H], handle: H) -> None:
-        thread = threading.Thread(target=self._run, args=(source, link, handle),
-                                  name=f"read-{source}", daemon=True)
-        self.open_sources.add(source)
-        self._set_closer(source, link, handle)
-        self._threads.append(thread)
-        thread.start()
+    def poll(self, timeout_s: float) -> list[Arrival]:
+        """What arrives within `timeout_s` (returns as soon as anything does), plus link events."""
+        now = time.monotonic()
+        wait = timeout_s
+        for link in self._links.values():
+            if link.handle is None:
+                wait = min(wait, max(0.0, link.retry_at_s - now))
+            elif link.fd is None:
+                wait = min(wait, UNWAITABLE_POLL_S)
+        ready = self._selector.select(wait) if self._selector.get_map() else _sleep(wait)
+        arrivals: list[Arrival] = []
+        for key, _ in ready:
+            self._read(key.data, arrivals)
+        for link in self._links.values():
+            if link.handle is not None and link.fd is None:
+                self._read(link, arrivals)
+        now = time.monotonic()
+        for link in self._links.values():
+            if link.handle is None and now >= link.retry_at_s:
+                self._retry(link, arrivals)
+        return arrivals
 
-    def _set_closer(self, source: Source, link: _Link[H], handle: H | None) -> None:
-        with self._lock:
-            if handle is None:
-                self._closers.pop(source, None)
-            else:
-                self._closers[source] = lambda: link.close(handle)
+    def _read(self, link: _Link[Any], arrivals: list[Arrival]) -> None:
+        try:
+            payloads = link.read(link.handle)
+        except _LostError as exc:
+            self._lost(link, str(exc) or "lost", arrivals)
+            return
+        if payloads:
+            t_host = wall_clock_ns()
+            arrivals.extend(Arrival(t_host, link.source, p) for p in payloads)
 
-    def _run(self, source: Source, link: _Link[H], handle: H) -> None:
-        while True:
-            error = self._read_until_lost(source, link, handle)
-            self._set_closer(source, link, None)
-            _quietly(link.close, handle)
-            if error is None:
-                return  # stopping
-            lost_ns = wall_clock_ns()
-            self.down.add(source)
-            self.arrivals.put(Arrival(lost_ns, source, LinkEvent(LinkState.LOST, lost_ns, error)))
-            reopened = self._reopen(link)
-            if reopened is None:
-                return
-            handle, attempts = reopened
-            self._set_closer(source, link, handle)
-            self.down.discard(source)
-            self.arrivals.put(Arrival(wall_clock_ns(), source,
-                                      LinkEvent(LinkState.RESTORED, lost_ns, "", attempts)))
-            if self._stop.is_set():
-                self._set_closer(source, link, None)
-                _quietly(link.close, handle)
-                return
+    def _lost(self, link: _Link[Any], error: str, arrivals: list[Arrival]) -> None:
+        self._drop_handle(link)
+        link.lost_ns = wall_clock_ns()
+        link.retry_delay_s = self.retry_first_s
+        link.retry_at_s = time.monotonic() + link.retry_delay_s
+        link.attempts = 0
+        self.down.add(link.source)
+        arrivals.append(Arrival(link.lost_ns, link.source,
+                                LinkEvent(LinkState.LOST, link.lost_ns, error)))
 
-    def _read_until_lost(self, source: Source, link: _Link[H], handle: H) -> str | None:
-        """Read until the device goes away (its error) or the sources stop (None)."""
-        while not self._stop.is_set():
-            try:
-                payloads = link.read(handle)
-            except _LostError as exc:
-                return str(exc) or "lost"
-            if payloads:
-                t_host = wall_clock_ns()
-                for payload in payloads:
-                    self.arrivals.put(Arrival(t_host, source, payload))
-        return None
+    def _retry(self, link: _Link[Any], arrivals: list[Arrival]) -> None:
+        link.attempts += 1
+        try:
+            handle = link.open()
+        except _LostError:
+            link.retry_delay_s = min(2 * link.retry_delay_s, self.retry_max_s)
+            link.retry_at_s = time.monotonic() + link.retry_delay_s
+            return
+        self._attach(link, handle)
+        self.down.discard(link.source)
+        arrivals.append(Arrival(wall_clock_ns(), link.source,
+                                LinkEvent(LinkState.RESTORED, link.lost_ns, "", link.attempts)))
 
-    def _reopen(self, link: _Link[H]) -> tuple[H, int] | None:
-        """Open again with a bounded back-off: (handle, attempts), or None when stopping."""
-        delay, attempts = self.retry_first_s, 0
-        while not self._stop.wait(delay):
-            attempts += 1
-            try:
-                return link.open(), attempts
-            except _LostError:
-                delay = min(2 * delay, self.retry_max_s)
-        return None
+    def _attach(self, link: _Link[H], handle: H) -> None:
+        link.handle, link.fd = handle, link.fileno(handle)
+        if link.fd is not None:
+            self._selector.register(link.fd, selectors.EVENT_READ, link)
+
+    def _drop_handle(self, link: _Link[Any]) -> None:
+        if link.fd is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._selector.unregister(link.fd)
+        if link.handle is not None:
+            _quietly(link.close, link.handle)
+        link.handle, link.fd = None, None
+
+    def _add(self, link: _Link[H], first: H) -> None:
+        self._links[link.source] = link
+        self.open_sources.add(link.source)
+        self._attach(link, first)
 
     # --- the sources ----------------------------------------------------------------------
 
     def _serial(self, source: Source, port: str) -> None:
         def open_() -> serial.Serial:
             try:
-                return serial.Serial(port, 115200, timeout=READ_TIMEOUT_S)
+                return serial.Serial(port, 115200, timeout=0)
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise _LostError(f"cannot open {port}: {exc}") from None
 
         def read(ser: serial.Serial) -> list[bytes]:
             try:
-                # what is waiting, or block for the first byte: read(4096) would hold
-                # bytes back until 4096 arrive or the timeout ends, stamping them late
-                data = ser.read(max(1, ser.in_waiting))
-            except (serial.SerialException, OSError, TypeError) as exc:
+                data = os.read(ser.fileno(), READ_SIZE)
+            except BlockingIOError:
+                return []
+            except OSError as exc:
                 raise _LostError(f"{port}: {exc}") from None
-            return [data] if data else []
+            if not data:
+                raise _LostError(f"{port}: end of file (the device closed)")
+            return [data]
 
         try:
             first = open_()
         except _LostError as exc:
             raise InputError(f"cannot open {source} port {port}: {exc}") from None
-        self._start(source, _Link(open_, read, serial.Serial.close), first)
+        self._add(_Link(source, open_, serial.Serial.fileno, read, serial.Serial.close), first)
 
     def _can(self, spec: str) -> None:
         interface, channel = parse_can_spec(spec)
         options: dict[str, Any] = {}
         if interface == "slcan":
-            options["timeout"] = READ_TIMEOUT_S  # the port's read timeout: block, don't spin
+            options["timeout"] = 0.0
             if os.path.realpath(channel).startswith("/dev/pts/"):
                 options["sleep_after_open"] = 0.0  # an adapter on a pty does not reset on open
 
@@ -218,12 +245,24 @@ class LiveSources:
             except (can.CanError, ValueError, OSError, serial.SerialException) as exc:
                 raise _LostError(f"cannot open CAN {spec}: {exc}") from None
 
-        def read(bus: can.BusABC) -> list[can.Message]:
+        def fileno(bus: can.BusABC) -> int | None:
             try:
-                msg = bus.recv(timeout=READ_TIMEOUT_S)
+                fd = bus.fileno()
+            except (NotImplementedError, OSError, ValueError):
+                return None
+            return fd if isinstance(fd, int) and fd >= 0 else None
+
+        def read(bus: can.BusABC) -> list[list[can.Message]]:
+            try:
+                if isinstance(bus, BulkSlcanBus):
+                    frames = bus.recv_ready()
+                else:
+                    frames = []
+                    while (msg := bus.recv(timeout=0.0)) is not None:
+                        frames.append(msg)
             except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
                 raise _LostError(f"CAN {spec}: {exc}") from None
-            return [] if msg is None else [msg]
+            return [frames] if frames else []
 
         try:
             first = open_()
@@ -231,7 +270,7 @@ class LiveSources:
             raise InputError(f"cannot open CAN {spec}: {exc}") from None
         except _LostError as exc:
             raise InputError(str(exc)) from None
-        self._start(Source.INS, _Link(open_, read, _shutdown_bus), first)
+        self._add(_Link(Source.INS, open_, fileno, read, _shutdown_bus), first)
 
     def _pulses(self, endpoint: str) -> None:
         host, _, port_text = endpoint.removeprefix("tcp://").rpartition(":")
@@ -242,57 +281,55 @@ class LiveSources:
         except ValueError:
             raise InputError(f"pulse endpoint {endpoint}: no port number") from None
 
-        def connect(timeout_s: float) -> tuple[socket.socket, EdgeStreamDecoder]:
+        def connect(timeout_s: float) -> socket.socket:
             try:
                 sock = socket.create_connection((host, port), timeout=timeout_s)
             except OSError as exc:
                 raise _LostError(f"cannot connect to pulse endpoint {endpoint}: {exc}") from None
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(READ_TIMEOUT_S)
-            decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)  # a new link numbers edges afresh
-            self._pulse_sock, self.pulse_decoder = sock, decoder
-            return sock, decoder
+            sock.settimeout(None)  # read only when select says so; sends may wait
+            self._pulse_sock = sock
+            self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)  # a new link numbers afresh
+            return sock
 
-        def read(link: tuple[socket.socket, EdgeStreamDecoder]) -> list[Edge]:
-            sock, decoder = link
+        def read(sock: socket.socket) -> list[Edge]:
             try:
-                data = sock.recv(4096)
-            except TimeoutError:
-                return []
+                data = sock.recv(READ_SIZE)
             except OSError as exc:
                 raise _LostError(f"pulse link {endpoint}: {exc}") from None
             if not data:
                 raise _LostError(f"pulse link {endpoint}: closed by the timing board")
-            return [item.message for item in decoder.feed(data)]
+            return [item.message for item in self.pulse_decoder.feed(data)]
 
-        def close(link: tuple[socket.socket, EdgeStreamDecoder]) -> None:
-            if self._pulse_sock is link[0]:
+        def close(sock: socket.socket) -> None:
+            if self._pulse_sock is sock:
                 self._pulse_sock = None
-            link[0].close()
+            sock.close()
 
         try:
             first = connect(5.0)
         except _LostError as exc:
             raise InputError(str(exc)) from None
-        self._start(Source.PULSES, _Link(lambda: connect(RECONNECT_TIMEOUT_S), read, close),
-                    first)
+        self._add(_Link(Source.PULSES, lambda: connect(RECONNECT_TIMEOUT_S), socket.socket.fileno,
+                        read, close), first)
 
     def send_edge(self, edge: Edge) -> None:
         sock = self._pulse_sock
         if sock is None:
-            return  # the link is away: its reader reports the loss and reconnects
+            return  # the link is away: `poll` reports the loss and reconnects
         with contextlib.suppress(OSError):
             sock.sendall(encode_edge(edge))
 
     def close(self) -> None:
-        self._stop.set()
-        for thread in self._threads:
-            thread.join(timeout=1.0)
-        with self._lock:
-            closers = list(self._closers.values())
-            self._closers.clear()
-        for closer in closers:
-            _quietly(closer)
+        for link in self._links.values():
+            self._drop_handle(link)
+        self._selector.close()
+
+
+def _sleep(wait_s: float) -> list[tuple[selectors.SelectorKey, int]]:
+    """Every device away: nothing to select on, only the next reopen to wait for."""
+    time.sleep(wait_s)
+    return []
 
 
 def _shutdown_bus(bus: can.BusABC) -> None:

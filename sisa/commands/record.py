@@ -4,7 +4,6 @@ stream, run the sync filter, record everything to MCAP, show live status."""
 from __future__ import annotations
 
 import argparse
-import queue
 import shutil
 import signal
 import sys
@@ -65,7 +64,6 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     scn = scenario_from_args(args)
     config = acquisition_config(scn)
-    sys.setswitchinterval(0.001)  # reader threads get the GIL within ~1 ms: edges stay on time
     sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses)
     stop = _install_stop_handlers()
     split_s = args.split_minutes * 60 if args.split_minutes else None
@@ -121,12 +119,9 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
     down: set[Source] = set()
     last_arrival = started
     while not stop[0]:
-        try:
-            item = sources.arrivals.get(timeout=TICK_S / 2)
-        except queue.Empty:
-            item = None
+        arrivals = sources.poll(TICK_S / 2)
         now = time.monotonic()
-        if item is not None:
+        for item in arrivals:
             if isinstance(item.payload, LinkEvent):
                 _link_event(acq, item.t_host_ns, item.source, item.payload, down)
             else:
@@ -168,8 +163,6 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
 
 
 def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
-    import can
-
     from acquisition.live import Source
     from acquisition.pulses import Edge
 
@@ -177,8 +170,9 @@ def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
     if isinstance(payload, Edge):
         edge_clock.seen(item.t_host_ns, payload.t_ns)
         acq.on_edge(item.t_host_ns, payload)
-    elif isinstance(payload, can.Message):
-        acq.on_can_frame(item.t_host_ns, payload)
+    elif isinstance(payload, list):
+        for frame in payload:
+            acq.on_can_frame(item.t_host_ns, frame)
     elif isinstance(payload, bytes) and item.source is Source.GPS:
         acq.on_gps_bytes(item.t_host_ns, payload)
     elif isinstance(payload, bytes):

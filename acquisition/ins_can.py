@@ -246,6 +246,7 @@ class CanFrameStats:
     duplicate: int = 0  # identical to the frame just before (a retransmission)
     foreign: int = 0  # other IDs, extended IDs, remote or error frames: other nodes' traffic
     malformed: int = 0  # one of our IDs with a DLC other than 8
+    restarts: int = 0  # the sender began again at seq 0 after a silence: a reboot, not a loss
 
 
 @dataclass
@@ -256,6 +257,9 @@ class _Partial:
     frames: list[tuple[int, bytes]] = field(default_factory=list)
     last_index: int = -1
     broken: bool = False  # a frame of this record is missing or conflicting
+
+
+RESTART_SILENCE_NS = 500_000_000  # silence before a seq-0 frame that marks a device restart
 
 
 class InsRecordAssembler:
@@ -277,10 +281,14 @@ class InsRecordAssembler:
         self._partial: _Partial | None = None
         self._last_frame: tuple[int, bytes] | None = None
         self._last_position: int | None = None
+        self._last_t_ns: int | None = None
         self._frames_fed = 0
 
-    def feed(self, msg: can.Message) -> Decoded[InsRecord] | None:
-        """Take one frame off the bus; return a record when this frame completes one."""
+    def feed(self, msg: can.Message, t_ns: int | None = None) -> Decoded[InsRecord] | None:
+        """Take one frame off the bus; return a record when this frame completes one. With the
+        frame's arrival time `t_ns`, a first frame of seq 0 after `RESTART_SILENCE_NS` of
+        silence is the device starting again (counted in `frames.restarts`): the frames it
+        did not send in between are not lost."""
         self._frames_fed += 1
         index = self._our_index(msg)
         if index is None:
@@ -297,6 +305,12 @@ class InsRecordAssembler:
             self.frames.duplicate += 1
             return None
         self._last_frame = frame
+        if t_ns is not None:
+            silent = self._last_t_ns is not None and t_ns - self._last_t_ns > RESTART_SILENCE_NS
+            self._last_t_ns = t_ns
+            if silent and frame[1][0] == 0 and index == 0:
+                self.frames.restarts += 1
+                self._last_position = None
         self._count_gap(frame[1][0], index)
         return self._place(frame[1][0], index, frame)
 

@@ -195,7 +195,7 @@ class Acquisition:
         self._can_batch.add(t_host_ns, msg)
         if self._can_batch.full(t_host_ns):
             self._flush_can()
-        item = self.ins.feed(msg)
+        item = self.ins.feed(msg, t_host_ns)
         if item is not None:
             self.streams["ins"].seen(t_host_ns, NS_PER_S // 4)
             self.log(_ins_log(t_host_ns, item.message), None)

@@ -425,3 +425,33 @@ def test_crc_valid_random_records_never_raise(seq: int, rest: bytes) -> None:
         assert 0 <= rec.heading_rad < 2 * math.pi
         assert abs(rec.roll_rad) <= math.pi
         assert abs(rec.pitch_rad) <= math.pi / 2
+
+
+def _feed_timed(asm: InsRecordAssembler, messages: list[can.Message], t0_ns: int) -> int:
+    """Frames 2 ms apart from t0; returns the time after the last."""
+    for i, m in enumerate(messages):
+        asm.feed(m, t0_ns + 2_000_000 * i)
+    return t0_ns + 2_000_000 * len(messages)
+
+
+def test_a_restart_after_silence_is_not_counted_as_lost_frames() -> None:
+    asm = InsRecordAssembler()
+    t = _feed_timed(asm, _frames(_stream(40, first=100)), 0)
+    _feed_timed(asm, _frames(_stream(5)), t + 8_000_000_000)  # rebooted: seq 0 after 8 s
+    assert asm.stats.messages == 45
+    assert asm.frames.lost == 0
+    assert asm.frames.restarts == 1
+
+
+def test_a_silence_that_does_not_restart_at_seq_0_is_a_loss() -> None:
+    asm = InsRecordAssembler()
+    t = _feed_timed(asm, _frames(_stream(40)), 0)
+    # 8 s away (an unplugged adapter), the INS kept counting: the records in between are lost
+    _feed_timed(asm, _frames(_stream(5, first=60)), t + 8_000_000_000)
+    assert asm.frames.lost == 20 * FRAMES_PER_RECORD
+    assert asm.frames.restarts == 0
+    # and without times a counter back at 0 is a gap, as before
+    untimed = InsRecordAssembler()
+    for m in _frames(_stream(40, first=100)) + _frames(_stream(5)):
+        untimed.feed(m)
+    assert untimed.frames.lost > 0

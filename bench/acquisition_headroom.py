@@ -1,7 +1,8 @@
 """Acquisition headroom in a real-time desk test: `sisa emulate` and `sisa record` as separate
 processes on ptys, SLCAN and the pulse link, with every device rate scaled up by k until the
 first loss (a decode error, a dropped CAN frame, a late edge, or fewer records than the emulator
-sent), plus the recorder's CPU use at nominal rates.
+sent), plus the recorder's CPU use at nominal rates (steady state: sampled from /proc between
+4 s after it starts and 1 s before the data ends, so start-up imports are not counted).
 
     .venv/bin/python bench/acquisition_headroom.py [--seconds 20] [--scales 1,2,5,10,20,30,40]
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import subprocess
 import sys
@@ -56,6 +58,16 @@ def errors_after_warm_up(log: Path) -> float:
     return total
 
 
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+PAGE_BYTES = os.sysconf("SC_PAGE_SIZE")
+
+
+def proc_cpu_s_rss_mb(pid: int) -> tuple[float, float]:
+    """CPU seconds used so far (user + system) and resident memory of a running process."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK, int(fields[21]) * PAGE_BYTES / 1e6
+
+
 def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[str, float]:
     scenario = scaled_scenario(k, folder)
     run = folder / f"run{k:g}"
@@ -67,21 +79,29 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     while not (ep.exists() and ep.stat().st_size):
         time.sleep(0.05)
     e = json.loads(ep.read_text())
-    rec = subprocess.run([sys.executable, "-m", "sisa.cli", "record", "--quiet", "--scenario",
-                          str(scenario), "--gps", e["gps"], "--scanner", e["scanner"], "--ins",
-                          e["ins"], "--pulses", e["pulses"], "--out", str(folder / f"f{k:g}.mcap")],
-                         capture_output=True, text=True)  # ends when the emulator's ports close
+    rec = subprocess.Popen([sys.executable, "-m", "sisa.cli", "record", "--quiet", "--scenario",
+                            str(scenario), "--gps", e["gps"], "--scanner", e["scanner"], "--ins",
+                            e["ins"], "--pulses", e["pulses"], "--out",
+                            str(folder / f"f{k:g}.mcap")],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # steady-state CPU: from 4 s in (imports and start-up done) to 1 s before the data ends
+    time.sleep(4.0)
+    cpu0, wall0 = proc_cpu_s_rss_mb(rec.pid)[0], time.monotonic()
+    time.sleep(seconds - 3.0)
+    cpu1, wall1 = proc_cpu_s_rss_mb(rec.pid)[0], time.monotonic()
+    rec_out, rec_err = rec.communicate()  # ends when the emulator's ports close
     emu_out, _ = emu.communicate()
-    m = SUMMARY.search(rec.stdout)
+    m = SUMMARY.search(rec_out)
     if m is None:
-        raise SystemExit(f"scale {k}: no summary from sisa record: {rec.stderr[-500:]}")
-    ins, _gps, headers, _pps, ppf, _errors, drops, late, cpu, wall = map(float, m.groups())
+        raise SystemExit(f"scale {k}: no summary from sisa record: {rec_err[-500:]}")
+    ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
     errors = errors_after_warm_up(folder / f"f{k:g}.mcap")
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
     ins_hz = (len(ins_t) - 1) / max(1e-9, (ins_t[-1] - ins_t[0]) / 1e9)
     late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
     return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf,
-            "errors": errors, "drops": drops, "late": late, "cpu_pct": 100 * cpu / wall,
+            "errors": errors, "drops": drops, "late": late,
+            "cpu_pct": 100 * (cpu1 - cpu0) / (wall1 - wall0),
             "emulator_late_ms": late_ms}
 
 

@@ -59,6 +59,7 @@ DESCENT_PIXELS: Final = 1
 DESCENT_MARGIN_LINES: Final = 4  # lines read beyond a run of quads for the descent
 GDAL_CACHE_MB: Final = 128
 TIFF_ZLEVEL: Final = 1
+TIFF_ZSTD_LEVEL: Final = 1  # GDAL's default (9) is several times slower for ~10 % smaller files
 TIFF_COMPRESSIONS: Final = ("deflate", "zstd", "lzw", "none")
 GLT_BAND_NAMES: Final = ("GLT Sample Lookup", "GLT Line Lookup")
 
@@ -280,12 +281,32 @@ def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, row
         lo = max(q0 - DESCENT_MARGIN_LINES, 0)
         hi = min(q1 + 1 + DESCENT_MARGIN_LINES, index.raster.lines)
         blk = index.raster.read_lines(lo, hi)
-        u = (blk[:, 0] - x0) / grid.cell_m
-        v = (y0 - blk[:, 1]) / grid.cell_m
-        box = np.stack([np.fmin.reduce(u, axis=1), np.fmax.reduce(u, axis=1),
-                        np.fmin.reduce(v, axis=1), np.fmax.reduce(v, axis=1)], axis=1)
+        u = sc.get("u", (hi - lo, blk.shape[2]), np.float64)
+        v = sc.get("v", (hi - lo, blk.shape[2]), np.float64)
+        box = sc.get("box", (hi - lo, 4), np.float64)
+        _to_cells(blk, x0, y0, float(grid.cell_m), u, v, box)
         _rasterise(u, v, box, q0 - lo, q1 - lo, lo, d2, line, pixel, inside)
     return TileChoice(line, pixel, d2, inside)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _to_cells(blk: F64, x0: float, y0: float, cell: float, u: F64, v: F64, box: F64) -> None:
+    """u, v (lines, pixels): positions of the IGM block (lines, 3, pixels) in cell units
+    (column and row of the window's cell centres), in one pass without temporaries; box:
+    each line's u/v extent over its finite positions (+inf, -inf where it has none)."""
+    for i in range(blk.shape[0]):
+        umin = vmin = np.inf
+        umax = vmax = -np.inf
+        for j in range(blk.shape[2]):
+            x = (blk[i, 0, j] - x0) / cell
+            y = (y0 - blk[i, 1, j]) / cell
+            u[i, j] = x
+            v[i, j] = y
+            if x == x:
+                umin, umax = min(umin, x), max(umax, x)
+            if y == y:
+                vmin, vmax = min(vmin, y), max(vmax, y)
+        box[i, 0], box[i, 1], box[i, 2], box[i, 3] = umin, umax, vmin, vmax
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -342,7 +363,7 @@ def _rasterise(u: F64, v: F64, box: F64, q0: int, q1: int, line_base: int, d2: F
         if (min(box[i, 0], box[i + 1, 0]) > cols - 1 or max(box[i, 1], box[i + 1, 1]) < 0
                 or min(box[i, 2], box[i + 1, 2]) > rows - 1
                 or max(box[i, 3], box[i + 1, 3]) < 0):
-            continue  # the pair of lines misses the window (NaN boxes fall through)
+            continue  # the pair of lines misses the window
         for j in range(npx - 1):
             ax, ay, bx, by = u[i, j], v[i, j], u[i, j + 1], v[i, j + 1]
             cx, cy, dx, dy = u[i + 1, j + 1], v[i + 1, j + 1], u[i + 1, j], v[i + 1, j]
@@ -479,6 +500,8 @@ class TiffWriter:
             packing["predictor"] = 3 if kind == "f" else 2
         if compress == "deflate":
             packing["zlevel"] = TIFF_ZLEVEL
+        if compress == "zstd":
+            packing["zstd_level"] = TIFF_ZSTD_LEVEL
         if compress == "none":
             packing["sparse_ok"] = True
         self._ds = rasterio.open(
@@ -555,14 +578,18 @@ class GltWriter:
         if self._fd is None:
             raise InputError(f"{self.path}: GLT writer already closed")
         width = self.grid.width
-        data = values.astype("<i4", copy=False)
-        has = data[:, 0] != 0
-        first = np.argmax(has, axis=1)
-        end = has.shape[1] - np.argmax(has[:, ::-1], axis=1)
-        for r in np.flatnonzero(has.any(axis=1)):  # the file is zeros already: write the spans
+        data = np.ascontiguousarray(values, dtype="<i4")
+        rows = data.shape[0]
+        first, end = np.empty(rows, np.int64), np.empty(rows, np.int64)
+        _row_spans(data, first, end)
+        view = data.reshape(-1).view(np.uint8).data
+        row_bytes = data.shape[1] * data.shape[2] * 4
+        band_bytes = data.shape[2] * 4
+        for r in np.flatnonzero(end > first).tolist():  # the file is zeros already: the spans
             a, b = int(first[r]), int(end[r])
             for band in range(2):
-                os.pwrite(self._fd, data[r, band, a:b].tobytes(),
+                at = r * row_bytes + band * band_bytes
+                os.pwrite(self._fd, view[at + a * 4:at + b * 4],
                           ((int(row0 + r) * 2 + band) * width + col0 + a) * 4)
 
     def close(self) -> None:
@@ -655,6 +682,23 @@ def _glt_values(line: I32, pixel: I32, inside: B, d2: F64, out: I32) -> tuple[in
             total += d
             top = max(top, d)
     return filled, infill, total, top
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _row_spans(values: I32, first: I64, end: I64) -> None:
+    """[first[r], end[r]): the columns from the first to the last non-zero sample of row r
+    of a GLT window (rows, 2, cols); first = end = 0 where the row is all zeros."""
+    for r in range(values.shape[0]):
+        a, b = 0, 0
+        for c in range(values.shape[2]):
+            if values[r, 0, c] != 0:
+                a, b = c, c + 1
+                break
+        for c in range(values.shape[2] - 1, a, -1):
+            if values[r, 0, c] != 0:
+                b = c + 1
+                break
+        first[r], end[r] = a, b
 
 
 def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_stem: Path, *,

@@ -86,7 +86,8 @@ def _triangle_mask(x: np.ndarray, y: np.ndarray, tri: np.ndarray) -> np.ndarray:
     w0 = ((bx - ax) * (y - ay) - (by - ay) * (x - ax)) / area
     w1 = ((cx - bx) * (y - by) - (cy - by) * (x - bx)) / area
     w2 = ((ax - cx) * (y - cy) - (ay - cy) * (x - cx)) / area
-    return (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+    mask: np.ndarray = (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+    return mask
 
 
 def swath_mask(strip: Strip, grid: OrthoGrid) -> np.ndarray:
@@ -222,3 +223,13 @@ def test_image_must_match_the_igm(made: Made, tmp_path: Path) -> None:
         orthorectify(made.folder / "seg_igm.bil", made.folder / "seg.bil", other,
                      tmp_path / "o.tif", tmp_path / "g")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["short.bil", "short.hdr"]
+
+
+def test_zstd_product_holds_the_same_values(made: Made, tmp_path: Path) -> None:
+    tif = tmp_path / "z.tif"
+    orthorectify(made.folder / "seg_igm.bil", made.folder / "seg.bil", made.grid, tif,
+                 tmp_path / "z_glt", compress="zstd")
+    with rasterio.open(tif) as z, rasterio.open(made.tif) as d:
+        assert z.compression.name == "zstd"
+        assert z.nodata == d.nodata == 0
+        np.testing.assert_array_equal(z.read(), d.read())

@@ -6,17 +6,22 @@ Two runs of the Garrotxa scenario (seed 000 Table 1: 14 alternating strips, 2160
 3.5 m pixels; boresight (1742, −2, −74)″ and δf 0.6496 mm, δx0 12.74 µm, δy0 64.52 µm as in its
 Table 3) are simulated without images the first time (≈ 3–5 min each) and kept in --runs:
 `garrotxa` with the seed's GPS code solution (1 m σ) and `garrotxa-phase` with a phase solution
-(3 cm σ). The adjustment uses what a user has: sync and navigation from the flight log, line
-times from the sync (lines numbered in frame-header order: no image files). The measurements
-come from the truth (sisa.gcpsim). Figures:
+(3 cm σ); and `bellmunt-garrotxa-sensor`, the seed's Bellmunt flight (659 m, 426 km/h, phase)
+carrying the Garrotxa sensor, a second flight for the delay. The adjustment uses what a user
+has: sync and navigation from the flight log, line times from the sync (lines numbered in
+frame-header order: no image files). The measurements come from the truth (sisa.gcpsim).
+Figures:
 
-1. Seed configuration (code GPS; 111 control, 96 check points, one or two measurements each,
-   0.45 px noise, survey σ 2.5 m / 2.0 m, check points in with their heights as the seed did):
+1. Seed configuration (code GPS; 111 control points, 97 of them on the border seen once, 96
+   check points in with their heights as the seed did, tie points up to Table 1's 469
+   measurements, DEM surface control σ 2 m, 0.45 px noise, survey σ 2.5 m / 2.0 m):
    boresight and self-calibration against the truth (with the INS's attitude bias folded in:
    the data cannot tell it from the boresight), their σ against the seed's Table 4, the
-   correlations; then with DEM control and tie points.
+   correlations; then with an exact survey, without ties and DEM, and with more tie points.
 2. Time delay (phase GPS, 85 ms injected): estimated with the boresight known, estimated with
-   it, and the seed's sweep (seed 003 §5: ±100 ms, minimum RMS of the control points).
+   it, estimated with it from two flights of different H/v adjusted together
+   (postproc.calib_flights), and the seed's sweep (seed 003 §5: ±100 ms, minimum RMS of the
+   control points).
 3. Antenna offset (phase GPS, the sensor file's offset 1.5 m short along track): per-strip GPS
    shifts alternate with the flying direction; the offset is then estimated.
 4. Check points after calibration (phase GPS, exact survey, 0.3 px): RMS against the
@@ -37,7 +42,8 @@ import numpy as np
 
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
 from postproc.calib_data import GroundPoints, SegmentClock, read_ground_points
-from postproc.calib_params import Group, PriorSigmas, parse_groups
+from postproc.calib_flights import join_flights
+from postproc.calib_params import Group, parse_groups
 from postproc.calib_report import high_correlations, look_angles, parameter_rows
 from postproc.calibrate import (
     CalibrationInput,
@@ -60,6 +66,13 @@ from sisa.gcpsim import SimSettings, SimulatedObservations, simulate_observation
 from sisa.sensor import Mounting
 from sisa.simulation import simulate
 
+# A second flight for the delay: the seed's Bellmunt block (659 m above ground, 426 km/h: H/v
+# 5.6 s against Garrotxa's 29.6 s) flown with the Garrotxa sensor (its Table 3 values), so that
+# the two flights share every sensor parameter.
+SECOND_FLIGHT: dict[str, Any] = {
+    "base": "bellmunt",
+    "scanner": {"delta_focal_mm": 0.6496, "delta_principal_point_um": [12.74, 64.52]},
+    "mounting": {"boresight_arcsec": [1742.0, -2.0, -74.0]}}
 SEED_TABLE4 = {"omega": 345.0, "phi": 512.0, "kappa": 56.0, "delta_focal": 0.003,
                "delta_x0": 24.83, "delta_y0": 17.73}
 CORE = ("omega", "phi", "kappa", "delta_focal", "delta_x0", "delta_y0")
@@ -158,16 +171,33 @@ def summary(res: CalibrationResult) -> dict[str, Any]:
             "blunders": len(res.blunders), "check": res.check}
 
 
+SEED_PHOTO_OBS = 469  # seed 000 Table 1: photogrammetric observations in the Garrotxa block
+SEED_SINGLE_VIEW = 97  # ground points with one observation, on the block borders (seed 000 §6)
+
+
+def seed_settings(run: Run, seed: int, **kw: Any) -> tuple[SimSettings, int]:
+    """The seed's measurements: 0.45 px (its residual RMS 0.47 / 0.43 px), survey σ 2.5 m / 2 m,
+    97 border control points seen once, the rest of the 111 twice, the check points in every
+    strip that sees them (≤ 2), and tie points (two rays each) up to Table 1's 469."""
+    s = SimSettings(noise_px=0.45, gcp_noise_m=(2.5, 2.0), single_view_control=SEED_SINGLE_VIEW,
+                    seed=seed)
+    n = len(simulate_observations(run.path, run.points, s).obs)
+    ties = max(0, (SEED_PHOTO_OBS - n) // 2)
+    return replace(s, tie_points=ties, **kw), ties
+
+
 def seed_configuration(run: Run, seed: int) -> dict[str, Any]:
-    print("\n1. seed configuration (code GPS, 0.45 px, survey σ 2.5/2.0 m, no DEM, no ties)")
-    sim = simulate_observations(run.path, run.points,
-                                SimSettings(noise_px=0.45, gcp_noise_m=(2.5, 2.0), seed=seed))
+    settings, ties = seed_settings(run, seed)
+    print(f"\n1. seed configuration (code GPS, 0.45 px, survey σ 2.5/2.0 m, {SEED_SINGLE_VIEW} "
+          f"border control points seen once, {ties} tie points to Table 1's {SEED_PHOTO_OBS} "
+          "measurements, DEM surface control σ 2 m, check points in with their heights)")
+    sim = simulate_observations(run.path, run.points, settings)
     truth = truth_values(sim.truth)
     start = sensor_of(run.scn, nominal=True)
     base = CalibrationOptions(groups=parse_groups("boresight,selfcal"), gcp_sigma_m=(2.5, 2.0),
-                              check_heights=True)
-    out: dict[str, Any] = {}
-    res = calibrate(run.input(start, sim, dem=False), base)
+                              check_heights=True, dem_sigma_m=2.0)
+    out: dict[str, Any] = {"tie_points": ties}
+    res = calibrate(run.input(start, sim, dem=True), base)
     out["seed"] = {"params": table(res, truth, CORE, True), **summary(res)}
     c = res.check or {}
     gps = run.scn.gps.horizontal_sigma_m
@@ -176,16 +206,21 @@ def seed_configuration(run: Run, seed: int) -> dict[str, Any]:
           f"{math.hypot(c['predicted_rms_along_m'], gps):.2f} / "
           f"{math.hypot(c['predicted_rms_across_m'], gps):.2f} m (with the GPS σ {gps:g} m; "
           "seed: 4.7 / 4.4 m)")
-    print("  the same with a 20 µm prior on δy0 too (a principal-point prior as in GeoTeX)")
-    res = calibrate(run.input(start, sim, dem=False),
-                    replace(base, priors=PriorSigmas(principal_point_y_um=20.0)))
-    out["seed_prior_y0"] = {"params": table(res, truth, CORE, True), **summary(res)}
-    for ties in (300, 1000):
-        print(f"  with DEM control (σ 2 m) and {ties} tie points")
-        sim_t = simulate_observations(run.path, run.points, SimSettings(
-            noise_px=0.45, gcp_noise_m=(2.5, 2.0), tie_points=ties, seed=seed))
+    print("  the same with an exact survey (control σ 1 cm): what the survey error costs the "
+          "ω/δy0 split")
+    sim_x = simulate_observations(run.path, run.points, replace(settings, gcp_noise_m=(0.0, 0.0)))
+    res = calibrate(run.input(start, sim_x, dem=True), replace(base, gcp_sigma_m=(0.01, 0.01)))
+    out["seed_exact_survey"] = {"params": table(res, truth, CORE, True), **summary(res)}
+    print("  control and check points only (every view ≤ 2, no tie points, no DEM)")
+    sim_p = simulate_observations(run.path, run.points, SimSettings(
+        noise_px=0.45, gcp_noise_m=(2.5, 2.0), seed=seed))
+    res = calibrate(run.input(start, sim_p, dem=False), base)
+    out["points_only"] = {"params": table(res, truth, CORE, True), **summary(res)}
+    for more in (300, 1000):
+        print(f"  with {more} tie points instead of {ties} (DEM control σ 2 m)")
+        sim_t = simulate_observations(run.path, run.points, replace(settings, tie_points=more))
         res = calibrate(run.input(start, sim_t, dem=True), base)
-        out[f"dem_ties_{ties}"] = {"params": table(res, truth, CORE, True), **summary(res)}
+        out[f"dem_ties_{more}"] = {"params": table(res, truth, CORE, True), **summary(res)}
     return out
 
 
@@ -204,27 +239,59 @@ def boresight_only(run: Run, seed: int) -> dict[str, Any]:
     return {"params": rows, "boresight_without_ins_bias": raw, **summary(res)}
 
 
-def delay(run: Run, seed: int) -> dict[str, Any]:
+def delay(run: Run, second: Run, seed: int) -> dict[str, Any]:
     print("\n2. time delay: 85 ms injected (phase GPS, 0.3 px, 500 tie points, DEM control)")
     sim = simulate_observations(run.path, run.points, SimSettings(
         noise_px=0.3, delay_ms=85.0, tie_points=500, seed=seed))
     truth = truth_values(sim.truth)
     known = known_sensor(run, sim.truth)
     opt = CalibrationOptions(groups=(Group.DELAY,), gcp_sigma_m=(0.05, 0.05))
+    joint_groups = parse_groups("boresight,selfcal,delay")
+    nominal = sensor_of(run.scn, nominal=True)
     out: dict[str, Any] = {}
     print("  boresight and self-calibration known (a previous calibration)")
     res = calibrate(run.input(known, sim, dem=True), opt)
     out["known_boresight"] = {"params": table(res, truth, ("time_delay",), False),
                               **summary(res)}
     print("  estimated together with boresight and self-calibration")
-    res = calibrate(run.input(sensor_of(run.scn, nominal=True), sim, dem=True),
-                    replace(opt, groups=parse_groups("boresight,selfcal,delay")))
+    res = calibrate(run.input(nominal, sim, dem=True), replace(opt, groups=joint_groups))
     out["with_boresight"] = {"params": table(res, truth, (*CORE, "time_delay"), False),
                              **summary(res)}
     r = look_angles(res)["along_um"]["correlations"].get("time_delay", 0.0)
     print(f"    correlation of the delay with the along-track look offset δx0 − f'φ: {r:+.3f}"
           " (both move the ground along track; only relief and attitude rates part them)")
     out["with_boresight"]["corr_along_look_delay"] = r
+    h1, v1 = run.scn.block.flying_height_agl_m, run.scn.block.ground_speed_kmh
+    h2, v2 = second.scn.block.flying_height_agl_m, second.scn.block.ground_speed_kmh
+    print(f"  two flights sharing the sensor, adjusted together: this one ({h1:g} m, {v1:g} km/h,"
+          f" H/v {h1 / (v1 / 3.6):.1f} s) and {second.path.name} ({h2:g} m, {v2:g} km/h, "
+          f"H/v {h2 / (v2 / 3.6):.1f} s; 300 tie points, DEM)")
+    sim2 = simulate_observations(second.path, second.points, SimSettings(
+        noise_px=0.3, delay_ms=85.0, tie_points=300, seed=seed))
+    truth2 = truth_values(sim2.truth)
+    both = join_flights([run.input(nominal, sim, dem=True), second.input(nominal, sim2, dem=True)])
+    res = calibrate(both, replace(opt, groups=joint_groups))
+    print(f"    (truth: the first flight's; the second's boresight with its INS bias is "
+          f"{truth2['omega']:.1f}, {truth2['phi']:.1f}, {truth2['kappa']:.1f}″)")
+    out["two_flights"] = {"params": table(res, truth, (*CORE, "time_delay"), False),
+                          "second_truth": truth2, **summary(res)}
+    others = []
+    for k in range(1, 4):
+        sims = [simulate_observations(r.path, r.points, SimSettings(
+            noise_px=0.3, delay_ms=85.0, tie_points=n, seed=seed + k))
+            for r, n in ((run, 500), (second, 300))]
+        res = calibrate(join_flights([run.input(nominal, sims[0], dem=True),
+                                      second.input(nominal, sims[1], dem=True)]),
+                        replace(opt, groups=joint_groups))
+        e, sg = block_params(res)["time_delay"]
+        others.append({"seed": seed + k, "estimate": e, "sigma": sg})
+    print("    other noise seeds: " + ", ".join(
+        f"{o['estimate']:.2f} ± {o['sigma']:.2f}" for o in others) + " ms")
+    out["two_flights"]["other_seeds"] = others
+    print(f"  {second.path.name} alone, estimated with boresight and self-calibration")
+    res = calibrate(second.input(nominal, sim2, dem=True), replace(opt, groups=joint_groups))
+    out["second_alone"] = {"params": table(res, truth2, (*CORE, "time_delay"), False),
+                           **summary(res)}
     print("  the seed's sweep: ±100 ms in 5 ms steps, boresight known, minimum control RMS")
     t0 = time.perf_counter()
     sw = sweep_delay(run.input(known, sim, dem=True), opt, np.arange(-100.0, 100.1, 5.0))
@@ -310,9 +377,11 @@ def main() -> None:
     code = ensure_run(args.runs, "garrotxa", {"base": "garrotxa"})
     phase = ensure_run(args.runs, "garrotxa-phase",
                        {"base": "garrotxa", "gps": {"solution": "phase"}})
+    low = ensure_run(args.runs, "bellmunt-garrotxa-sensor", SECOND_FLIGHT)
     figures = {"seed_configuration": seed_configuration(code, args.seed),
                "boresight_only": boresight_only(phase, args.seed),
-               "time_delay": delay(phase, args.seed), "antenna": antenna(phase, args.seed),
+               "time_delay": delay(phase, low, args.seed),
+               "antenna": antenna(phase, args.seed),
                "check_points": check_points(phase, args.seed)}
     path = args.runs / "calibration_bench.json"
     path.write_text(json.dumps(figures, indent=1, default=float) + "\n", encoding="utf-8")

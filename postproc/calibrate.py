@@ -89,7 +89,7 @@ class CalibrationInput:
     points: GroundPoints  # control, check and tie points
     obs: ImageObservations
     sensor: SensorModel  # the starting values (and everything not estimated)
-    dem: Dem | None = None
+    dem: Dem | Surface | None = None  # a Surface: several flights' DEMs (calib_flights)
 
 
 @dataclass
@@ -145,7 +145,8 @@ def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:
     geom = line_geometry(a_obs, inp.clock, adj_pts.index_of(a_obs.point_id, "observations"),
                          layout.seg_index(a_obs.segment))
     model = CameraModel(inp.traj, sensor, geom, origin)
-    surface: Surface | None = DemSurface(inp.dem) if inp.dem is not None else None
+    surface: Surface | None = (None if inp.dem is None else DemSurface(inp.dem)
+                               if isinstance(inp.dem, Dem) else inp.dem)
     ps = point_set(adj_pts, origin, opt.gcp_sigma_m, opt.dem_control and surface is not None)
     x0 = start_coordinates(model, layout.base, ps, surface, mean_height(adj_pts))
     if surface is not None and ps.dem_control.any():

@@ -8,7 +8,10 @@ on; the instant becomes a fractional line through the TRUE line times (truth/fra
 shifted by an injected delay: a line tagged t was really exposed at t + delay. Then Gaussian
 noise (σ px), optional blunders, survey noise on the control/check coordinates, and tie points in
 strip overlaps (on the run's DEM). A point is kept in at most `max_views` segments (one or two,
-as in seed 000). Truth is read here only; post-processing gets the measurements.
+as in seed 000), its most central views; `single_view_control` control points, those nearest
+the block's border, in one only (seed 000 §6: 97 of Garrotxa's 111 ground points "have only 1
+photogrammetric observation, these points are identified on the block borders"). Truth is read
+here only; post-processing gets the measurements.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 from pyproj import Transformer
+from scipy.spatial import ConvexHull
 
 from emulators.render import camera_pose_ecef
 from emulators.scenario import Scenario, load_scenario
@@ -45,6 +49,7 @@ TIE_CANDIDATES: Final = 6  # candidates drawn per wanted tie point
 class SimSettings:
     noise_px: float = 0.3
     max_views: int = 2
+    single_view_control: int = 0  # control points nearest the border measured in one image
     tie_points: int = 0
     delay_ms: float = 0.0  # true exposure − line tag
     gcp_noise_m: tuple[float, float] = (0.0, 0.0)  # survey error σ, horizontal and vertical
@@ -147,15 +152,34 @@ def _views(proj: TruthProjector, segs: list[TruthSegment], x: F64, delay_ns: int
     return out
 
 
-def _limit_views(views: list[tuple[int, int, float, float]], max_views: int, centre: float
-                 ) -> list[tuple[int, int, float, float]]:
+def _limit_views(views: list[tuple[int, int, float, float]], max_views: int, centre: float,
+                 single: frozenset[int] = frozenset()) -> list[tuple[int, int, float, float]]:
     by_point: dict[int, list[tuple[int, int, float, float]]] = {}
     for v in views:
         by_point.setdefault(v[0], []).append(v)
     out = []
-    for vs in by_point.values():
-        out += sorted(vs, key=lambda v: abs(v[3] - centre))[:max_views]
+    for p, vs in by_point.items():
+        out += sorted(vs, key=lambda v: abs(v[3] - centre))[:1 if p in single else max_views]
     return sorted(out, key=lambda v: (v[0], v[1]))
+
+
+def border_control(points: GroundPoints, count: int) -> frozenset[int]:
+    """Rows of the `count` control points nearest the border of the control points' extent
+    (their convex hull, on the local horizontal plane)."""
+    ctl = np.flatnonzero(points.kind == "control")
+    if count <= 0 or ctl.size == 0:
+        return frozenset()
+    lat, lon, _ = ecef_to_geodetic(points.ecef_m[ctl])
+    r = 6_371_000.0
+    xy = np.stack([np.radians(lon - lon.mean()) * r * math.cos(math.radians(lat.mean())),
+                   np.radians(lat - lat.mean()) * r], axis=1)
+    hull = xy[ConvexHull(xy).vertices]
+    a, b = hull, np.roll(hull, -1, axis=0)
+    ab = b - a
+    s = np.clip(np.einsum("pki,ki->pk", xy[:, None, :] - a[None], ab)
+                / np.einsum("ki,ki->k", ab, ab), 0.0, 1.0)
+    d = np.linalg.norm(xy[:, None, :] - (a[None] + s[..., None] * ab[None]), axis=2).min(axis=1)
+    return frozenset(ctl[np.argsort(d, kind="stable")[:count]].tolist())
 
 
 def _tie_candidates(run: Path, points: GroundPoints, n: int, rng: np.random.Generator
@@ -225,7 +249,8 @@ def simulate_observations(run: Path, points: GroundPoints, settings: SimSettings
         pts = GroundPoints.concat(points, _tie_candidates(run, points, settings.tie_points, rng))
     proj = TruthProjector(scn, traj)
     views = _views(proj, segs, pts.ecef_m, round(settings.delay_ms * 1e6))
-    views = _limit_views(views, settings.max_views, scn.scanner.centre_pixel)
+    views = _limit_views(views, settings.max_views, scn.scanner.centre_pixel,
+                         border_control(pts, settings.single_view_control))
     views = _keep_ties(views, pts, settings.tie_points)
     keep = np.zeros(len(pts), dtype=np.bool_)
     keep[[v[0] for v in views]] = True

@@ -115,3 +115,25 @@ def test_bad_requests_are_one_line_errors(run: Path, capsys: pytest.CaptureFixtu
                  str(run.parent / "obs.csv")]) == 2
     assert "no column 'sigma_px'" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_border_control_points_can_be_measured_in_one_image(run: Path) -> None:
+    """seed 000: the ground points on the block borders have one observation, the others two."""
+    import numpy as np
+
+    from postproc.calib_data import read_ground_points, read_observations
+    from sisa.gcpsim import border_control
+
+    pts = read_ground_points(run / "terrain" / "ground_points.csv")
+    ctl = pts.kind == "control"
+    near = border_control(pts, 6)
+    assert len(near) == 6
+    assert all(bool(ctl[k]) for k in near)
+    out = run.parent / "one-view"
+    assert main(["calibrate", str(run), "--out", str(out), "--single-view-control",
+                 str(int(ctl.sum())), "--tie-points", "20", "--seed", "3",
+                 "--gcp-sigma-m", "0.05,0.05"]) == 0
+    obs = read_observations(out / "observations.csv")
+    ids, counts = np.unique(obs.point_id, return_counts=True)
+    per = dict(zip(ids.tolist(), counts.tolist(), strict=True))
+    assert {per[i] for i in pts.ids[ctl].tolist() if i in per} == {1}

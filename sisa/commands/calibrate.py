@@ -94,6 +94,9 @@ def _add_simulation(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--tie-points", type=int, default=0, metavar="N",
                    help="tie points in strip overlaps (default 0)")
     g.add_argument("--max-views", type=int, default=2, help="segments a point is measured in")
+    g.add_argument("--single-view-control", type=int, default=0, metavar="N",
+                   help="the N control points nearest the block border are measured in one "
+                        "image only (seed 000's Garrotxa: 97 of 111; default 0)")
     g.add_argument("--sim-delay-ms", type=float, default=0.0, metavar="MS",
                    help="inject a scanner delay: a line tagged t was exposed at t + MS")
     g.add_argument("--sim-gcp-noise-m", default="0,0", metavar="H,V",
@@ -177,9 +180,12 @@ def _observations(args: argparse.Namespace, points: GroundPoints
         raise InputError("a flight log needs --obs (image measurements of the ground points)")
     from sisa.gcpsim import SimSettings, simulate_observations
 
-    if args.noise_px < 0 or args.tie_points < 0 or args.blunders < 0 or args.max_views < 1:
-        raise InputError("--noise-px, --tie-points and --blunders must be ≥ 0, --max-views ≥ 1")
+    if (args.noise_px < 0 or args.tie_points < 0 or args.blunders < 0 or args.max_views < 1
+            or args.single_view_control < 0):
+        raise InputError("--noise-px, --tie-points, --blunders and --single-view-control must "
+                         "be ≥ 0, --max-views ≥ 1")
     settings = SimSettings(noise_px=args.noise_px, max_views=args.max_views,
+                           single_view_control=args.single_view_control,
                            tie_points=args.tie_points, delay_ms=args.sim_delay_ms,
                            gcp_noise_m=_pair(args.sim_gcp_noise_m, "--sim-gcp-noise-m"),
                            blunders=args.blunders, seed=args.seed)

@@ -27,6 +27,7 @@ from postproc.calib_data import (
     read_observations,
     write_observations,
 )
+from postproc.calib_flights import join_flights
 from postproc.calib_model import boresight_matrix, rot_xyz
 from postproc.calib_params import Group, PriorSigmas, parse_groups
 from postproc.calib_report import load_check, report_json, sensor_toml
@@ -89,18 +90,20 @@ class Block:
     wave_deg: tuple[float, float, float] = (0.3, 0.2, 0.1)
     antenna_error_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # g_true − g_file
     ins_error_arcsec: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    t_start_ns: int = T0_NS
     t0: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         dur = round(self.length_m / self.speed_mps * 1e9)
         self.duration_ns = dur
-        self.t0 = [T0_NS + k * (dur + self.turn_ns) for k in range(self.strips)]
+        self.t0 = [self.t_start_ns + k * (dur + self.turn_ns) for k in range(self.strips)]
 
     def lines(self) -> int:
         return self.duration_ns // self.period_ns
 
     def strip_of(self, t: np.ndarray) -> np.ndarray:
-        k = np.clip((t - T0_NS) // (self.duration_ns + self.turn_ns), 0, self.strips - 1)
+        k = np.clip((t - self.t_start_ns) // (self.duration_ns + self.turn_ns), 0,
+                    self.strips - 1)
         return np.asarray(k, np.int64)
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -407,6 +410,28 @@ def test_the_seeds_sweep_finds_the_delay(delayed: Scene) -> None:
                      np.arange(-100.0, 100.1, 10.0))
     assert abs(sw["best_ms"] - 85.0) < 5.0
     assert sw["rms_m"][0] > 2 * min(sw["rms_m"])
+
+
+def test_two_flights_at_different_speed_and_height_part_delay_from_phi(delayed: Scene
+                                                                      ) -> None:
+    """v·τ and H·φ look alike in one flight; a second flight with another v/H parts them."""
+    low = make_scene(Block(height_m=1080.0, speed_mps=111.0, spacing_m=500.0,
+                           t_start_ns=T0_NS + 3 * 3600 * 10**9),
+                     Truth(delay_ms=85.0), n_control=40, n_check=10, n_tie=150, seed=6)
+    groups = parse_groups("boresight,delay")
+    sensor = nominal_sensor(boresight_arcsec=(1700.0, 0.0, -50.0)).model_copy(
+        update={"scanner": true_sensor(delayed.truth).scanner})
+    inputs = [CalibrationInput(NavTrajectory(sc.block), sc.clock, sc.points, sc.obs, sensor,
+                               sc.dem) for sc in (delayed, low)]
+    alone = calibrate(inputs[0], CalibrationOptions(groups=groups))
+    joint = calibrate(join_flights(inputs), CalibrationOptions(groups=groups))
+    _, sig_alone = estimate(alone, "time_delay")
+    _, sig = within(joint, "time_delay", 85.0)
+    within(joint, "phi", -2.0)
+    assert sig < sig_alone / 10
+    assert joint.counts["strips"] == 8
+    with pytest.raises(InputError, match="overlap in GPS time"):
+        join_flights([inputs[0], inputs[0]])
 
 
 def test_an_unapplied_antenna_offset_shows_as_opposite_strip_shifts(offset: Scene) -> None:

@@ -1,6 +1,7 @@
 """`sisa calibrate` end to end on a short simulated run with an injected boresight and
 self-calibration: measurements simulated from the truth, sync and navigation from the log, the
-adjustment, and a calibration file that `sisa georef --sensor` can read."""
+adjustment, and a calibration file that `sisa georef --sensor` can read; and two such runs
+(another height and speed, later in the day) calibrated together as two flights."""
 
 from __future__ import annotations
 
@@ -38,6 +39,25 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["simulate", "--scenario", str(root / "scn.toml"), "--out", str(root / "run"),
                  "--no-images"]) == 0
     return root / "run"
+
+
+# the second flight: lower and faster (H/v 3.3 s against 10 s), two hours later, 8 km east (a
+# simulated run has its own terrain: two over one area would have two DEMs of one place)
+SECOND = SCENARIO.replace("[block]\n", """[block]
+flying_height_agl_m = 300.0
+ground_speed_kmh = 324.0
+start_gps = "2026-06-15T11:00:00"
+centre_lon_deg = 2.1
+""")
+
+
+@pytest.fixture(scope="module")
+def second(run: Path) -> Path:
+    root = run.parent
+    (root / "scn2.toml").write_text(SECOND)
+    assert main(["simulate", "--scenario", str(root / "scn2.toml"), "--out", str(root / "run2"),
+                 "--no-images"]) == 0
+    return root / "run2"
 
 
 @pytest.fixture(scope="module")
@@ -137,3 +157,79 @@ def test_border_control_points_can_be_measured_in_one_image(run: Path) -> None:
     ids, counts = np.unique(obs.point_id, return_counts=True)
     per = dict(zip(ids.tolist(), counts.tolist(), strict=True))
     assert {per[i] for i in pts.ids[ctl].tolist() if i in per} == {1}
+
+
+DELAY = ["--estimate", "boresight,selfcal,delay", "--sim-delay-ms", "40", "--tie-points", "40",
+         "--seed", "3", "--gcp-sigma-m", "0.05,0.05"]
+
+
+def test_two_flights_calibrate_together(run: Path, second: Path) -> None:
+    """One delay, boresight and self-calibration for two flights of another H/v: the joint
+    adjustment fixes the delay (and the shared groups) better than either flight alone."""
+    root = run.parent
+    for name, runs in (("alone1", [run]), ("alone2", [second]), ("joint", [run, second])):
+        assert main(["calibrate", *map(str, runs), "--out", str(root / name), *DELAY]) == 0
+    one, two, joint = (json.loads((root / n / "calibration.json").read_text())
+                       for n in ("alone1", "alone2", "joint"))
+    for name in ("time_delay", "phi", "delta_focal"):
+        sig = _param(joint, name)[1]
+        assert sig < _param(one, name)[1], name
+        assert sig < _param(two, name)[1], name
+    est, sig = _param(joint, "time_delay")
+    assert abs(est - 40.0) < 4 * sig
+    assert not joint["blunders"]
+    assert joint["check_points"]["rms_across_px"] < 1.0
+    assert [f["run"] for f in joint["flights"]] == [str(run), str(second)]
+    assert all(f["truth"]["time_delay_ms"] == pytest.approx(40.0) for f in joint["flights"])
+    assert joint["counts"]["strips"] == one["counts"]["strips"] + two["counts"]["strips"]
+    res = joint["residuals"]
+    assert {r["flight"] for r in res} == {0, 1}
+    assert all(r["id"].startswith(f"{r['flight']}:") and r["segment"] // 1000 == r["flight"]
+               for r in res)
+    assert len(res) == len(one["residuals"]) + len(two["residuals"])
+    assert {p["flight"] for p in joint["points"]} == {0, 1}
+    sensor = SensorModel.load(root / "joint" / "sensor.toml")
+    assert sensor.time_delay_ms == pytest.approx(est)
+    obs = (root / "joint" / "observations.csv").read_text()
+    assert "\n1:" in obs
+    assert "\n0:" in obs
+
+
+def test_several_runs_refuse_per_run_files(run: Path, second: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    out = run.parent / "bad-joint"
+    for opt, value in (("--gcp", run / "terrain" / "ground_points.csv"),
+                       ("--obs", run.parent / "cal" / "observations.csv"),
+                       ("--scanner", run / "scanner"), ("--dem", run / "terrain" / "dem.tif")):
+        assert main(["calibrate", str(run), str(second), "--out", str(out), opt,
+                     str(value)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert opt in err
+        assert "several runs" in err
+        assert "\n" not in err
+    assert main(["calibrate", str(run), str(second / "flight.mcap"), "--out", str(out)]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert main(["calibrate", str(run), str(run), "--out", str(out), "--no-dem"]) == 2
+    assert "overlap in GPS time" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_several_runs_refuse_disagreeing_dems(run: Path, capsys: pytest.CaptureFixture[str]
+                                              ) -> None:
+    """The joined input takes a place's height from the first DEM that covers it: a second
+    run whose DEM of the same place differs (as a simulated run over one area would) is
+    refused."""
+    import shutil
+
+    import rasterio
+
+    other = run.parent / "same-area"
+    shutil.copytree(run, other)
+    with rasterio.open(other / "terrain" / "dem.tif", "r+") as ds:
+        ds.write(ds.read(1) + 20.0, 1)
+    out = run.parent / "bad-dems"
+    assert main(["calibrate", str(run), str(other), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "DEM differs" in err
+    assert "--no-dem" in err
+    assert not out.exists()

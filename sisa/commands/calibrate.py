@@ -6,6 +6,13 @@ For a run folder the image measurements are simulated from its truth (sisa.gcpsi
 gives them; the ground points, DEM and starting sensor come from the run. For a flight log,
 --obs and --gcp are needed. The adjustment itself (postproc.calibrate) never reads truth.
 
+Several run folders are several flights sharing the sensor (postproc.calib_flights): each run's
+input is built as for one run (its simulated measurements, points, DEM, sync and navigation),
+all from one starting sensor (--sensor, or the runs' common nominal one), and the adjustment is
+of the joined input: segment s of flight k is k·1000 + s, point ids are "k:id" (k from 0, in
+the order given), and calibration.json gives each residual, point and blunder its "flight".
+Options naming one run's files (--gcp, --obs, --scanner, --dem) are refused with several runs.
+
 OUT/
   sensor.toml         the calibrated sensor file (`sisa georef --sensor OUT/sensor.toml`), with
                       the estimates ± σ and the strongest correlations as comments
@@ -39,9 +46,12 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "calibrate", "calibrate boresight, self-calibration, time delay "
                          "and offsets from ground control (least squares, blunder detection)",
                          "sisa calibrate runs/garrotxa --out runs/garrotxa-cal "
-                         "--estimate boresight,selfcal --tie-points 300")
+                         "--estimate boresight,selfcal --tie-points 300\n  "
+                         "sisa calibrate runs/high runs/low --out runs/cal "
+                         "--estimate boresight,selfcal,delay   # two flights, one sensor")
     parser.add_argument("flight", nargs="+", type=Path, metavar="RUN_OR_FLIGHT",
-                        help="a run folder of `sisa simulate`, or the flight log (MCAP parts)")
+                        help="a run folder of `sisa simulate`, or the flight log (MCAP parts); "
+                             "several run folders: flights sharing the sensor, adjusted together")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
     parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
                         help="ground points (id, kind, lat_deg, lon_deg, height_m); default "
@@ -117,6 +127,24 @@ def _pair(text: str, what: str) -> tuple[float, float]:
 
 def _is_run(paths: list[Path]) -> bool:
     return len(paths) == 1 and paths[0].is_dir()
+
+
+PER_RUN_OPTIONS = (("gcp", "--gcp"), ("obs", "--obs"), ("scanner", "--scanner"), ("dem", "--dem"))
+
+
+def _several_runs(args: argparse.Namespace) -> list[Path] | None:
+    """The run folders when several are given (None: one run or one flight log's parts)."""
+    paths: list[Path] = list(args.flight)
+    dirs = [p.is_dir() for p in paths]
+    if len(paths) < 2 or not any(dirs):
+        return None
+    if not all(dirs):
+        raise InputError("give several run folders or the parts of one flight log, not both")
+    given = [flag for name, flag in PER_RUN_OPTIONS if getattr(args, name) is not None]
+    if given:
+        raise InputError(f"{', '.join(given)} name one run's files: with several runs each "
+                         "run's own are used (give one run to override them)")
+    return paths
 
 
 def _flight_paths(args: argparse.Namespace) -> list[Path]:
@@ -197,8 +225,10 @@ def _observations(args: argparse.Namespace, points: GroundPoints
     return sim.obs, sim.points, info
 
 
-def build_input(args: argparse.Namespace) -> tuple[CalibrationInput, dict[str, Any]]:
-    """Sync and navigation from the log, points, measurements, DEM and starting sensor."""
+def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
+                ) -> tuple[CalibrationInput, dict[str, Any]]:
+    """Sync and navigation from the log, points, measurements, DEM and starting sensor (the
+    given one, else --sensor or the run's nominal one)."""
     from postproc.calib_data import SegmentClock, read_ground_points
     from postproc.calibrate import CalibrationInput
     from postproc.dem import Dem
@@ -210,7 +240,7 @@ def build_input(args: argparse.Namespace) -> tuple[CalibrationInput, dict[str, A
     from postproc.synclog import sync_input_from_columns
     from recorder.reader import read_topics
 
-    sensor = _sensor(args)
+    sensor = _sensor(args) if sensor is None else sensor
     paths = _flight_paths(args)
     points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
     obs, points, info = _observations(args, points)
@@ -229,6 +259,75 @@ def build_input(args: argparse.Namespace) -> tuple[CalibrationInput, dict[str, A
                           + ("the scanner's lines files" if scanner else "frame-header order"))
     return CalibrationInput(traj, SegmentClock.from_line_times(sync.lines), points, obs,
                             sensor, dem), info
+
+
+def _shared_sensor(args: argparse.Namespace, runs: list[Path]) -> SensorModel:
+    """--sensor, else the runs' nominal sensor, which must be the same for all (names aside)."""
+    if args.sensor is not None:
+        return _sensor(args)
+    first = _sensor(argparse.Namespace(**{**vars(args), "flight": runs[:1]}))
+    for run in runs[1:]:
+        other = _sensor(argparse.Namespace(**{**vars(args), "flight": [run]}))
+        if other.model_copy(update={"name": first.name}) != first:
+            raise InputError(f"{run}: its nominal sensor differs from {runs[0]}'s: give the "
+                             "flights' common starting sensor with --sensor")
+    return first
+
+
+def build_joint_input(args: argparse.Namespace, runs: list[Path]
+                      ) -> tuple[CalibrationInput, dict[str, Any]]:
+    """Each run's input as for one run, from one starting sensor, joined (calib_flights)."""
+    from postproc.calib_flights import SEGMENT_STRIDE, flight_point_id, flight_segment, join_flights
+
+    sensor = _shared_sensor(args, runs)
+    inputs: list[CalibrationInput] = []
+    flights: list[dict[str, Any]] = []
+    injected: list[dict[str, Any]] = []
+    for k, run in enumerate(runs):
+        inp, info = build_input(argparse.Namespace(**{**vars(args), "flight": [run]}), sensor)
+        inputs.append(inp)
+        injected += [{"id": flight_point_id(k, b["id"]), "segment": flight_segment(k, b["segment"]),
+                      "flight": k} for b in info.pop("injected_blunders", [])]
+        flights.append({"flight": k, "run": str(run), "first_segment": flight_segment(k, 0),
+                        "dem": inp.dem is not None, **info})
+    _check_dems(inputs, runs, args.dem_sigma_m)
+    return join_flights(inputs), {"segment_stride": SEGMENT_STRIDE, "flights": flights,
+                                  "injected_blunders": injected}
+
+
+def _check_dems(inputs: list[CalibrationInput], runs: list[Path], sigma_m: float) -> None:
+    """The joined input takes a height from the first flight's DEM that covers the place
+    (calib_flights.FlightsSurface): refuse DEMs that disagree where they overlap, as two
+    simulated runs over one area do (each run has its own synthetic terrain)."""
+    import numpy as np
+    from pyproj import Transformer
+
+    from postproc.dem import Dem
+
+    dems = [(k, i.dem) for k, i in enumerate(inputs) if isinstance(i.dem, Dem)]
+    for a, (ka, da) in enumerate(dems):
+        w, s, e, n = da.bounds_m
+        ge, gn = np.meshgrid(np.linspace(w, e, 40), np.linspace(s, n, 40))
+        ea, na = ge.ravel(), gn.ravel()
+        for kb, db in dems[a + 1:]:
+            eb, nb = (ea, na) if db.epsg == da.epsg else Transformer.from_crs(
+                da.epsg, db.epsg, always_xy=True).transform(ea, na)
+            d = da.height_at(ea, na) - db.height_at(eb, nb)
+            d = d[np.isfinite(d)]
+            rms = float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+            if rms > sigma_m:
+                raise InputError(f"{runs[kb]}: its DEM differs from {runs[ka]}'s by {rms:.1f} m "
+                                 "RMS where they overlap (simulated runs over one area each "
+                                 "have their own terrain): use runs over separate areas, or "
+                                 "--no-dem")
+
+
+def _mark_flights(report: dict[str, Any]) -> None:
+    """Each residual, point, blunder and check measurement gets its flight ("k:id" → k)."""
+    for key in ("residuals", "points", "blunders", "check_list"):
+        for row in report.get(key) or []:
+            if isinstance(row, dict) and ":" in str(row.get("id", "")):
+                row["flight"] = int(str(row["id"]).split(":", 1)[0])
 
 
 def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
@@ -276,8 +375,9 @@ def _run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     opt = _options(args)
+    runs = _several_runs(args)
     with staged_output_dir(args.out) as out:
-        inp, info = build_input(args)
+        inp, info = build_input(args) if runs is None else build_joint_input(args, runs)
         res = calibrate(inp, opt)
         if args.sweep_delay_ms is not None:
             span = abs(args.sweep_delay_ms)
@@ -289,11 +389,14 @@ def _run(args: argparse.Namespace) -> int:
                                                 "gcp_sigma_m": list(opt.gcp_sigma_m),
                                                 "dem_sigma_m": opt.dem_sigma_m,
                                                 "dem": inp.dem is not None}, **info})
+        if runs is not None:
+            _mark_flights(report)
         (out / "calibration.json").write_text(json.dumps(report, indent=1) + "\n",
                                               encoding="utf-8")
         write_observations(out / "observations.csv", inp.obs)
         write_ground_points(out / "points.csv", inp.points)
-    print(f"{args.out}: calibrated in {time.perf_counter() - started:.1f} s")
+    print(f"{args.out}: calibrated in {time.perf_counter() - started:.1f} s"
+          + (f", {len(runs)} flights (segments k·1000 + s, points k:id)" if runs else ""))
     for line in headline(res, info.get("truth")):
         print(line)
     if "delay_sweep" in info:

@@ -11,9 +11,11 @@ in the range s, with per-line coefficients, so a ray costs a few multiply-adds t
 Fast path (numba, parallel over blocks, lines in order within a block). Each ray starts from the
 range of the same pixel in the previous line (float64 set-up of float32 quadratic models of the
 grid position and height in t = s − start, relative to the block) and takes two branch-free
-float32 Newton steps on g = h − DEM(E, N) (vectorised; the four corner heights are gathers).
+float32 Newton steps on g = h − DEM(E, N), both on the bilinear patch of the cell under the
+start (vectorised; its four corner heights are two 8-byte gathers, and the cells a few lines
+ahead are prefetched); the few rays (~2 %) whose first step leaves that cell restart from there.
 Inside one DEM cell g is a quadratic in t, so the last step bounds the remaining error: a ray is
-accepted only if |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M, that step stayed in one cell, and the
+accepted only if |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M, that step stayed in the cell, and the
 root is provably the FIRST one: g falls monotonically along the ray's whole path through the
 DEM's height range when the steepest DEM slope under the paths of a group of rays (a sparse
 table of per-tile slope maxima) times the ray's horizontal/vertical rate is below 1. Float32
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import sys
 import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,6 +48,10 @@ from typing import Any, Final, TypeVar, cast
 import numba
 import numpy as np
 import numpy.typing as npt
+from llvmlite import ir  # type: ignore[import-untyped]
+from numba.core import cgutils as _cgutils
+from numba.core import types as _types
+from numba.extending import intrinsic
 from pyproj import Transformer
 
 from postproc.dem import Dem
@@ -62,6 +69,8 @@ CHUNK_PIXELS: Final = 64  # pixels whose paths share one slope bound
 TILE_CELLS: Final = 8  # DEM cells per side of the tiles holding slope maxima
 COLD_PASSES: Final = 4  # rounds of Newton steps for a block's first line (cold start)
 MAP_TOLERANCE_M: Final = 3e-5  # fitted map vs pyproj at check points
+PREFETCH_LINES: Final = 2  # DEM cells are prefetched for the line this far ahead...
+PREFETCH_STRIDE: Final = 4  # ...under every this many pixels
 ROOT_TOLERANCE_M: Final = 1e-6  # error bound of the last Newton step
 MAX_NEWTON_STEP_M: Final = 0.01  # a larger final step is not trusted
 SLOPE_MARGIN: Final = 0.98  # first-root test: slope × rate must stay below this
@@ -71,6 +80,10 @@ BAND_PAD_M: Final = 10.0  # map box reaches this far above / below the DEM's hei
 SAFE_SEGMENT_M: Final = 4.0  # longest stretch of ray solved as one quadratic in the safe path
 REFERENCE_MIN_STEP_M: Final = 1e-4
 REFERENCE_TOLERANCE_M: Final = 1e-7
+
+_LITTLE_ENDIAN: Final = sys.byteorder == "little"
+cgutils: Any = _cgutils  # untyped: for the intrinsics' code generation
+types: Any = _types
 
 # Per-ray outcome codes of the kernel.
 _HIT: Final = 0
@@ -185,14 +198,16 @@ def reference_intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64,
                         np.isfinite(e).reshape(n, p))
 
 
-def _scratch(pixels: int) -> tuple[F64, F32, U8, F32, npt.NDArray[np.int32]]:
-    """Per-thread scratch of the kernel: ranges (previous, start), float32 linear models and
-    Newton offsets, and the first-root test's per-ray data for a group of lines."""
+def _scratch(pixels: int) -> tuple[F64, F32, U8, I64, U8, F32, npt.NDArray[np.int32], F32]:
+    """Per-thread scratch of the kernel: ranges (previous, start), float32 models and Newton
+    offsets, restart flags, start cells (this line's, predicted), and the first-root test's
+    data for a group of lines: per ray flags and rates, per pixel tile ranges and limits."""
     t = numba.get_num_threads()
     return (np.empty((t, 2, pixels)), np.empty((t, 10, pixels), np.float32),
+            np.empty((t, pixels), np.uint8), np.zeros((t, 2, pixels), np.int64),
             np.empty((t, GROUP_LINES, pixels), np.uint8),
             np.empty((t, GROUP_LINES, pixels), np.float32),
-            np.empty((t, 4, GROUP_LINES, pixels), np.int32))
+            np.empty((t, 4, pixels), np.int32), np.empty((t, pixels), np.float32))
 
 
 def _checked_rays(centre: F64, rot: F64, look: F64) -> tuple[F64, F64, F64, B1]:
@@ -681,131 +696,218 @@ def _terms(coef: Any, look9: Any, i: int, j: int) -> tuple[float, float, float, 
     return be, ce, bn, cn, bh, ch
 
 
+def _pair_intrinsic(typingctx: Any, heights: Any, k: Any) -> Any:
+    """(heights[k], heights[k + 1]) of a float32 array by ONE 8-byte load. Vectorised, that is a
+    gather of 8-byte elements: half the gathered elements of two 4-byte loads (the gathers and
+    their cache misses are most of the Newton steps' time). The caller keeps k + 1 inside the
+    array."""
+    if not (isinstance(heights, types.Array) and heights.dtype == types.float32
+            and heights.ndim == 1 and heights.layout == "C"):
+        return None
+    sig = types.UniTuple(types.float32, 2)(heights, types.intp)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        ary = context.make_array(signature.args[0])(context, builder, value=args[0])
+        ptr = cgutils.gep(builder, ary.data, args[1], inbounds=True)
+        word = builder.load(builder.bitcast(ptr, ir.IntType(64).as_pointer()), align=4)
+        lo = builder.bitcast(builder.trunc(word, ir.IntType(32)), ir.FloatType())
+        hi = builder.bitcast(builder.trunc(builder.lshr(word, ir.Constant(ir.IntType(64), 32)),
+                                           ir.IntType(32)), ir.FloatType())
+        first, second = (lo, hi) if _LITTLE_ENDIAN else (hi, lo)
+        return context.make_tuple(builder, signature.return_type, [first, second])
+
+    return sig, codegen
+
+
+_pair: Any = intrinsic(_pair_intrinsic)
+
+
+def _prefetch_intrinsic(typingctx: Any, heights: Any, k: Any) -> Any:
+    """Hint that heights[k] will be read soon (no fault, no effect on results)."""
+    if not (isinstance(heights, types.Array) and heights.ndim == 1 and heights.layout == "C"):
+        return None
+    sig = types.void(heights, types.intp)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        ary = context.make_array(signature.args[0])(context, builder, value=args[0])
+        ptr = builder.bitcast(cgutils.gep(builder, ary.data, args[1]), ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
+            "llvm.prefetch.p0")
+        builder.call(fn, [ptr, i32(0), i32(3), i32(1)])  # read, keep in all levels, data
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+_prefetch: Any = intrinsic(_prefetch_intrinsic)
+
+
+@_jit(inline=True)
+def _models(s: float, coef: Any, look9: Any, i: int, j: int, blk: Any, b: int, consts: Any
+            ) -> tuple[Any, ...]:
+    """Float64 set-up of ray (i, j) from start range s: in t = s − start, float32 quadratic
+    models of x, y (grid cells from the block's grid origin) and h (relative to the block
+    origin): x, x', x''/2, y, y', y''/2, h, h', h''/2. Rounding them to float32 moves the point
+    by < 0.1 mm (|x| < ~1000 cells)."""
+    fx, fy = blk[b, 0], blk[b, 1]
+    inv_e, inv_n = consts[0], consts[1]
+    ae, an, ah = coef[i, 0], coef[i, 1], coef[i, 2]
+    be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+    f32 = np.float32
+    return (f32((ae + s * (be + s * ce)) * inv_e + fx), f32((be + 2.0 * ce * s) * inv_e),
+            f32(ce * inv_e), f32(fy - (an + s * (bn + s * cn)) * inv_n),
+            f32(-(bn + 2.0 * cn * s) * inv_n), f32(-cn * inv_n), f32(ah + s * (bh + s * ch)),
+            f32(bh + 2.0 * ch * s), f32(ch))
+
+
 @_jit(inline=True)
 def _start_line(i: int, tid: int, coef: Any, look9: Any, s64: Any, cold: int, blk: Any, b: int,
                 consts: Any, lin: Any) -> None:
     """Float64 set-up of line i: the start range s64[tid, 1] (the previous line's s64[tid, 0],
-    or where the middle ray reaches the block's reference height) and, in t = s − start, the
-    float32
-    quadratic models lin[tid, 0:9] of x, y (grid cells from the block's grid origin) and h
-    (relative to the block origin): x, x', x''/2, y, y', y''/2, h, h', h''/2. Rounding them to
-    float32 moves the point by < 0.1 mm (|x| < ~1000 cells)."""
-    fx, fy = blk[b, 0], blk[b, 1]
-    inv_e, inv_n = consts[0], consts[1]
-    ae, an, ah = coef[i, 0], coef[i, 1], coef[i, 2]
+    or where the middle ray reaches the block's reference height) and the float32 models
+    lin[tid, 0:9] of `_models`."""
     p = look9.shape[1]
     _, _, _, _, bh_mid, _ = _terms(coef, look9, i, p // 2)
-    guess = -ah / bh_mid  # where the middle ray reaches the block's reference height
+    guess = -coef[i, 2] / bh_mid  # where the middle ray reaches the block's reference height
     for j in range(p):
-        be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
         s = s64[tid, 0, j]
         s = s if (s == s and cold == 0) else guess
         s64[tid, 1, j] = s
-        lin[tid, 0, j] = np.float32((ae + s * (be + s * ce)) * inv_e + fx)
-        lin[tid, 1, j] = np.float32((be + 2.0 * ce * s) * inv_e)
-        lin[tid, 2, j] = np.float32(ce * inv_e)
-        lin[tid, 3, j] = np.float32(fy - (an + s * (bn + s * cn)) * inv_n)
-        lin[tid, 4, j] = np.float32(-(bn + 2.0 * cn * s) * inv_n)
-        lin[tid, 5, j] = np.float32(-cn * inv_n)
-        lin[tid, 6, j] = np.float32(ah + s * (bh + s * ch))
-        lin[tid, 7, j] = np.float32(bh + 2.0 * ch * s)
-        lin[tid, 8, j] = np.float32(ch)
+        m0, m1, m2, m3, m4, m5, m6, m7, m8 = _models(s, coef, look9, i, j, blk, b, consts)
+        lin[tid, 0, j] = m0
+        lin[tid, 1, j] = m1
+        lin[tid, 2, j] = m2
+        lin[tid, 3, j] = m3
+        lin[tid, 4, j] = m4
+        lin[tid, 5, j] = m5
+        lin[tid, 6, j] = m6
+        lin[tid, 7, j] = m7
+        lin[tid, 8, j] = m8
 
 
 @_jit(inline=True)
-def _gap32(dem: Any, cols: int, base: Any, t: Any, m: Any, lim: Any, h0: Any
-           ) -> tuple[Any, Any, Any, Any, Any, Any, Any]:
-    """Float32, branch-free: (gap, d gap/dt, dB/dx, dB/dy, twist, cell x, cell y) at t along
-    the models m = (x, x', x''/2, y, y', y''/2, h, h', h''/2). Indices are clamped into the
-    DEM (a NaN lands on a valid cell): the caller checks the cell."""
-    x = m[0] + t * (m[1] + t * m[2])
-    y = m[3] + t * (m[4] + t * m[5])
-    cx = np.floor(x)
-    cy = np.floor(y)
-    cx = cx if cx >= lim[0] else lim[0]
-    cx = cx if cx <= lim[1] else lim[1]
-    cy = cy if cy >= lim[2] else lim[2]
-    cy = cy if cy <= lim[3] else lim[3]
-    u = x - cx
-    v = y - cy
-    k = base + np.int64(cy) * cols + np.int64(cx)
-    z00 = dem[k] - h0
-    z01 = dem[k + 1] - h0
-    z10 = dem[k + cols] - h0
-    z11 = dem[k + cols + 1] - h0
-    dxt = z01 - z00
-    twist = (z11 - z10) - dxt
-    top = z00 + u * dxt
-    by = (z10 + u * (z11 - z10)) - top
+def _newton(m: Any, dem: Any, cols: int, rows: int, blk: Any, b: int, consts: Any
+            ) -> tuple[Any, ...]:
+    """Two branch-free float32 Newton steps on g = h − DEM(x, y) along the models m, both on
+    the bilinear patch of the cell under the start (its four corners are two 8-byte loads;
+    the cell is clamped into the DEM, so a NaN lands on a valid cell and the test rejects it),
+    then the acceptance test.
+
+    Accepted: the last step < MAX_NEWTON_STEP_M and ends inside that cell, where the gap is a
+    quadratic in t, so the remaining error is |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M; the ray
+    descends and crosses the surface downwards; its path back up to the highest DEM sample
+    lies in the block's box. (A root certified inside the start cell on its own patch is a
+    root of the DEM whichever cell the first step passed through.)
+
+    Returns (start cell's index, t, redo, ok, squared horizontal/vertical rate, tile range x0,
+    x1, y0, y1 of the path back up). redo and ok are uint8 (boolean results stop the
+    vectorisation): redo when not accepted and the first step left the start cell; t is then
+    that first step's offset (the caller restarts from there)."""
+    f32 = np.float32
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    ox, oy = blk[b, 2], blk[b, 3]
+    lim0, lim1 = f32(-ox), f32(cols - 2.0 - ox)
+    lim2, lim3 = f32(-oy), f32(rows - 2.0 - oy)
+    h0 = f32(blk[b, 10])
+    cx = np.floor(m0)
+    cy = np.floor(m3)
+    cx = cx if cx >= lim0 else lim0
+    cx = cx if cx <= lim1 else lim1
+    cy = cy if cy >= lim2 else lim2
+    cy = cy if cy <= lim3 else lim3
+    k = np.int64(oy) * cols + np.int64(ox) + np.int64(cy) * cols + np.int64(cx)
+    z00, z01 = _pair(dem, k)
+    z10, z11 = _pair(dem, k + cols)
+    z00 = z00 - h0
+    z10 = z10 - h0
+    dxt = z01 - h0 - z00
+    twist = (z11 - h0 - z10) - dxt
+    dy0 = z10 - z00
+    u = m0 - cx  # step 1, from t = 0
+    v = m3 - cy
     bx = dxt + v * twist
-    xd = m[1] + (t + t) * m[2]
-    yd = m[4] + (t + t) * m[5]
-    hd = m[7] + (t + t) * m[8]
-    gap = m[6] + t * (m[7] + t * m[8]) - (top + v * by)
-    return gap, hd - (bx * xd + by * yd), bx, by, twist, cx, cy
+    by = dy0 + u * twist
+    t1 = -(m6 - (z00 + u * dxt + v * by)) / (m7 - (bx * m1 + by * m4))
+    xs = m0 + t1 * (m1 + t1 * m2)  # step 2, from t1 on the same patch
+    ys = m3 + t1 * (m4 + t1 * m5)
+    xd = m1 + (t1 + t1) * m2
+    yd = m4 + (t1 + t1) * m5
+    u = xs - cx
+    v = ys - cy
+    bx = dxt + v * twist
+    by = dy0 + u * twist
+    gd = m7 + (t1 + t1) * m8 - (bx * xd + by * yd)
+    step = -(m6 + t1 * (m7 + t1 * m8) - (z00 + u * dxt + v * by)) / gd
+    t = t1 + step
+    x = m0 + t * (m1 + t * m2)
+    y = m3 + t * (m4 + t * m5)
+    h = m6 + t * (m7 + t * m8)
+    xd = m1 + (t + t) * m2
+    yd = m4 + (t + t) * m5
+    hd = m7 + (t + t) * m8
+    gdd = (m8 + m8) - f32(2.0) * (twist * xd * yd + bx * m2 + by * m5)
+    ok = ((x >= cx) & (x <= cx + f32(1.0)) & (y >= cy) & (y <= cy + f32(1.0))
+          & (abs(step) <= f32(MAX_NEWTON_STEP_M))
+          & (abs(gdd) * step * step <= f32(2.0 * ROOT_TOLERANCE_M) * abs(gd))
+          & (gd < f32(-1e-3)) & (hd < f32(0.0)))
+    back = (f32(consts[3] - blk[b, 10]) - h) / hd
+    xa, xb = x, x + xd * back
+    ya, yb = y, y + yd * back
+    pad = f32(0.5)  # cells: covers the path's curvature over any in-range stretch
+    x0 = (xa if xa < xb else xb) - pad  # selects, not min/max: those do not vectorise
+    x1 = (xb if xa < xb else xa) + pad
+    y0 = (ya if ya < yb else yb) - pad
+    y1 = (yb if ya < yb else ya) + pad
+    ok = (ok & (x0 >= f32(blk[b, 4])) & (x1 <= f32(blk[b, 5])) & (y0 >= f32(blk[b, 6]))
+          & (y1 <= f32(blk[b, 7])))
+    x1 = x1 if x1 < lim1 else lim1
+    y1 = y1 if y1 < lim3 else lim3
+    inv_tile = f32(1.0 / TILE_CELLS)
+    gox, goy = f32(ox), f32(oy)
+    ratio = ((xd * f32(1.0 / consts[0])) ** 2 + (yd * f32(1.0 / consts[1])) ** 2) / (hd * hd)
+    left = (xs < cx) | (xs > cx + f32(1.0)) | (ys < cy) | (ys > cy + f32(1.0))
+    redo = left & (ok ^ True)
+    return (k, t1 if redo else t, np.uint8(1) if redo else np.uint8(0),
+            np.uint8(1) if ok else np.uint8(0), ratio,
+            np.int32((x0 + gox) * inv_tile) if ok else np.int32(1 << 30),
+            np.int32((x1 + gox) * inv_tile) if ok else np.int32(-1),
+            np.int32((y0 + goy) * inv_tile) if ok else np.int32(1 << 30),
+            np.int32((y1 + goy) * inv_tile) if ok else np.int32(-1))
 
 
 @_jit(inline=True)
 def _newton_line(dem: Any, cols: int, tid: int, gl: int, lin: Any, blk: Any, b: int,
-                 consts: Any, st: Any, ratio: Any, tiles: Any) -> None:
-    """Two branch-free float32 Newton steps per ray (vectorised over the line; the corner
-    heights are gathers), then the acceptance test, and for the first-root test the square of
-    the ray's horizontal/vertical rate and the tile range of its path back up to the highest
-    DEM sample (empty when not accepted). The range offset goes to lin[tid, 9].
-
-    Accepted: the last step < MAX_NEWTON_STEP_M, taken inside one cell, where the gap is a
-    quadratic in t, so the remaining error is |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M; the
-    ray descends and crosses the surface downwards; its path lies in the block's box."""
-    f32 = np.float32
-    ox, oy = blk[b, 2], blk[b, 3]
+                 consts: Any, st: Any, ratio: Any, tiles: Any, redo: Any, cell: Any) -> int:
+    """`_newton` for every ray of the line (vectorised; the corner loads are gathers): the
+    range offset to lin[tid, 9], the restart flags to redo[tid], and for the certification
+    the acceptance flags, the squared rates, and the tile ranges (empty when not accepted)
+    merged into those of the group's earlier lines (tiles[tid], per pixel); the
+    start cells' indices to cell[tid, 0], where the ray may be PREFETCH_LINES later (from the
+    previous line's) to cell[tid, 1].
+    Returns the number of rays to restart."""
     rows = dem.size // cols
-    lim = (f32(-ox), f32(cols - 2.0 - ox), f32(-oy), f32(rows - 2.0 - oy))
-    box = (f32(blk[b, 4]), f32(blk[b, 5]), f32(blk[b, 6]), f32(blk[b, 7]))
-    h0 = f32(blk[b, 10])
-    top = f32(consts[3] - blk[b, 10])
-    ce, cn = f32(1.0 / consts[0]), f32(1.0 / consts[1])
-    gox, goy = f32(ox), f32(oy)
-    base = np.int64(oy) * cols + np.int64(ox)
-    inv_tile = f32(1.0 / TILE_CELLS)
-    pad = f32(0.5)  # cells: covers the path's curvature over any in-range stretch
-    big = np.int32(1 << 30)
+    again = 0
     for j in range(lin.shape[2]):
         m = (lin[tid, 0, j], lin[tid, 1, j], lin[tid, 2, j], lin[tid, 3, j], lin[tid, 4, j],
              lin[tid, 5, j], lin[tid, 6, j], lin[tid, 7, j], lin[tid, 8, j])
-        t = f32(0.0)
-        g, gd, _, _, _, _, _ = _gap32(dem, cols, base, t, m, lim, h0)
-        t = t - g / gd
-        g, gd, bx, by, tw, cx, cy = _gap32(dem, cols, base, t, m, lim, h0)
-        step = -g / gd
-        t = t + step
-        x = m[0] + t * (m[1] + t * m[2])
-        y = m[3] + t * (m[4] + t * m[5])
-        h = m[6] + t * (m[7] + t * m[8])
-        xd = m[1] + (t + t) * m[2]
-        yd = m[4] + (t + t) * m[5]
-        hd = m[7] + (t + t) * m[8]
-        gdd = (m[8] + m[8]) - f32(2.0) * (tw * xd * yd + bx * m[2] + by * m[5])
-        ok = ((x >= cx) & (x <= cx + f32(1.0)) & (y >= cy) & (y <= cy + f32(1.0))
-              & (abs(step) <= f32(MAX_NEWTON_STEP_M))
-              & (abs(gdd) * step * step <= f32(2.0 * ROOT_TOLERANCE_M) * abs(gd))
-              & (gd < f32(-1e-3)) & (hd < f32(0.0)))
-        back = (top - h) / hd
-        xa, xb = x, x + xd * back
-        ya, yb = y, y + yd * back
-        x0 = (xa if xa < xb else xb) - pad  # selects, not min/max: those do not vectorise
-        x1 = (xb if xa < xb else xa) + pad
-        y0 = (ya if ya < yb else yb) - pad
-        y1 = (yb if ya < yb else ya) + pad
-        ok = ok & (x0 >= box[0]) & (x1 <= box[1]) & (y0 >= box[2]) & (y1 <= box[3])
-        x1 = x1 if x1 < lim[1] else lim[1]
-        y1 = y1 if y1 < lim[3] else lim[3]
+        k, t, rd, ok, rt, tx0, tx1, ty0, ty1 = _newton(m, dem, cols, rows, blk, b, consts)
+        was = cell[tid, 0, j]
+        cell[tid, 0, j] = k
+        cell[tid, 1, j] = k + PREFETCH_LINES * (k - was)
         lin[tid, 9, j] = t
-        st[tid, gl, j] = np.uint8(1) if ok else np.uint8(0)
-        ratio[tid, gl, j] = ((xd * ce) ** 2 + (yd * cn) ** 2) / (hd * hd)
-        tiles[tid, 0, gl, j] = np.int32((x0 + gox) * inv_tile) if ok else big
-        tiles[tid, 1, gl, j] = np.int32((x1 + gox) * inv_tile) if ok else -1
-        tiles[tid, 2, gl, j] = np.int32((y0 + goy) * inv_tile) if ok else big
-        tiles[tid, 3, gl, j] = np.int32((y1 + goy) * inv_tile) if ok else -1
+        redo[tid, j] = rd
+        again += rd
+        st[tid, gl, j] = ok
+        ratio[tid, gl, j] = rt
+        a0, a1 = tiles[tid, 0, j], tiles[tid, 1, j]
+        a2, a3 = tiles[tid, 2, j], tiles[tid, 3, j]
+        tiles[tid, 0, j] = tx0 if (gl == 0) | (tx0 < a0) else a0  # selects: they vectorise
+        tiles[tid, 1, j] = tx1 if (gl == 0) | (tx1 > a1) else a1
+        tiles[tid, 2, j] = ty0 if (gl == 0) | (ty0 < a2) else a2
+        tiles[tid, 3, j] = ty1 if (gl == 0) | (ty1 > a3) else a3
+    return again
 
 
 @_jit(inline=True)
@@ -831,6 +933,66 @@ def _output_line(i: int, gl: int, tid: int, lin: Any, blk: Any, b: int, consts: 
         out_hit[i, j] = np.uint8(1) if ok else np.uint8(0)
 
 
+@_jit(inline=True)
+def _redo_line(i: int, gl: int, tid: int, again: int, dem: Any, cols: int, coef: Any,
+               look9: Any, blk: Any, b: int, consts: Any, s64: Any, redo: Any, st: Any,
+               ratio: Any, tiles: Any, out_e: Any, out_n: Any, out_h: Any, out_hit: Any
+               ) -> None:
+    """The rays of line i whose first Newton step left the start cell, one by one: `_newton`
+    again from where that step ended (s64[tid, 0]), on that cell; not accepted if it leaves
+    the cell again. Their output, start range for the next line and certification data are
+    replaced."""
+    rows = dem.size // cols
+    e0, n0, h0 = blk[b, 8], blk[b, 9], blk[b, 10]
+    ae, an, ah = coef[i, 0], coef[i, 1], coef[i, 2]
+    j = -1
+    while again > 0:  # not a counted loop: LLVM must not vectorise it (masked, over every ray)
+        j += 1
+        if redo[tid, j] == 0:
+            continue
+        again -= 1
+        s = s64[tid, 0, j]
+        m = _models(s, coef, look9, i, j, blk, b, consts)
+        _, t, _, ok, rt, tx0, tx1, ty0, ty1 = _newton(m, dem, cols, rows, blk, b, consts)
+        s = s + np.float64(t)
+        s64[tid, 0, j] = s
+        be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+        out_e[i, j] = e0 + ae + s * (be + s * ce)
+        out_n[i, j] = n0 + an + s * (bn + s * cn)
+        out_h[i, j] = h0 + ah + s * (bh + s * ch)
+        hit = (ok == 1) & (s > 0.0)
+        st[tid, gl, j] = np.uint8(1) if hit else np.uint8(0)
+        out_hit[i, j] = np.uint8(1) if hit else np.uint8(0)
+        ratio[tid, gl, j] = rt
+        tiles[tid, 0, j] = min(tiles[tid, 0, j], tx0)  # the first try added nothing
+        tiles[tid, 1, j] = max(tiles[tid, 1, j], tx1)
+        tiles[tid, 2, j] = min(tiles[tid, 2, j], ty0)
+        tiles[tid, 3, j] = max(tiles[tid, 3, j], ty1)
+
+
+@_jit(inline=True)
+def _cast_line(i: int, gl: int, tid: int, cold: int, dem: Any, cols: int, coef: Any,
+               look9: Any, blk: Any, b: int, consts: Any, s64: Any, lin: Any, redo: Any,
+               cell: Any, st: Any, ratio: Any, tiles: Any, out_e: Any, out_n: Any, out_h: Any,
+               out_hit: Any) -> None:
+    """Every ray of line i: start ranges and models, Newton steps, output, restarts. Separate
+    passes over the line (each vectorises at its own width: float64 set-up and output,
+    float32 Newton steps) over scratch that stays in L1. The DEM rows a line needs are mostly
+    new ones (flying along the columns), and gathers stall on each cache miss, so the cells of
+    every PREFETCH_STRIDE-th ray a few lines ahead are prefetched."""
+    _start_line(i, tid, coef, look9, s64, cold, blk, b, consts, lin)
+    again = _newton_line(dem, cols, tid, gl, lin, blk, b, consts, st, ratio, tiles, redo, cell)
+    last = dem.size - cols - 2
+    for j in range(0, look9.shape[1], PREFETCH_STRIDE):
+        k = min(max(cell[tid, 1, j], 0), last)
+        _prefetch(dem, k)
+        _prefetch(dem, k + cols)
+    _output_line(i, gl, tid, lin, blk, b, consts, s64, out_e, out_n, out_h, out_hit, st)
+    if again > 0:
+        _redo_line(i, gl, tid, again, dem, cols, coef, look9, blk, b, consts, s64, redo, st,
+                   ratio, tiles, out_e, out_n, out_h, out_hit)
+
+
 @_jit()
 def _slope_bound(table: Any, log2: Any, tx0: Any, tx1: Any, ty0: Any, ty1: Any) -> float:
     """Largest tile slope over tiles [ty0, ty1] × [tx0, tx1] (two lookups per tile row)."""
@@ -845,43 +1007,44 @@ def _slope_bound(table: Any, log2: Any, tx0: Any, tx1: Any, ty0: Any, ty1: Any) 
 @_jit()
 def _certify_group(i0: int, lines: int, tid: int, dem: Any, cols: int, table: Any, log2: Any,
                    coef: Any, look9: Any, blk: Any, b: int, consts: Any, st: Any, ratio: Any,
-                   tiles: Any,
-                   out_e: Any, out_n: Any, out_h: Any, out_hit: Any, line_flag: Any,
-                   counts: Any) -> None:
+                   tiles: Any, limit: Any, out_e: Any, out_n: Any, out_h: Any, out_hit: Any,
+                   line_flag: Any, counts: Any) -> None:
     """First-root test for a group of lines, chunk by chunk: the steepest slope under the
-    accepted rays' paths; a ray passes if its rate × that slope < SLOPE_MARGIN. The rest take
-    the safe path."""
+    accepted rays' paths (tiles: their tile ranges, reduced over the group's lines); a ray
+    passes if its rate × that slope < SLOPE_MARGIN. The rest take the safe path. The loops
+    over rays run over whole lines (per-pixel limits): loops as short as a chunk do not
+    reach the vectorised code."""
     p = look9.shape[1]
     for c0 in range(0, p, CHUNK_PIXELS):
         c1 = min(c0 + CHUNK_PIXELS, p)
         tx0, ty0 = np.int32(1 << 30), np.int32(1 << 30)
         tx1, ty1 = np.int32(-1), np.int32(-1)
-        for g in range(lines):
-            for j in range(c0, c1):
-                a0, a1 = tiles[tid, 0, g, j], tiles[tid, 1, g, j]
-                b0, b1 = tiles[tid, 2, g, j], tiles[tid, 3, g, j]
-                tx0 = a0 if a0 < tx0 else tx0  # selects: integer min/max reductions vectorise
-                tx1 = a1 if a1 > tx1 else tx1
-                ty0 = b0 if b0 < ty0 else ty0
-                ty1 = b1 if b1 > ty1 else ty1
+        for j in range(c0, c1):
+            a0, a1 = tiles[tid, 0, j], tiles[tid, 1, j]
+            b0, b1 = tiles[tid, 2, j], tiles[tid, 3, j]
+            tx0 = a0 if a0 < tx0 else tx0
+            tx1 = a1 if a1 > tx1 else tx1
+            ty0 = b0 if b0 < ty0 else ty0
+            ty1 = b1 if b1 > ty1 else ty1
         slope2 = np.inf  # squared: rays store their squared rate
         if tx0 <= tx1 and ty0 <= ty1:
             slope2 = _slope_bound(table, log2, tx0, tx1, ty0, ty1) ** 2
-        limit = np.float32(SLOPE_MARGIN**2 / slope2)
-        for g in range(lines):
-            passed = 0
-            for j in range(c0, c1):  # branch-free count first: most rows pass whole
-                passed += 1 if (st[tid, g, j] == 1) & (ratio[tid, g, j] < limit) else 0
-            counts[b, 0] += passed
-            if passed == c1 - c0:
-                continue
-            for j in range(c0, c1):
-                if not (st[tid, g, j] == 1 and ratio[tid, g, j] < limit):
-                    code = _safe_to_output(i0 + g, j, dem, cols, coef, look9, blk, b, consts,
-                                           out_e, out_n, out_h, out_hit)
-                    counts[b, 1 + code] += 1
-                    if code == _EXACT:
-                        line_flag[i0 + g] = 1
+        for j in range(c0, c1):
+            limit[tid, j] = np.float32(SLOPE_MARGIN**2 / slope2)
+    for g in range(lines):
+        passed = 0
+        for j in range(p):  # branch-free count first: most lines pass whole
+            passed += 1 if (st[tid, g, j] == 1) & (ratio[tid, g, j] < limit[tid, j]) else 0
+        counts[b, 0] += passed
+        if passed == p:
+            continue
+        for j in range(p):
+            if not (st[tid, g, j] == 1 and ratio[tid, g, j] < limit[tid, j]):
+                code = _safe_to_output(i0 + g, j, dem, cols, coef, look9, blk, b, consts,
+                                       out_e, out_n, out_h, out_hit)
+                counts[b, 1 + code] += 1
+                if code == _EXACT:
+                    line_flag[i0 + g] = 1
 
 
 @_jit()
@@ -1062,33 +1225,30 @@ def _first_root_in(s: float, span: float, g0: float, ae: float, be: float, ce: f
 def _cast_blocks(dem: Any, dem_safe: Any, cols: int, table: Any, log2: Any, coef: Any,
                  look9: Any, starts: Any, blk: Any, consts: Any, out_e: Any, out_n: Any,
                  out_h: Any, out_hit: Any, line_flag: Any, counts: Any, s64: Any, lin: Any,
-                 st: Any, ratio: Any, tiles: Any) -> None:
+                 redo: Any, cell: Any, st: Any, ratio: Any, tiles: Any, limit: Any) -> None:
     """Every block in parallel; within a block, lines in order (each ray starts from the
-    previous line's range), certified group by group.
+    previous line's range; a block's first line takes COLD_PASSES rounds), certified group by
+    group.
 
     Vectorisation needs LLVM to know that no store of a vectorised loop touches the DEM it
     gathers from: numba marks a parallel region's array arguments noalias, so every scratch
-    array is an argument (one slice per thread: s64, lin, st, ratio, tiles), and `dem_safe`,
-    the same array as `dem`, is what escapes into the (scalar) calls."""
-    p = look9.shape[1]
+    array is an argument (one slice per thread: s64, lin, redo, cell, st, ratio, tiles,
+    limit), and
+    `dem_safe`, the same array as `dem`, is what escapes into the (scalar) calls."""
     for b in numba.prange(starts.size - 1):
         tid = numba.get_thread_id()  # type: ignore[attr-defined]
         i0 = starts[b]
         for i in range(starts[b], starts[b + 1]):
             gl = i - i0
-            cold = 1 if i == starts[b] else 0
-            _start_line(i, tid, coef, look9, s64, cold, blk, b, consts, lin)
-            _newton_line(dem, cols, tid, gl, lin, blk, b, consts, st, ratio, tiles)
-            for _ in range(cold * (COLD_PASSES - 1)):
-                for j in range(p):
-                    s64[tid, 0, j] = s64[tid, 1, j] + lin[tid, 9, j]
-                _start_line(i, tid, coef, look9, s64, 0, blk, b, consts, lin)
-                _newton_line(dem, cols, tid, gl, lin, blk, b, consts, st, ratio, tiles)
-            _output_line(i, gl, tid, lin, blk, b, consts, s64, out_e, out_n, out_h, out_hit, st)
+            rounds = COLD_PASSES if i == starts[b] else 1
+            for r in range(rounds):
+                _cast_line(i, gl, tid, 1 if rounds > 1 and r == 0 else 0,
+                           dem, cols, coef, look9, blk, b, consts, s64, lin, redo, cell,
+                           st, ratio, tiles, out_e, out_n, out_h, out_hit)
             if gl == GROUP_LINES - 1 or i == starts[b + 1] - 1:
                 _certify_group(i0, gl + 1, tid, dem_safe, cols, table, log2, coef, look9,
-                               blk, b, consts, st, ratio, tiles, out_e, out_n, out_h, out_hit,
-                               line_flag, counts)
+                               blk, b, consts, st, ratio, tiles, limit, out_e, out_n, out_h,
+                               out_hit, line_flag, counts)
                 i0 = i + 1
 
 

@@ -44,6 +44,7 @@ RETRY_FIRST_S = 0.2  # first reopen attempt this long after the loss ...
 RETRY_MAX_S = 2.0  # ... then doubling up to this
 RECONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt while reconnecting (loopback: refused at once)
 UNWAITABLE_POLL_S = 0.002  # a CAN interface without a file descriptor is polled this often
+SEND_TIMEOUT_S = 0.5  # an edge the timing board does not take in this long is not sent
 
 H = TypeVar("H")
 
@@ -287,7 +288,7 @@ class LiveSources:
             except OSError as exc:
                 raise _LostError(f"cannot connect to pulse endpoint {endpoint}: {exc}") from None
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(None)  # read only when select says so; sends may wait
+            sock.settimeout(SEND_TIMEOUT_S)  # reads only when select says so; a send may wait
             self._pulse_sock = sock
             self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)  # a new link numbers afresh
             return sock

@@ -367,6 +367,8 @@ class _FrameRun:
                 in_window.append(f)
         verdicts = [(f, self._verdict(f, header)) for f in in_window]
         possible = [(f, v) for f, v in verdicts if v is not False]
+        if len(possible) > 1 and not any(v for _, v in possible):
+            return False  # several candidates and none confirmed by its counter: ambiguous
         trusted = [f for f, v in possible
                    if v or not self._lost_ppf_could_fit(f, t_host_ns - f.t_host_ns, lo, hi)]
         if len(trusted) != 1 or (len(possible) > 1 and not self._verdict(trusted[0], header)):

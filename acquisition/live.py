@@ -73,13 +73,20 @@ class LinkEvent:
 
 
 @dataclass(frozen=True)
+class GarbledCanLines:
+    """Lines from a CAN adapter that did not parse as frames (corrupted on its serial link)."""
+
+    lines: int
+
+
+@dataclass(frozen=True)
 class Arrival:
     """One read: bytes (serial), the CAN frames that had arrived, an edge, or a change of the
     source's link."""
 
     t_host_ns: int
     source: Source
-    payload: bytes | list[can.Message] | Edge | LinkEvent
+    payload: bytes | list[can.Message] | GarbledCanLines | Edge | LinkEvent
 
 
 class _LostError(Exception):
@@ -253,17 +260,21 @@ class LiveSources:
                 return None
             return fd if isinstance(fd, int) and fd >= 0 else None
 
-        def read(bus: can.BusABC) -> list[list[can.Message]]:
+        def read(bus: can.BusABC) -> list[list[can.Message] | GarbledCanLines]:
+            garbled: list[list[can.Message] | GarbledCanLines] = []
             try:
                 if isinstance(bus, BulkSlcanBus):
+                    before = bus.garbled
                     frames = bus.recv_ready()
+                    if bus.garbled > before:
+                        garbled.append(GarbledCanLines(bus.garbled - before))
                 else:
                     frames = []
                     while (msg := bus.recv(timeout=0.0)) is not None:
                         frames.append(msg)
             except (can.CanError, OSError, ValueError, serial.SerialException) as exc:
                 raise _LostError(f"CAN {spec}: {exc}") from None
-            return [frames] if frames else []
+            return garbled + ([frames] if frames else [])
 
         try:
             first = open_()

@@ -203,6 +203,12 @@ class Acquisition:
         counters.stats = self.ins.stats
         counters.drops = self.ins.frames.lost
 
+    def on_can_garbled(self, t_host_ns: int, lines: int) -> None:
+        """Adapter lines that did not parse as CAN frames: framing errors of the INS stream."""
+        self._start(t_host_ns)
+        self.ins.stats.framing_errors += lines
+        self.streams["ins"].stats = self.ins.stats
+
     # --- pulse lines -----------------------------------------------------------------------
 
     def on_edge(self, t_host_ns: int, edge: Edge) -> None:

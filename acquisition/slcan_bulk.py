@@ -3,8 +3,9 @@
 The stock `slcanBus._read` asks the serial port for one byte at a time; at an INS's ~450 frames/s
 that is ~13 000 reads a second, most of the recorder's CPU. This subclass changes only that: it
 reads what is waiting and splits replies at their terminators, and `recv_ready` hands over every
-frame that has arrived for a caller that waits on `fileno()` itself. Everything else (commands,
-frame parsing, sending) is python-can's own.
+frame that has arrived for a caller that waits on `fileno()` itself, counting and skipping a line
+that does not parse (python-can raises on it, which would look like a lost adapter). Everything
+else (commands, frame parsing, sending) is python-can's own.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ def _reply_end(buffer: bytearray) -> int:
 
 
 class BulkSlcanBus(slcanBus):
+    garbled = 0  # adapter lines that did not parse (counted and skipped by recv_ready)
+
     def _read(self, timeout: float | None) -> str | None:
         deadline = serial.Timeout(timeout)
         while True:
@@ -59,7 +62,13 @@ class BulkSlcanBus(slcanBus):
             if not chunk:
                 raise CanOperationError("the adapter closed (end of file)")
             self._buffer.extend(chunk)
-        frames = []
-        while (msg := self.recv(timeout=0.0)) is not None:
+        frames: list[can.Message] = []
+        while True:
+            try:
+                msg = self.recv(timeout=0.0)
+            except (ValueError, IndexError):  # a garbled line (already taken off the buffer)
+                self.garbled += 1
+                continue
+            if msg is None:
+                return frames
             frames.append(msg)
-        return frames

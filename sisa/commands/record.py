@@ -163,7 +163,7 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
 
 
 def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
-    from acquisition.live import Source
+    from acquisition.live import GarbledCanLines, Source
     from acquisition.pulses import Edge
 
     payload = item.payload
@@ -173,6 +173,8 @@ def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
     elif isinstance(payload, list):
         for frame in payload:
             acq.on_can_frame(item.t_host_ns, frame)
+    elif isinstance(payload, GarbledCanLines):
+        acq.on_can_garbled(item.t_host_ns, payload.lines)
     elif isinstance(payload, bytes) and item.source is Source.GPS:
         acq.on_gps_bytes(item.t_host_ns, payload)
     elif isinstance(payload, bytes):

@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from acquisition_headroom import proc_cpu_s_rss_mb  # noqa: E402  (bench/ is the script's dir)
 
-from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns  # noqa: E402
+from tests.postproc.test_sync import WRONG_NS, ins_truth_ns  # noqa: E402
 
 
 def soak_table(minutes: float, scale: float, seed: int) -> dict[str, Any]:
@@ -214,6 +214,27 @@ def books(run: Path) -> dict[str, Any]:
     return out
 
 
+def line_truth_ns(run: Path, segment: Any, counter: Any) -> Any:
+    """True mid-exposure of every timed line, walking the log's (segment, frame counter) through
+    the frames the scanner sent, in order (counters wrap; without the scanner's lines files the
+    log's line numbers skip lost headers, so they cannot be the join)."""
+    fr = read_truth_csv(run / "truth" / "frames.csv")
+    sent = fr["dropped"] == 0
+    keys = list(zip(fr["segment"][sent].tolist(), fr["frame_counter"][sent].tolist(),
+                    strict=True))
+    t_mid = fr["t_mid_gps_ns"][sent]
+    out = np.empty(len(segment), np.int64)
+    i = 0
+    for j, key in enumerate(zip(segment.tolist(), counter.tolist(), strict=True)):
+        while i < len(keys) and keys[i] != key:
+            i += 1
+        if i == len(keys):
+            raise SystemExit(f"line {j} {key} is not in the truth (or out of order)")
+        out[j] = t_mid[i]
+        i += 1
+    return out
+
+
 def sync_check(run: Path) -> dict[str, Any]:
     """`sisa sync`'s core on the log: wrong tags (none allowed) and flagged items per reason."""
     inp = read_sync_input(run / "flight.mcap")
@@ -221,7 +242,8 @@ def sync_check(run: Path) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, t, status, truth in (
             ("ins_records", res.ins.t_gps_ns, res.ins.status, ins_truth_ns(run, inp)),
-            ("lines", res.lines.t_gps_ns, res.lines.status, line_truth_ns(run, res))):
+            ("lines", res.lines.t_gps_ns, res.lines.status,
+             line_truth_ns(run, res.lines.segment, res.lines.frame_counter))):
         ok = status == TimeStatus.OK
         err = np.abs(t[ok] - truth[ok])
         reasons = {TimeStatus(s).name.lower(): int((status == s).sum())
@@ -234,20 +256,40 @@ def sync_check(run: Path) -> dict[str, Any]:
     return out
 
 
+def report(out: Path, head: dict[str, Any]) -> int:
+    """Books and sync check of the run in `out`; prints and writes soak_report.json."""
+    rep = {**head, "books": books(out), "sync": sync_check(out)}
+    (out / "soak_report.json").write_text(json.dumps(rep, indent=1), encoding="utf-8")
+    print(json.dumps(rep, indent=1))
+    b, s = rep["books"], rep["sync"]
+    unaccounted = sum(max(0, v["unaccounted"]) for v in b.values()
+                      if isinstance(v, dict) and "unaccounted" in v)
+    unnoticed = sum(1 for v in b.values() if isinstance(v, dict) and v.get("noticed") is False)
+    wrong = s["ins_records"]["wrong"] + s["lines"]["wrong"]
+    print(f"soak: unaccounted losses {unaccounted}, streams with uncounted losses {unnoticed}, "
+          f"wrong tags {wrong}; lines OK {s['lines']['ok']}/{s['lines']['logged']} (flagged "
+          f"{s['lines']['flagged']}), INS records OK {s['ins_records']['ok']}/"
+          f"{s['ins_records']['logged']} (flagged {s['ins_records']['flagged']})")
+    return 0 if unaccounted == 0 and unnoticed == 0 and wrong == 0 else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--minutes", type=float, default=60.0)
     parser.add_argument("--scale", type=float, default=10.0)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "soak")
+    parser.add_argument("--books-only", action="store_true",
+                        help="only the books and the sync check of the existing run in --out")
     args = parser.parse_args()
+    if args.books_only:
+        return report(args.out, {"books_only": True})
     if args.out.exists():
         raise SystemExit(f"{args.out} exists: give a new --out")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     scenario = args.out.with_name(args.out.name + "-scenario.toml")
     table = soak_table(args.minutes, args.scale, args.seed)
     scenario.write_text(tomli_w.dumps(table), encoding="utf-8")
-    seconds = args.minutes * 60
     print(f"soak: {args.minutes:g} min of sisa bench at {args.scale:g}x nominal rates "
           f"({table['block']['strips']} strips of 12 km), faults from seed {args.seed}: "
           f"{json.dumps(table['faults'])}", flush=True)
@@ -255,7 +297,7 @@ def main() -> int:
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "sisa.cli", "bench", "--scenario",
                            str(scenario), "--out", str(args.out), "--no-images", "--duration",
-                           str(seconds)], capture_output=True, text=True)
+                           str(args.minutes * 60)], capture_output=True, text=True)
     wall_s = time.monotonic() - t0
     sampler.stop()
     print(proc.stdout.strip(), proc.stderr.strip()[-2000:], sep="\n", flush=True)
@@ -263,30 +305,15 @@ def main() -> int:
         print(f"sisa bench exited {proc.returncode}")
         return 1
     summary = re.search(r"recorded .*", proc.stdout)
-    cpu = np.array([s[1] for s in sampler.samples])
-    rss = np.array([s[2] for s in sampler.samples])
-    report: dict[str, Any] = {
+    cpu = np.array([x[1] for x in sampler.samples])
+    rss = np.array([x[2] for x in sampler.samples])
+    return report(args.out, {
         "minutes": args.minutes, "scale": args.scale, "seed": args.seed, "wall_s": wall_s,
         "recorder_summary": summary.group(0) if summary else None,
         "recorder_cpu_pct": {"median": float(np.median(cpu)), "max": float(cpu.max())}
         if cpu.size else None,
         "recorder_rss_mb": {"first": float(rss[0]), "last": float(rss[-1]),
-                            "max": float(rss.max())} if rss.size else None,
-        "books": books(args.out), "sync": sync_check(args.out),
-    }
-    (args.out / "soak_report.json").write_text(json.dumps(report, indent=1), encoding="utf-8")
-    print(json.dumps(report, indent=1))
-    b, s = report["books"], report["sync"]
-    unaccounted = sum(max(0, v["unaccounted"]) for k, v in b.items()
-                      if isinstance(v, dict) and "unaccounted" in v)
-    unnoticed = sum(1 for v in b.values() if isinstance(v, dict) and v.get("noticed") is False)
-    wrong = s["ins_records"]["wrong"] + s["lines"]["wrong"]
-    print(f"soak: {wall_s / 60:.1f} min; unaccounted losses {unaccounted}, streams with "
-          f"uncounted losses {unnoticed}, wrong tags {wrong}; lines OK "
-          f"{s['lines']['ok']}/{s['lines']['logged']} (flagged {s['lines']['flagged']}), "
-          f"INS records OK {s['ins_records']['ok']}/{s['ins_records']['logged']} (flagged "
-          f"{s['ins_records']['flagged']})")
-    return 0 if unaccounted == 0 and unnoticed == 0 and wrong == 0 else 1
+                            "max": float(rss.max())} if rss.size else None})
 
 
 if __name__ == "__main__":

@@ -37,8 +37,11 @@ Design choices, and why:
   header's own integration time + [header_latency_min_ns, header_latency_max_ns]). Among the ppf
   in the window, one is accepted if its counter agrees with the line periods counted since the
   last matched frame, or, when that cannot be checked, if no lost ppf could sit in the window
-  instead (every grid position in it holds a ppf). Anything else is counted and ignored, so a
-  window wider than a line period only works once a match anchors the count.
+  instead (every grid position in it holds a ppf) and the window is narrower than a line
+  period. Anything else is counted and ignored: with a window wider than a line period (a
+  scanner faster than ~1 / (header_latency_max_ns − header_latency_min_ns)) no header is taken
+  on time alone, because a late host stamp can push a header's own ppf out of the window and
+  leave the next one in it alone; such frames keep counter 'unknown'.
 - A forwarded ppf without its own header gets an inferred counter only between two matched frames
   of the same segment whose counters differ by exactly the line periods between them (one wrap
   allowed): counter = earlier counter + periods to it. A header-matched ppf off the grid of its
@@ -369,14 +372,25 @@ class _FrameRun:
         possible = [(f, v) for f, v in verdicts if v is not False]
         if len(possible) > 1 and not any(v for _, v in possible):
             return False  # several candidates and none confirmed by its counter: ambiguous
+        # An unconfirmed candidate (no count to check its counter against) is taken only if the
+        # window is narrower than a line period: in a wider one the header's own frame may have
+        # fallen just outside (a late host stamp) while the next one sits inside.
+        narrow = hi - lo < self._period_floor_ns()
         trusted = [f for f, v in possible
-                   if v or not self._lost_ppf_could_fit(f, t_host_ns - f.t_host_ns, lo, hi)]
+                   if v or (narrow
+                            and not self._lost_ppf_could_fit(f, t_host_ns - f.t_host_ns, lo, hi))]
         if len(trusted) != 1 or (len(possible) > 1 and not self._verdict(trusted[0], header)):
             return False
         frame = trusted[0]
         frame.counter, frame.segment = header.frame_counter, header.segment
         self.matched.append(frame.index)
         return True
+
+    def _period_floor_ns(self) -> float:
+        """The shortest interval a line period can take (the grid's, else the configured)."""
+        grid = self.grid()
+        period = grid.period_ns if grid is not None else float(self.cfg.line_period_ns)
+        return period * (1.0 - self.cfg.interval_tolerance)
 
     def _window(self, header: FrameHeader) -> tuple[int, int]:
         """Host-time latency window of a header after its ppf (mid-exposure)."""
@@ -387,9 +401,7 @@ class _FrameRun:
     def _lost_ppf_could_fit(self, frame: _Frame, latency_ns: int, lo: int, hi: int) -> bool:
         """Could the header belong instead to a lost ppf j line periods after (or before) this
         one? Only if that grid position falls in the window and holds no ppf."""
-        grid = self.grid()
-        period = grid.period_ns if grid is not None else float(self.cfg.line_period_ns)
-        step = period * (1.0 - self.cfg.interval_tolerance)
+        step = self._period_floor_ns()
         for direction in (1, -1):
             j = 1
             while lo <= latency_ns - direction * j * step <= hi:

@@ -1,8 +1,9 @@
 """Acquisition headroom in a real-time desk test: `sisa emulate` and `sisa record` as separate
 processes on ptys, SLCAN and the pulse link, with every device rate scaled up by k until the
 first loss (a decode error, a dropped CAN frame, a late edge, or fewer records than the emulator
-sent), plus the recorder's CPU use at nominal rates (steady state: sampled from /proc between
-4 s after it starts and 1 s before the data ends, so start-up imports are not counted).
+sent), plus the recorder's CPU use at nominal rates (steady state: sampled from /proc 4 times a
+second, counted from 1 s after the first INS record to 1 s before the last, so start-up imports
+and the emulator's fast-forward to the window are not).
 
     .venv/bin/python bench/acquisition_headroom.py [--seconds 20] [--scales 1,2,5,10,20,30,40]
 
@@ -84,11 +85,13 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
                             e["ins"], "--pulses", e["pulses"], "--out",
                             str(folder / f"f{k:g}.mcap")],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    # steady-state CPU: from 4 s in (imports and start-up done) to 1 s before the data ends
-    time.sleep(4.0)
-    cpu0, wall0 = proc_cpu_s_rss_mb(rec.pid)[0], time.monotonic()
-    time.sleep(seconds - 3.0)
-    cpu1, wall1 = proc_cpu_s_rss_mb(rec.pid)[0], time.monotonic()
+    samples: list[tuple[int, float]] = []  # (wall ns, recorder CPU s), 4 a second
+    while rec.poll() is None:
+        try:
+            samples.append((time.time_ns(), proc_cpu_s_rss_mb(rec.pid)[0]))
+        except (OSError, IndexError, ValueError):
+            break
+        time.sleep(0.25)
     rec_out, rec_err = rec.communicate()  # ends when the emulator's ports close
     emu_out, _ = emu.communicate()
     m = SUMMARY.search(rec_out)
@@ -97,11 +100,15 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
     errors = errors_after_warm_up(folder / f"f{k:g}.mcap")
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
+    # steady-state CPU: while data flowed (from 1 s after the first INS record to 1 s before the
+    # last), not start-up imports, the emulator's fast-forward to --start, or the wait at the end
+    steady = [(t, c) for t, c in samples if ins_t[0] + 1e9 <= t <= ins_t[-1] - 1e9]
+    (t0, c0), (t1, c1) = steady[0], steady[-1]
     ins_hz = (len(ins_t) - 1) / max(1e-9, (ins_t[-1] - ins_t[0]) / 1e9)
     late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
     return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf,
             "errors": errors, "drops": drops, "late": late,
-            "cpu_pct": 100 * (cpu1 - cpu0) / (wall1 - wall0),
+            "cpu_pct": 100 * (c1 - c0) / ((t1 - t0) / 1e9),
             "emulator_late_ms": late_ms}
 
 

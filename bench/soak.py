@@ -136,20 +136,28 @@ class Sampler:
         self._thread.join()
 
 
-def in_order(truth_keys: list[Any], logged_keys: list[Any]) -> tuple[int, int, int]:
-    """Walk the log through the truth in order: (first, last) truth index of the logged items
-    and how many truth items between them were not logged."""
-    i, first = 0, -1
-    for key in logged_keys:
+def truth_positions(truth_keys: list[Any], logged_keys: list[Any]) -> np.ndarray:
+    """Index in the truth of every logged item, walking both in order (counters wrap, so a key
+    is looked for only after the previous one's place)."""
+    out = np.empty(len(logged_keys), np.int64)
+    i = 0
+    for j, key in enumerate(logged_keys):
         while i < len(truth_keys) and truth_keys[i] != key:
             i += 1
         if i == len(truth_keys):
             raise SystemExit(f"logged {key} is not in the truth (or out of order)")
-        first = i if first < 0 else first
+        out[j] = i
         i += 1
-    if first < 0:
+    return out
+
+
+def in_order(truth_keys: list[Any], logged_keys: list[Any]) -> tuple[int, int, int]:
+    """(first, last) truth index of the logged items and how many truth items between them
+    were not logged."""
+    pos = truth_positions(truth_keys, logged_keys)
+    if pos.size == 0:
         return 0, -1, 0
-    return first, i - 1, (i - first) - len(logged_keys)
+    return int(pos[0]), int(pos[-1]), int(pos[-1] - pos[0] + 1) - pos.size
 
 
 def books(run: Path) -> dict[str, Any]:
@@ -215,24 +223,15 @@ def books(run: Path) -> dict[str, Any]:
 
 
 def line_truth_ns(run: Path, segment: Any, counter: Any) -> Any:
-    """True mid-exposure of every timed line, walking the log's (segment, frame counter) through
-    the frames the scanner sent, in order (counters wrap; without the scanner's lines files the
-    log's line numbers skip lost headers, so they cannot be the join)."""
+    """True mid-exposure of every timed line, its (segment, frame counter) walked through the
+    frames the scanner sent (without the scanner's lines files the log's line numbers skip
+    lost headers, so they cannot be the join)."""
     fr = read_truth_csv(run / "truth" / "frames.csv")
     sent = fr["dropped"] == 0
     keys = list(zip(fr["segment"][sent].tolist(), fr["frame_counter"][sent].tolist(),
                     strict=True))
-    t_mid = fr["t_mid_gps_ns"][sent]
-    out = np.empty(len(segment), np.int64)
-    i = 0
-    for j, key in enumerate(zip(segment.tolist(), counter.tolist(), strict=True)):
-        while i < len(keys) and keys[i] != key:
-            i += 1
-        if i == len(keys):
-            raise SystemExit(f"line {j} {key} is not in the truth (or out of order)")
-        out[j] = t_mid[i]
-        i += 1
-    return out
+    logged = list(zip(segment.tolist(), counter.tolist(), strict=True))
+    return fr["t_mid_gps_ns"][sent][truth_positions(keys, logged)]
 
 
 def sync_check(run: Path) -> dict[str, Any]:

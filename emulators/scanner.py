@@ -44,7 +44,6 @@ from emulators.truth import TruthTable
 I64 = npt.NDArray[np.int64]
 U16 = npt.NDArray[np.uint16]
 
-READOUT_LATENCY_MS: Final = (1.0, 3.0)  # frame end → header on the wire, uniform
 JITTER_CLIP_SIGMA: Final = 8.0  # jitter is clipped here, so frame times have a hard bound
 DEFAULT_BLOCK_LINES: Final = 128  # frames scheduled (and lines rendered) at a time
 
@@ -335,7 +334,7 @@ class ScannerEmulator(Device):
         sigma = sc.line_clock_jitter_ns
         jitter = np.clip(self._rng.normal(0.0, 1.0, n), -JITTER_CLIP_SIGMA, JITTER_CLIP_SIGMA)
         t_mid = self.clock.time_of(ticks) + np.rint(jitter * sigma).astype(np.int64)
-        latency_ns = self._rng.uniform(*READOUT_LATENCY_MS, n) * 1e6
+        latency_ns = self._rng.uniform(*sc.header_latency_ms, n) * 1e6
         t_hdr = t_mid + round(sc.integration_time_ms * 5e5) + np.rint(latency_ns).astype(np.int64)
         t_hdr = np.maximum.accumulate(np.maximum(t_hdr, self._last_header_ns + 1))
         self._last_header_ns = int(t_hdr[-1])

@@ -103,6 +103,9 @@ class ScannerSettings(ScannerGeometry):
     frame_counter_bits: int = Field(16, ge=8, le=32)
     line_clock_jitter_ns: float = Field(50.0, ge=0, le=1e6, description="RMS ppf jitter")
     line_clock_drift_ppm: float = Field(15.0, ge=-1000, le=1000)
+    header_latency_ms: tuple[float, float] = Field(
+        (1.0, 3.0), description="frame end → header on the wire: uniform between these"
+    )
 
     @model_validator(mode="after")
     def _integration_fits(self) -> ScannerSettings:
@@ -111,6 +114,9 @@ class ScannerSettings(ScannerGeometry):
                 f"integration_time_ms = {self.integration_time_ms} must be ≤ line_period_ms "
                 f"= {self.line_period_ms}"
             )
+        lo, hi = self.header_latency_ms
+        if not 0 <= lo <= hi <= 10_000:
+            raise ValueError(f"header_latency_ms = ({lo}, {hi}) needs 0 ≤ min ≤ max ≤ 10000")
         return self
 
 
@@ -174,6 +180,10 @@ class SisaSettings(StrictModel):
         "auto", description="forward 1 of every n frame pulses; auto = fastest the GPS accepts"
     )
     event_input_in_mode1: bool = Field(False, description="also send mode-1 pulses to the GPS")
+    header_window_ms: tuple[float, float] = Field(
+        (-2.0, 10.0), description="where a frame header's host time may fall after its frame "
+        "ends; headers tie to frames on time alone only if this is narrower than a line period"
+    )
 
     @model_validator(mode="after")
     def _taps_in_range(self) -> SisaSettings:
@@ -183,6 +193,9 @@ class SisaSettings(StrictModel):
                 raise ValueError(f"lfsr_taps must lie in 1..lfsr_bits = {self.lfsr_bits}")
         if isinstance(self.one_of_n, int) and not 1 <= self.one_of_n <= 100_000:
             raise ValueError("one_of_n must be 'auto' or 1 ≤ n ≤ 100000")
+        lo, hi = self.header_window_ms
+        if not -10_000 <= lo < hi <= 10_000:
+            raise ValueError(f"header_window_ms = ({lo}, {hi}) needs -10000 ≤ min < max ≤ 10000")
         return self
 
 

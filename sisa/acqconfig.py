@@ -21,6 +21,8 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
         event_input_in_mode1=scn.sisa.event_input_in_mode1,
         line_period_ns=line_period_ns,
         frame_counter_bits=scn.scanner.frame_counter_bits,
+        header_latency_min_ns=round(scn.sisa.header_window_ms[0] * 1e6),
+        header_latency_max_ns=round(scn.sisa.header_window_ms[1] * 1e6),
     )
     return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,

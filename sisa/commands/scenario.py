@@ -39,6 +39,7 @@ def derived_figures(scn: Any) -> dict[str, Any]:
     fig = block_figures(scn)
     traj = TruthTrajectory.from_scenario(scn)
     imaging_s = sum((s.t_end_ns - s.t_start_ns) for s in traj.strips) / 1e9
+    window_lo_ms, window_hi_ms = scn.sisa.header_window_ms
     return {
         "gsd_across_nadir_m": round(fig.gsd_across_nadir_m, 3),
         "gsd_across_nadir_true_focal_m": round(fig.gsd_across_nadir_true_m, 3),
@@ -59,6 +60,8 @@ def derived_figures(scn: Any) -> dict[str, Any]:
         "strips_flown": len(traj.strips),
         "imaging_time_s": round(imaging_s, 1),
         "flight_duration_s": round((traj.t_end_ns - traj.t_start_ns) / 1e9, 1),
+        "header_window_width_ms": round(window_hi_ms - window_lo_ms, 3),
+        "line_period_ms": scn.scanner.line_period_ms,
     }
 
 
@@ -71,6 +74,10 @@ def _notes(derived: dict[str, Any]) -> list[str]:
     if derived["gsd_across_nadir_true_focal_m"] != across:
         notes.append("the scanner's true focal length (nominal + delta_focal_mm) gives "
                      f"{derived['gsd_across_nadir_true_focal_m']} m across track")
+    if derived["header_window_width_ms"] >= 0.95 * derived["line_period_ms"]:
+        notes.append(f"sisa.header_window_ms is {derived['header_window_width_ms']} ms wide, not "
+                     f"narrower than a line period ({derived['line_period_ms']} ms): frame headers "
+                     "cannot be tied to their pulses and lines will be flagged, not timed")
     return notes
 
 

@@ -22,6 +22,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import tomli_w
 
@@ -35,14 +36,25 @@ SUMMARY = re.compile(
     r"errors, (\d+) drops, (\d+) late edges.*cpu ([\d.]+) s in ([\d.]+) s")
 
 
-def scaled_scenario(k: float, folder: Path) -> Path:
-    """bench with every rate times k (the scanner's integration time shrinks with its period)."""
+def scaled_table(k: float) -> dict[str, Any]:
+    """bench with every rate times k: the scanner's integration time and header latency shrink
+    with its line period, and the header window stays narrower than a line period (else no
+    header could be tied to its pulse on time alone: docs/sync.md, Limits)."""
     base = load_scenario("bench")
-    table = {"base": "bench",
-             "ins": {"rate_hz": base.ins.rate_hz * k},
-             "gps": {"nmea_rate_hz": min(20.0, base.gps.nmea_rate_hz * k)},
-             "scanner": {"line_period_ms": base.scanner.line_period_ms / k,
-                         "integration_time_ms": base.scanner.integration_time_ms / k}}
+    lo_ms, hi_ms = base.sisa.header_window_ms
+    period_ms = base.scanner.line_period_ms / k
+    return {"base": "bench",
+            "ins": {"rate_hz": base.ins.rate_hz * k},
+            "gps": {"nmea_rate_hz": min(20.0, base.gps.nmea_rate_hz * k)},
+            "scanner": {"line_period_ms": period_ms,
+                        "integration_time_ms": base.scanner.integration_time_ms / k,
+                        "header_latency_ms": [t / k for t in base.scanner.header_latency_ms]},
+            "sisa": {"header_window_ms": [lo_ms / k, min(hi_ms, lo_ms / k + 0.875 * period_ms)]}}
+
+
+def scaled_scenario(k: float, folder: Path) -> Path:
+    """bench scaled by k, as a scenario file in `folder`."""
+    table = scaled_table(k)
     path = folder / f"scale{k:g}.toml"
     path.write_text(tomli_w.dumps(table), encoding="utf-8")
     return path

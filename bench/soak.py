@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from emulators.scenario import Scenario, load_scenario, scenario_from_table
+from emulators.scenario import scenario_from_table
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
 from postproc.sync import TimeStatus, read_sync_input, synchronise
@@ -45,34 +45,16 @@ from sisa.timescale import NS_PER_S
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from acquisition_headroom import proc_cpu_s_rss_mb  # noqa: E402  (bench/ is the script's dir)
+from acquisition_headroom import proc_cpu_s_rss_mb, scaled_table  # noqa: E402  (bench/ is the script's dir)
 
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns  # noqa: E402
 
 
-def header_window_ms(base: Scenario, scale: float) -> list[float]:
-    """The operator's header window for a scanner `scale` times faster: narrower than a line
-    period, or no header could be tied to its pulse on time alone (docs/sync.md, Limits)."""
-    lo_ms, hi_ms = base.sisa.header_window_ms
-    period_ms = base.scanner.line_period_ms / scale
-    return [lo_ms / scale, min(hi_ms, lo_ms / scale + 0.875 * period_ms)]
-
-
 def soak_table(minutes: float, scale: float, seed: int) -> dict[str, Any]:
     """The bench block made long enough, rates × scale, random faults over the whole flight."""
-    base = load_scenario("bench")
     rng = np.random.default_rng(seed)
     seconds = minutes * 60
-    table: dict[str, Any] = {
-        "base": "bench", "seed": seed,
-        "block": {"strips": 2, "strip_length_m": 3000.0},
-        "ins": {"rate_hz": base.ins.rate_hz * scale},
-        "gps": {"nmea_rate_hz": min(20.0, base.gps.nmea_rate_hz * scale)},
-        "scanner": {"line_period_ms": base.scanner.line_period_ms / scale,
-                    "integration_time_ms": base.scanner.integration_time_ms / scale,
-                    "header_latency_ms": [t / scale for t in base.scanner.header_latency_ms]},
-        "sisa": {"header_window_ms": header_window_ms(base, scale)},
-    }
+    table = {**scaled_table(scale), "seed": seed}
     strips = 2
     while True:  # enough strips (of 12 km) that the flight outlasts the soak
         table["block"] = {"strips": strips, "strip_length_m": 12_000.0}

@@ -15,6 +15,14 @@ a bounded back-off (`RETRY_FIRST_S` doubling to `RETRY_MAX_S`) between waits, an
 second `LinkEvent` (restored) when it opens again. Only the first open, at start, is strict: a
 port that cannot be opened then is an input error. A python-can interface without a file
 descriptor to wait on is asked for frames every `UNWAITABLE_POLL_S`.
+
+With `read_interval_s` > 0 the loop reads on a clock instead of on every arrival: `poll` sleeps
+to the next read time and takes whatever has arrived on every device. An INS's ~450 CAN frames
+a second come a fifth of a millisecond apart, interleaved with headers and pulse edges; woken by
+each, the loop spends as much on waking as on decoding. Read every 5 ms, each wake-up takes a
+burst. The price is host receive times up to `read_interval_s` late: they were never better than
+a USB or pty latency, pulse edges carry the timing board's own times, and only the scanner
+headers' latency window must allow for it (`scenario show` notes when it does not).
 """
 
 from __future__ import annotations
@@ -114,8 +122,10 @@ class LiveSources:
     """Opens the ports, waits on them all in `poll`, and sends edges back to the timing board."""
 
     def __init__(self, gps_port: str | None, scanner_port: str | None, ins_bus: str | None,
-                 pulses: str | None) -> None:
+                 pulses: str | None, read_interval_s: float = 0.0) -> None:
         self._selector = selectors.DefaultSelector()
+        self.read_interval_s = read_interval_s
+        self._next_read_s = 0.0  # monotonic: with a read interval, when to read next
         self._links: dict[Source, _Link[Any]] = {}
         self._pulse_sock: socket.socket | None = None
         self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
@@ -139,7 +149,8 @@ class LiveSources:
     # --- the loop ------------------------------------------------------------------------------
 
     def poll(self, timeout_s: float) -> list[Arrival]:
-        """What arrives within `timeout_s` (returns as soon as anything does), plus link events."""
+        """What arrives within `timeout_s` (returns as soon as anything does; with a read
+        interval, what has arrived at the next read time), plus link events."""
         now = time.monotonic()
         wait = timeout_s
         for link in self._links.values():
@@ -147,6 +158,9 @@ class LiveSources:
                 wait = min(wait, max(0.0, link.retry_at_s - now))
             elif link.fd is None:
                 wait = min(wait, UNWAITABLE_POLL_S)
+        if self.read_interval_s > 0:
+            self._sleep_to_read_time(now, wait)
+            wait = 0.0  # take what has arrived
         ready = self._selector.select(wait) if self._selector.get_map() else _sleep(wait)
         arrivals: list[Arrival] = []
         for key, _ in ready:
@@ -159,6 +173,16 @@ class LiveSources:
             if link.handle is None and now >= link.retry_at_s:
                 self._retry(link, arrivals)
         return arrivals
+
+    def _sleep_to_read_time(self, now: float, wait: float) -> None:
+        """Sleep to the next read time, or for `wait` if that comes first (a reopen is due)."""
+        ahead = self._next_read_s - now
+        if ahead >= wait:
+            time.sleep(wait)
+            return
+        if ahead > 0:
+            time.sleep(ahead)
+        self._next_read_s = max(self._next_read_s, now) + self.read_interval_s
 
     def _read(self, link: _Link[Any], arrivals: list[Arrival]) -> None:
         try:

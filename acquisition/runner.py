@@ -99,6 +99,7 @@ class AcquisitionConfig:
     line_rate_hz: float
     health_interval_ns: int = NS_PER_S
     edge_deadline_ns: int = 20_000_000  # an edge later than this (beyond the link's best) is a miss
+    read_interval_ns: int = 0  # real time: devices read on this clock (LiveSources), 0: at once
 
 
 class Acquisition:

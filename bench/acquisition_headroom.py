@@ -37,9 +37,10 @@ SUMMARY = re.compile(
 
 
 def scaled_table(k: float) -> dict[str, Any]:
-    """bench with every rate times k: the scanner's integration time and header latency shrink
-    with its line period, and the header window stays narrower than a line period (else no
-    header could be tied to its pulse on time alone: docs/sync.md, Limits)."""
+    """bench with every rate times k: the scanner's integration time and header latency and the
+    recorder's read interval shrink with its line period, and the header window stays narrower
+    than a line period (else no header could be tied to its pulse on time alone: docs/sync.md,
+    Limits)."""
     base = load_scenario("bench")
     lo_ms, hi_ms = base.sisa.header_window_ms
     period_ms = base.scanner.line_period_ms / k
@@ -49,7 +50,8 @@ def scaled_table(k: float) -> dict[str, Any]:
             "scanner": {"line_period_ms": period_ms,
                         "integration_time_ms": base.scanner.integration_time_ms / k,
                         "header_latency_ms": [t / k for t in base.scanner.header_latency_ms]},
-            "sisa": {"header_window_ms": [lo_ms / k, min(hi_ms, lo_ms / k + 0.875 * period_ms)]}}
+            "sisa": {"header_window_ms": [lo_ms / k, min(hi_ms, lo_ms / k + 0.875 * period_ms)],
+                     "read_interval_ms": base.sisa.read_interval_ms / k}}
 
 
 def scaled_scenario(k: float, folder: Path) -> Path:

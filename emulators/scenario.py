@@ -180,6 +180,10 @@ class SisaSettings(StrictModel):
         "auto", description="forward 1 of every n frame pulses; auto = fastest the GPS accepts"
     )
     event_input_in_mode1: bool = Field(False, description="also send mode-1 pulses to the GPS")
+    read_interval_ms: float = Field(
+        5.0, ge=0, le=50, description="the recorder reads its devices on this clock (0: on "
+        "every arrival); host receive times are up to this much late"
+    )
     header_window_ms: tuple[float, float] = Field(
         (-2.0, 10.0), description="where a frame header's host time may fall after its frame "
         "ends; headers tie to frames on time alone only if this is narrower than a line period"

@@ -26,4 +26,5 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
     )
     return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
-                             line_rate_hz=1e9 / line_period_ns)
+                             line_rate_hz=1e9 / line_period_ns,
+                             read_interval_ns=round(scn.sisa.read_interval_ms * 1e6))

@@ -64,7 +64,8 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     scn = scenario_from_args(args)
     config = acquisition_config(scn)
-    sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses)
+    sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
+                          read_interval_s=config.read_interval_ns / 1e9)
     stop = _install_stop_handlers()
     split_s = args.split_minutes * 60 if args.split_minutes else None
     split_b = int(args.split_mb * 1e6) if args.split_mb else None

@@ -61,11 +61,12 @@ def derived_figures(scn: Any) -> dict[str, Any]:
         "imaging_time_s": round(imaging_s, 1),
         "flight_duration_s": round((traj.t_end_ns - traj.t_start_ns) / 1e9, 1),
         "header_window_width_ms": round(window_hi_ms - window_lo_ms, 3),
-        "line_period_ms": scn.scanner.line_period_ms,
+        "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1]
+                                       + scn.sisa.read_interval_ms, 3),
     }
 
 
-def _notes(derived: dict[str, Any]) -> list[str]:
+def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
     notes = []
     across, along = derived["gsd_across_nadir_m"], derived["line_spacing_along_m"]
     if abs(along / across - 1.0) > 0.10:
@@ -74,10 +75,16 @@ def _notes(derived: dict[str, Any]) -> list[str]:
     if derived["gsd_across_nadir_true_focal_m"] != across:
         notes.append("the scanner's true focal length (nominal + delta_focal_mm) gives "
                      f"{derived['gsd_across_nadir_true_focal_m']} m across track")
-    if derived["header_window_width_ms"] >= 0.95 * derived["line_period_ms"]:
+    period_ms = scn.scanner.line_period_ms
+    if derived["header_window_width_ms"] >= 0.95 * period_ms:
         notes.append(f"sisa.header_window_ms is {derived['header_window_width_ms']} ms wide, not "
-                     f"narrower than a line period ({derived['line_period_ms']} ms): frame headers "
-                     "cannot be tied to their pulses and lines will be flagged, not timed")
+                     f"narrower than a line period ({period_ms} ms): frame headers cannot be "
+                     "tied to their pulses and lines will be flagged, not timed")
+    if derived["header_late_by_max_ms"] > scn.sisa.header_window_ms[1]:
+        notes.append(f"a frame header can reach the recorder {derived['header_late_by_max_ms']} "
+                     "ms after its frame ends (scanner.header_latency_ms + "
+                     "sisa.read_interval_ms), past the end of sisa.header_window_ms: such "
+                     "headers are not tied to their pulses")
     return notes
 
 
@@ -89,7 +96,7 @@ def _show(args: argparse.Namespace) -> int:
     print(f"# resolved scenario: {args.scenario}")
     print(scenario_toml(scn))
     print("# derived figures (flat terrain at the mean height; planning uses the nominal focal)")
-    for note in _notes(derived):
+    for note in _notes(scn, derived):
         print(f"# note: {note}")
     print(tomli_w.dumps({"derived": derived}), end="")
     return 0

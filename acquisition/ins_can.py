@@ -243,6 +243,8 @@ class CanFrameStats:
     """Frame-level counts beside the record-level DecodeStats."""
 
     lost: int = 0  # missing by sequence position: exact while < 128 records go missing in a row
+    # (a jump forward counts once the next frame follows it: a lone frame out of sequence is a
+    # corrupted seq byte, not a loss)
     duplicate: int = 0  # identical to the frame just before (a retransmission)
     foreign: int = 0  # other IDs, extended IDs, remote or error frames: other nodes' traffic
     malformed: int = 0  # one of our IDs with a DLC other than 8
@@ -281,6 +283,7 @@ class InsRecordAssembler:
         self._partial: _Partial | None = None
         self._last_frame: tuple[int, bytes] | None = None
         self._last_position: int | None = None
+        self._jump: tuple[int, int] | None = None  # (position, frames skipped) not yet trusted
         self._last_t_ns: int | None = None
         self._frames_fed = 0
 
@@ -310,7 +313,7 @@ class InsRecordAssembler:
             self._last_t_ns = t_ns
             if silent and frame[1][0] == 0 and index == 0:
                 self.frames.restarts += 1
-                self._last_position = None
+                self._last_position, self._jump = None, None
         self._count_gap(frame[1][0], index)
         return self._place(frame[1][0], index, frame)
 
@@ -327,12 +330,29 @@ class InsRecordAssembler:
         return _INDEX_BY_ID.get(msg.arbitration_id)
 
     def _count_gap(self, seq: int, index: int) -> None:
+        """Frames missing before this one by sequence position. A frame out of sequence is held
+        until the next one: if that follows it, the jump was real (frames skipped forward were
+        lost); if it follows the frame before, the held frame had a corrupted seq byte (it took
+        its slot; its record fails its CRC and counts there); if neither, counting starts
+        afresh."""
         position = seq * FRAMES_PER_RECORD + index
-        if self._last_position is not None:
-            gap = (position - self._last_position - 1) % _SEQ_RING
-            if gap < _SEQ_RING // 2:  # a larger jump is a corrupted seq, not a loss
-                self.frames.lost += gap
+        last, held = self._last_position, self._jump
+        self._jump = None
         self._last_position = position
+        if last is None:
+            return
+        gap = (position - last - 1) % _SEQ_RING
+        if held is not None:
+            held_at, skipped = held
+            after_held = (position - held_at - 1) % _SEQ_RING
+            if after_held < _SEQ_RING // 2 and after_held <= gap:
+                self.frames.lost += skipped + after_held  # the held frame was right
+            elif gap < _SEQ_RING // 2:
+                self.frames.lost += max(0, gap - 1)  # it was not, and took one slot
+            return
+        if gap:
+            self._jump = (position, gap if gap < _SEQ_RING // 2 else 0)  # 0: a step back
+            self._last_position = last
 
     def _place(self, seq: int, index: int, frame: tuple[int, bytes]) -> Decoded[InsRecord] | None:
         partial = self._partial

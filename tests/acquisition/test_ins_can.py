@@ -344,6 +344,37 @@ def test_corrupted_seq_never_joins_two_records() -> None:
     assert asm.stats.errors >= 1
 
 
+def _with_seq(messages: list[can.Message], index: int, seq: int) -> list[can.Message]:
+    data = bytearray(messages[index].data)
+    data[0] = seq
+    out = list(messages)
+    out[index] = can.Message(arbitration_id=messages[index].arbitration_id, data=data,
+                             is_extended_id=False)
+    return out
+
+
+def test_a_corrupted_seq_byte_is_not_counted_as_lost_frames() -> None:
+    """A frame whose seq jumps (forward or back) while its neighbours agree is one corrupted
+    frame, not dozens lost (the soak's INS `drops` read 2413 where 131 frames were lost)."""
+    messages = _frames(_stream(12))
+    for bad_seq in (2 + 4, 2 - 2, 2 + 100):
+        got, asm = _assemble(_with_seq(messages, 2 * 7 + 3, bad_seq))
+        assert asm.frames.lost == 0, bad_seq
+        assert 2 not in [r.counter for r in got]
+    # ... and a real loss right after it is still counted exactly
+    damaged = _with_seq(messages, 2 * 7 + 3, 6)
+    got, asm = _assemble(damaged[:2 * 7 + 4] + damaged[5 * 7 + 2:])
+    assert asm.frames.lost == 5 * 7 + 2 - (2 * 7 + 4)
+    assert [r.counter for r in got] == [0, 1, 6, 7, 8, 9, 10, 11]
+
+
+def test_a_real_jump_is_counted_once_the_next_frame_follows_it() -> None:
+    messages = _frames(_stream(12))
+    got, asm = _assemble(messages[:3 * 7 + 5] + messages[8 * 7 + 1:])
+    assert asm.frames.lost == 8 * 7 + 1 - (3 * 7 + 5)
+    assert [r.counter for r in got] == [0, 1, 2, 9, 10, 11]
+
+
 def test_duplicated_frames_are_ignored_and_counted() -> None:
     messages = _frames(_stream(5))
     doubled = [m for i, m in enumerate(messages) for _ in range(2 if i % 4 == 0 else 1)]

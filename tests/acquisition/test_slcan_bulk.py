@@ -5,7 +5,7 @@ import os
 import select
 import time
 
-from acquisition.slcan_bulk import BulkSlcanBus
+from acquisition.slcan_bulk import BulkSlcanBus, parse_frame_line
 
 
 def _bus_on_a_pty() -> tuple[BulkSlcanBus, int]:
@@ -54,3 +54,71 @@ def test_a_garbled_line_is_counted_and_skipped() -> None:
     finally:
         bus.shutdown()
         os.close(master)
+
+
+def test_frame_lines_parse_like_python_can() -> None:
+    std = parse_frame_line(b"t1238DEADBEEF00112233")
+    assert std is not None
+    assert (std.arbitration_id, std.is_extended_id, std.dlc) == (0x123, False, 8)
+    assert bytes(std.data) == bytes.fromhex("DEADBEEF00112233")
+    ext = parse_frame_line(b"T1ABCDEF02A0B1")
+    assert ext is not None
+    assert (ext.arbitration_id, ext.is_extended_id, bytes(ext.data)) == (0x1ABCDEF0, True,
+                                                                         b"\xa0\xb1")
+    stamped = parse_frame_line(b"t12320011" + b"1F2E")
+    assert stamped is not None
+    assert bytes(stamped.data) == b"\x00\x11"
+    remote = parse_frame_line(b"r7FF4")
+    assert remote is not None
+    assert (remote.is_remote_frame, remote.dlc) == (True, 4)
+    assert parse_frame_line(b"t1000") is not None  # no data bytes
+    for reply in (b"", b"z", b"Z"):
+        assert parse_frame_line(reply) is None
+
+
+def test_lines_that_are_not_classic_frames_raise() -> None:
+    for bad in (b"t12380011", b"t1238" + b"00" * 8 + b"112233", b"t123900", b"tXYZ100",
+                b"d1238" + b"00" * 8, b"V1013", b"t12", b"t1238zz11223344556677"):
+        try:
+            parse_frame_line(bad)
+        except (ValueError, IndexError):
+            continue
+        raise AssertionError(f"{bad!r} parsed")
+
+
+def test_replies_between_frames_are_passed_over() -> None:
+    bus, master = _bus_on_a_pty()
+    try:
+        os.write(master, b"t1018FFEEDDCCBBAA9988\r\rz\r\a" b"T000001022AABB\r")
+        time.sleep(0.05)
+        _ready(bus)
+        frames = bus.recv_ready()
+        assert [f.arbitration_id for f in frames] == [0x101, 0x102]
+        assert bus.garbled == 0
+        os.write(master, b"t1028FFEE")  # half a line: kept for the next read
+        _ready(bus)
+        assert bus.recv_ready() == []
+        os.write(master, b"DDCCBBAA9988\r")
+        _ready(bus)
+        assert [f.arbitration_id for f in bus.recv_ready()] == [0x102]
+    finally:
+        bus.shutdown()
+        os.close(master)
+
+
+def test_the_fast_parse_agrees_with_python_can() -> None:
+    lines = [b"t1238DEADBEEF00112233", b"T1ABCDEF02A0B1", b"r7FF4", b"t1000", b"R000000013",
+             b"t12320011" + b"1F2E"]
+    bus, master = _bus_on_a_pty()
+    try:
+        os.write(master, b"".join(line + b"\r" for line in lines))
+        time.sleep(0.05)
+        theirs = [bus.recv(timeout=1.0) for _ in lines]  # python-can's own parse
+    finally:
+        bus.shutdown()
+        os.close(master)
+    for line, their in zip(lines, theirs, strict=True):
+        ours = parse_frame_line(line)
+        assert ours is not None
+        assert their is not None
+        assert ours.equals(their, timestamp_delta=None), (line, ours, their)

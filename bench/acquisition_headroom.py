@@ -114,6 +114,9 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
     errors = errors_after_warm_up(folder / f"f{k:g}.mcap")
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
+    fwd = read_columns(folder / f"f{k:g}.mcap", Topic.SYNC_FORWARD)
+    mode2 = fwd["mode"] == 2
+    tied = float((fwd["frame_counter"][mode2] >= 0).sum()) / max(1, int(mode2.sum()))
     # steady-state CPU: while data flowed (from 1 s after the first INS record to 1 s before the
     # last), not start-up imports, the emulator's fast-forward to --start, or the wait at the end
     steady = [(t, c) for t, c in samples if ins_t[0] + 1e9 <= t <= ins_t[-1] - 1e9]
@@ -121,7 +124,7 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     ins_hz = (len(ins_t) - 1) / max(1e-9, (ins_t[-1] - ins_t[0]) / 1e9)
     late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
     return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf,
-            "errors": errors, "drops": drops, "late": late,
+            "errors": errors, "drops": drops, "late": late, "tied_pct": 100 * tied,
             "cpu_pct": 100 * (c1 - c0) / ((t1 - t0) / 1e9),
             "emulator_late_ms": late_ms}
 
@@ -135,7 +138,8 @@ def main() -> None:
     start_s = (traj.strips[0].t_start_ns - traj.t_start_ns) / 1e9 + 5
     print(f"window: {args.seconds:g} s from {start_s:.0f} s into bench (strip 0 recording)")
     print(f"{'scale':>5} {'INS Hz':>7} {'got Hz':>7} {'line Hz':>7} {'INS rec':>8} {'headers':>8} "
-          f"{'errors':>6} {'drops':>5} {'late':>4} {'rec CPU':>8} {'emu lag ms':>10}")
+          f"{'errors':>6} {'drops':>5} {'late':>4} {'tied':>5} {'rec CPU':>8} "
+          f"{'emu lag ms':>10}")
     headroom = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         for k in (float(x) for x in args.scales.split(",")):
@@ -144,12 +148,15 @@ def main() -> None:
             print(f"{k:5g} {64 * k:7.0f} {r['ins_hz']:7.0f} {62.5 * k:7.0f} "
                   f"{r['ins_recorded']:8.0f} "
                   f"{r['headers']:8.0f} {r['errors']:6.0f} {r['drops']:5.0f} {r['late']:4.0f} "
+                  f"{r['tied_pct']:4.0f}% "
                   f"{r['cpu_pct']:7.1f}% {r['emulator_late_ms']:10.1f}"
                   f"{'' if clean else '   <- first loss'}")
             if not clean:
                 break
             headroom = k
     print(f"headroom over nominal rates: {headroom:g}x with no loss (target >= 20x)")
+    print("tied: forwarded frame pulses (mode 2) whose frame counter the sync filter logged, "
+          "i.e. whose scan lines post-processing can time")
     print("note: the emulated INS bus is 500 kbit/s; one record is 7 frames (777 bits), so above "
           "~10x (644 records/s) the bus itself saturates and the INS sends fewer records than "
           "its rate ('got Hz'): that is the bus, not the recorder, and counts as no loss here")

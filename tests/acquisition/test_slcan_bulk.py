@@ -21,6 +21,13 @@ def _ready(bus: BulkSlcanBus) -> None:
     assert select.select([bus.fileno()], [], [], 2.0)[0], "nothing arrived"
 
 
+def _ids_after_writing(bus: BulkSlcanBus, master: int, data: bytes) -> list[int]:
+    os.write(master, data)
+    time.sleep(0.05)
+    _ready(bus)
+    return [f.arbitration_id for f in bus.recv_ready()]
+
+
 def test_frames_of_one_burst_come_in_one_read() -> None:
     bus, master = _bus_on_a_pty()
     try:
@@ -40,17 +47,12 @@ def test_a_garbled_line_is_counted_and_skipped() -> None:
     bus, master = _bus_on_a_pty()
     try:
         # a frame whose tail was dropped by an overrun, glued to the next: not hex where data is
-        os.write(master, b"t1018001122t1028AABBCCDDEEFF0011\rt1038zz11223344556677\r"
-                         b"t1048FFEEDDCCBBAA9988\r")
-        time.sleep(0.05)
-        _ready(bus)
-        frames = bus.recv_ready()
-        assert [f.arbitration_id for f in frames] == [0x104]
+        garbled = (b"t1018001122t1028AABBCCDDEEFF0011\rt1038zz11223344556677\r"
+                   b"t1048FFEEDDCCBBAA9988\r")
+        assert _ids_after_writing(bus, master, garbled) == [0x104]
         assert bus.garbled == 2
         # and the bus goes on reading
-        os.write(master, b"t1058FFEEDDCCBBAA9988\r")
-        _ready(bus)
-        assert [f.arbitration_id for f in bus.recv_ready()] == [0x105]
+        assert _ids_after_writing(bus, master, b"t1058FFEEDDCCBBAA9988\r") == [0x105]
     finally:
         bus.shutdown()
         os.close(master)
@@ -89,18 +91,11 @@ def test_lines_that_are_not_classic_frames_raise() -> None:
 def test_replies_between_frames_are_passed_over() -> None:
     bus, master = _bus_on_a_pty()
     try:
-        os.write(master, b"t1018FFEEDDCCBBAA9988\r\rz\r\a" b"T000001022AABB\r")
-        time.sleep(0.05)
-        _ready(bus)
-        frames = bus.recv_ready()
-        assert [f.arbitration_id for f in frames] == [0x101, 0x102]
+        mixed = b"t1018FFEEDDCCBBAA9988\r\rz\r\a" b"T000001022AABB\r"
+        assert _ids_after_writing(bus, master, mixed) == [0x101, 0x102]
         assert bus.garbled == 0
-        os.write(master, b"t1028FFEE")  # half a line: kept for the next read
-        _ready(bus)
-        assert bus.recv_ready() == []
-        os.write(master, b"DDCCBBAA9988\r")
-        _ready(bus)
-        assert [f.arbitration_id for f in bus.recv_ready()] == [0x102]
+        assert _ids_after_writing(bus, master, b"t1028FFEE") == []  # half a line: kept
+        assert _ids_after_writing(bus, master, b"DDCCBBAA9988\r") == [0x102]
     finally:
         bus.shutdown()
         os.close(master)

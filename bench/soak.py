@@ -85,10 +85,12 @@ def soak_table(minutes: float, scale: float, seed: int) -> dict[str, Any]:
 
 
 class Sampler:
-    """CPU % and RSS of `sisa record` every `period_s` (found by its --out path in the run)."""
+    """CPU % and RSS of `sisa record` or `sisa emulate` (`role`) every `period_s` (found by the
+    run's path in its command line)."""
 
-    def __init__(self, run: Path, period_s: float = 30.0) -> None:
+    def __init__(self, run: Path, role: str, period_s: float = 30.0) -> None:
         self.run_name, self.period_s = run.name.encode(), period_s  # staged as .NAME.partial-*
+        self.role = role.encode()
         self.samples: list[tuple[float, float, float]] = []  # (t_s, cpu %, rss MB)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -101,8 +103,7 @@ class Sampler:
                     cmd = (d / "cmdline").read_bytes().split(b"\0")
                 except OSError:
                     continue
-                if b"record" in cmd and any(a.endswith(b"flight.mcap") and self.run_name in a
-                                            for a in cmd):
+                if self.role in cmd[:4] and any(self.run_name in a for a in cmd):
                     return int(d.name)
         return None
 
@@ -317,13 +318,14 @@ def main() -> int:
     print(f"soak: {args.minutes:g} min of sisa bench at {args.scale:g}x nominal rates "
           f"({table['block']['strips']} strips of 12 km), faults from seed {args.seed}: "
           f"{json.dumps(table['faults'])}", flush=True)
-    sampler = Sampler(args.out)
+    sampler, emulator = Sampler(args.out, "record"), Sampler(args.out, "emulate")
     t0 = time.monotonic()
     proc = subprocess.run([sys.executable, "-m", "sisa.cli", "bench", "--scenario",
                            str(scenario), "--out", str(args.out), "--no-images", "--duration",
                            str(args.minutes * 60)], capture_output=True, text=True)
     wall_s = time.monotonic() - t0
     sampler.stop()
+    emulator.stop()
     print(proc.stdout.strip(), proc.stderr.strip()[-2000:], sep="\n", flush=True)
     if proc.returncode != 0:
         print(f"sisa bench exited {proc.returncode}")
@@ -337,7 +339,9 @@ def main() -> int:
         "recorder_cpu_pct": {"median": float(np.median(cpu)), "max": float(cpu.max())}
         if cpu.size else None,
         "recorder_rss_mb": {"first": float(rss[0]), "last": float(rss[-1]),
-                            "max": float(rss.max())} if rss.size else None})
+                            "max": float(rss.max())} if rss.size else None,
+        "emulator_rss_mb": {"first": emulator.samples[0][2], "last": emulator.samples[-1][2]}
+        if emulator.samples else None})
 
 
 if __name__ == "__main__":

@@ -1,42 +1,79 @@
 """Simulation truth, kept beside a run and never in the flight log.
 
-Each table is columnar (one Python list per column while running, written once as CSV with a
-commented header that names every column and unit). Post-processing never reads these files; tests,
-benchmarks and the accuracy report of a simulated run do.
+Each table is columnar (one Python list per column while running, spilled to a temporary file in
+blocks, written once as CSV with a commented header that names every column and unit).
+Post-processing never reads these files; tests, benchmarks and the accuracy report of a simulated
+run do.
 """
 
 from __future__ import annotations
 
 import csv
+import shutil
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, Final
 
 import numpy as np
 
+SPILL_ROWS: Final = 100_000  # rows held in memory per table before they go to a temporary file
+
 
 class TruthTable:
-    """Rows of one truth table, appended while the emulation runs."""
+    """Rows of one truth table, appended while the emulation runs.
 
-    def __init__(self, name: str, columns: dict[str, str], description: str) -> None:
+    Rows are held as columns in memory up to `spill_rows`, then written as CSV rows to a
+    temporary file, so an emulation of hours (millions of INS records at 10x rates) keeps its
+    memory flat; `write_csv` joins the spilled rows and the held ones."""
+
+    def __init__(self, name: str, columns: dict[str, str], description: str,
+                 spill_rows: int = SPILL_ROWS) -> None:
         self.name = name
         self.columns = columns  # column name → unit/meaning
         self.description = description
+        self.spill_rows = spill_rows
         self._data: dict[str, list[Any]] = {c: [] for c in columns}
+        self._spill: IO[str] | None = None
+        self._spilled = 0
 
     def append(self, **row: Any) -> None:
         for col, values in self._data.items():
             values.append(row[col])
+        self._maybe_spill()
 
     def extend(self, **cols: Iterable[Any]) -> None:
         for col, values in self._data.items():
             values.extend(cols[col])
+        self._maybe_spill()
 
     def __len__(self) -> int:
+        return self._spilled + self._held()
+
+    def _held(self) -> int:
         return len(next(iter(self._data.values()))) if self._data else 0
 
+    def _maybe_spill(self) -> None:
+        held = self._held()
+        if held < self.spill_rows:
+            return
+        if self._spill is None:
+            # lives as long as the table (deleted when closed or collected)
+            self._spill = tempfile.TemporaryFile("w+", newline="", encoding="utf-8")  # noqa: SIM115
+        csv.writer(self._spill).writerows(zip(*self._data.values(), strict=True))
+        self._spilled += held
+        for values in self._data.values():
+            values.clear()
+
     def column(self, name: str) -> np.ndarray[Any, Any]:
-        return np.asarray(self._data[name])
+        if self._spill is None:
+            return np.asarray(self._data[name])
+        return self._read_back()[name]
+
+    def _read_back(self) -> dict[str, np.ndarray[Any, Any]]:
+        """Every row, spilled ones included, as typed columns (as `read_truth_csv` gives)."""
+        with tempfile.TemporaryDirectory() as tmp:
+            return read_truth_csv(self.write_csv(Path(tmp)))
 
     def write_csv(self, folder: Path) -> Path:
         path = Path(folder) / f"{self.name}.csv"
@@ -46,6 +83,11 @@ class TruthTable:
                 fh.write(f"# {col}: {meaning}\n")
             writer = csv.writer(fh)
             writer.writerow(list(self.columns))
+            if self._spill is not None:
+                self._spill.flush()
+                self._spill.seek(0)
+                shutil.copyfileobj(self._spill, fh)
+                self._spill.seek(0, 2)
             writer.writerows(zip(*self._data.values(), strict=True))
         return path
 

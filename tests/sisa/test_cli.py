@@ -135,3 +135,25 @@ def test_truth_creates_missing_parent_folders(tmp_path):
     out = tmp_path / "runs" / "deeper" / "run"
     assert main(["truth", "--preset", "bench", "--out", str(out)]) == 0
     assert (out / "terrain" / "dem.tif").is_file()
+
+
+def test_show_notes_header_settings_that_cannot_tie_lines(tmp_path, capsys):
+    """A scanner at 625 lines/s with the default 12 ms header window: no header can be tied on
+    time alone (docs/sync.md, Limits); with a narrow window but a slow read clock, headers
+    arrive past its end. The bench preset itself draws no such note."""
+    _, out = _show("bench", capsys)
+    assert "header" not in "".join(line for line in out.splitlines() if line.startswith("# note"))
+    fast = tmp_path / "fast.toml"
+    fast.write_text('base = "bench"\n[scanner]\nline_period_ms = 1.6\nintegration_time_ms = 1.2\n'
+                    "header_latency_ms = [0.1, 0.3]\n", encoding="utf-8")
+    table, out = _show(str(fast), capsys)
+    assert table["derived"]["header_window_width_ms"] == 12.0
+    assert "not narrower than a line period" in out
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text(fast.read_text(encoding="utf-8")
+                      + "[sisa]\nheader_window_ms = [-0.2, 1.2]\nread_interval_ms = 5.0\n",
+                      encoding="utf-8")
+    table, out = _show(str(narrow), capsys)
+    assert "not narrower than a line period" not in out
+    assert table["derived"]["header_late_by_max_ms"] == 5.3
+    assert "past the end of sisa.header_window_ms" in out

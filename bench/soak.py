@@ -23,6 +23,7 @@ injected) against the log:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import re
 import subprocess
@@ -48,6 +49,9 @@ sys.path.insert(0, str(ROOT))
 from acquisition_headroom import proc_cpu_s_rss_mb, scaled_table  # noqa: E402  (bench/ is the script's dir)
 
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns  # noqa: E402
+
+# the books, the line join and the jump spans read the same (large) truth tables: once each
+truth_table = functools.cache(read_truth_csv)
 
 
 def soak_table(minutes: float, scale: float, seed: int) -> dict[str, Any]:
@@ -158,7 +162,7 @@ def books(run: Path) -> dict[str, Any]:
     the injected faults that explain a gap."""
     truth = run / "truth"
     flight = run / "flight.mcap"
-    faults = read_truth_csv(truth / "faults.csv")
+    faults = truth_table(truth / "faults.csv")
     kinds, targets = faults["kind"].astype(str), faults["target"].astype(str)
     fault_t = faults["t_gps_ns"].astype(np.int64)
     last = {h.stream: h for h in read_messages(flight, StreamHealth) if not h.event}
@@ -174,7 +178,7 @@ def books(run: Path) -> dict[str, Any]:
                      "injected": int(sel.sum()), "unaccounted": max(0, missing - int(sel.sum())),
                      "recorder_counted": counted, "noticed": missing <= counted}
 
-    ins = read_truth_csv(truth / "ins_records.csv")
+    ins = truth_table(truth / "ins_records.csv")
     ins_keys = list(zip(ins["counter"].tolist(), ins["ins_time_ticks"].tolist(), strict=True))
     logged = [(r.counter, r.ins_time_ticks) for r in read_messages(flight, InsRecordLog)]
     first, lst, missing = in_order(ins_keys, logged)
@@ -182,7 +186,7 @@ def books(run: Path) -> dict[str, Any]:
     row("ins_records", "ins", lst - first + 1, missing, int(t_out[first]), int(t_out[lst]),
         ("lost_can_frame", "corrupt_can_frame"), None)
 
-    frames = read_truth_csv(truth / "frames.csv")
+    frames = truth_table(truth / "frames.csv")
     sent_frames = frames["dropped"] == 0
     keys = list(zip(frames["segment"][sent_frames].tolist(),
                     frames["frame_counter"][sent_frames].tolist(), strict=True))
@@ -193,7 +197,7 @@ def books(run: Path) -> dict[str, Any]:
         row("frame_headers", "scanner", lst - first + 1, missing, int(t_mid[first]),
             int(t_mid[lst]) + NS_PER_S, ("corrupt_byte", "lost_byte"), "scanner")
 
-    fixes_t = read_truth_csv(truth / "gps_fixes.csv")["t_gps_ns"].tolist()
+    fixes_t = truth_table(truth / "gps_fixes.csv")["t_gps_ns"].tolist()
     logged = [f.t_gps_ns for f in read_messages(flight, GpsFix)]
     first, lst, missing = in_order(fixes_t, logged)
     row("gps_fixes", "gps", lst - first + 1, missing, int(fixes_t[first]),
@@ -219,7 +223,7 @@ def line_truth_ns(run: Path, segment: Any, counter: Any) -> Any:
     """True mid-exposure of every timed line, its (segment, frame counter) walked through the
     frames the scanner sent (without the scanner's lines files the log's line numbers skip
     lost headers, so they cannot be the join)."""
-    fr = read_truth_csv(run / "truth" / "frames.csv")
+    fr = truth_table(run / "truth" / "frames.csv")
     sent = fr["dropped"] == 0
     keys = list(zip(fr["segment"][sent].tolist(), fr["frame_counter"][sent].tolist(),
                     strict=True))
@@ -232,9 +236,9 @@ def unrevealed_jump_spans_ns(run: Path) -> list[tuple[int, int]]:
     (or its next reboot, whichever is first). No pulse reveals a jump there: records in the span
     are extrapolated from the clock before it (insrecords, `max_extrapolation_s`), and no
     solver can know they moved."""
-    faults = read_truth_csv(run / "truth" / "faults.csv")
+    faults = truth_table(run / "truth" / "faults.csv")
     jumps = faults["t_gps_ns"][faults["kind"].astype(str) == "ins_clock_jump"].astype(np.int64)
-    ins = read_truth_csv(run / "truth" / "ins_records.csv")
+    ins = truth_table(run / "truth" / "ins_records.csv")
     t, boot = ins["t_meas_gps_ns"].astype(np.int64), ins["boot"].astype(np.int64)
     latched = ins["sync_pulse_gps_ns"].astype(np.int64)
     spans = []

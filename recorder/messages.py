@@ -60,7 +60,7 @@ CAN_EXTENDED_FLAG = 0x8000_0000  # set in an arbitration id when the frame uses 
 
 @dataclass(frozen=True)
 class RawCanFrames(LoggedMessage):
-    """CAN frames exactly as received, batched (up to ~16 frames or 50 ms) to keep the log's
+    """CAN frames exactly as received, batched (up to 128 frames or 200 ms) to keep the log's
     per-message cost low; every frame keeps its own host receive time."""
 
     topic: ClassVar[Topic] = Topic.INS_RAW

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import dataclasses
 import errno
 import inspect
 import json
@@ -163,12 +164,16 @@ def _finite(value: object) -> object:
     return value
 
 
+# one encoder for every message: json.dumps with options builds a new one per call
+_JSON: Final = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default)
+_JSON_NAN: Final = json.JSONEncoder(separators=(",", ":"), default=_json_default)
+
+
 def _dumps(obj: Mapping[str, object]) -> bytes:
     try:
-        text = json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_json_default)
+        text = _JSON.encode(obj)
     except ValueError:  # NaN or infinity somewhere: the slow path, rare
-        text = json.dumps({k: _finite(v) for k, v in obj.items()}, separators=(",", ":"),
-                          default=_json_default)
+        text = _JSON_NAN.encode({k: _finite(v) for k, v in obj.items()})
     return text.encode()
 
 
@@ -180,9 +185,11 @@ def _encoder_for(cls: type[LoggedMessage]) -> Encoder:
     schema = json_schema(cls)["properties"]
     b64 = tuple(name for name, prop in schema.items() if prop.get("contentEncoding") == "base64")
     names = tuple(schema)
+    if names != tuple(f.name for f in dataclasses.fields(cls)):  # type: ignore[arg-type]
+        raise EncodeError(f"{cls.schema_name}: schema and fields disagree")
 
     def encode(msg: LoggedMessage) -> bytes:
-        obj = {name: getattr(msg, name) for name in names}
+        obj = dict(msg.__dict__)  # the fields, in declaration order: the schema's order
         for name in b64:
             obj[name] = base64.b64encode(obj[name]).decode("ascii")
         return _dumps(obj)

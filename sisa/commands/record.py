@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import InputError
@@ -18,7 +18,8 @@ from sisa.errors import InputError
 if TYPE_CHECKING:
     from rich.table import Table
 
-    from acquisition.live import Arrival, LinkEvent, LiveSources, Source
+    from acquisition.live import Arrival, GarbledCanLines, LinkEvent, LiveSources, Source
+    from acquisition.pulses import Edge
     from acquisition.runner import Acquisition
 
 STATUS_PERIOD_S = 1.0
@@ -164,22 +165,21 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
 
 
 def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
-    from acquisition.live import GarbledCanLines, Source
-    from acquisition.pulses import Edge
-
-    payload = item.payload
-    if isinstance(payload, Edge):
-        edge_clock.seen(item.t_host_ns, payload.t_ns)
-        acq.on_edge(item.t_host_ns, payload)
-    elif isinstance(payload, list):
-        for frame in payload:
-            acq.on_can_frame(item.t_host_ns, frame)
-    elif isinstance(payload, GarbledCanLines):
-        acq.on_can_garbled(item.t_host_ns, payload.lines)
-    elif isinstance(payload, bytes) and item.source is Source.GPS:
-        acq.on_gps_bytes(item.t_host_ns, payload)
-    elif isinstance(payload, bytes):
-        acq.on_scanner_bytes(item.t_host_ns, payload)
+    """One arrival to the acquisition, by its source (Source values: no import per call)."""
+    payload, source = item.payload, item.source
+    if source == "pulses":
+        edge = cast("Edge", payload)
+        edge_clock.seen(item.t_host_ns, edge.t_ns)
+        acq.on_edge(item.t_host_ns, edge)
+    elif source == "ins":
+        if isinstance(payload, list):
+            acq.on_can_frames(item.t_host_ns, payload)
+        else:
+            acq.on_can_garbled(item.t_host_ns, cast("GarbledCanLines", payload).lines)
+    elif source == "gps":
+        acq.on_gps_bytes(item.t_host_ns, cast(bytes, payload))
+    else:
+        acq.on_scanner_bytes(item.t_host_ns, cast(bytes, payload))
 
 
 class _Status:

@@ -20,8 +20,9 @@ per codec, and the speed-up is against the faster run: "plain" (-wm 512 -wo
 SKIP_NOSOURCE=YES, one warping thread, GDAL's default block cache of 5 % of RAM) and
 "threads" (the same plus -multi, -wo NUM_THREADS=ALL_CPUS, -co NUM_THREADS=ALL_CPUS,
 --config GDAL_CACHEMAX 1024); on this 2-core machine shared with other work the threaded run
-is often the slower. orthorectify(): its defaults (numba kernels on one thread, the GeoTIFF
-compressed by GDAL in a background thread with NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB).
+is often the slower. orthorectify(): its defaults (windows made two at a time on threads by
+numba kernels, the GeoTIFF compressed by GDAL in a background thread with
+NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB).
 
 The position error of a cell is the distance from its centre to the ground position of the
 pixel chosen for it; the exact nearest neighbour comes from a cKDTree over every pixel.

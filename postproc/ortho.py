@@ -7,8 +7,9 @@ nearest corner of the quad is then refined by a descent over neighbouring pixels
 the exact nearest pixel even where turbulence shears the lines. Cells whose centre no quad
 covers are nodata. Work goes by output windows (full-width strips of rows, or square tiles on
 wide grids) sized by WINDOW_BYTES, each reading only the IGM and image lines that reach it, so
-memory does not grow with the length of the flight; the GeoTIFF is compressed in a background
-thread while the next window is computed.
+memory does not grow with the length of the flight. Windows are made WORKERS at a time on
+threads (the numba kernels release the GIL) while a background thread compresses the GeoTIFF
+of the previous one; the products do not depend on the number of threads.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+from collections import deque
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from queue import SimpleQueue
 from typing import Any, Final
 
 import numba
@@ -37,7 +40,6 @@ from postproc.igm import (
     envi_list,
     igm_epsg,
     igm_raster,
-    iter_igm_blocks,
     partial_path,
     projected_crs,
 )
@@ -56,7 +58,10 @@ MAX_READ_LINES: Final = 2048  # IGM lines per read
 RAW_CHUNK_LINES: Final = 1024  # image lines per read
 DESCENT_LINES: Final = 2  # neighbourhood searched by the descent to the nearest pixel
 DESCENT_PIXELS: Final = 1
+GAP_FACTOR: Final = 4.0 * (1 + 1e-6)  # 4: see _gaps; 1e-6: room for rounding
 DESCENT_MARGIN_LINES: Final = 4  # lines read beyond a run of quads for the descent
+PLANE_PAD_BYTES: Final = 64  # see Scratch.planes
+WORKERS: Final = 2  # windows made at once (each holds its arrays: memory)
 GDAL_CACHE_MB: Final = 128
 TIFF_ZLEVEL: Final = 1
 TIFF_ZSTD_LEVEL: Final = 1  # GDAL's default (9) is several times slower for ~10 % smaller files
@@ -160,15 +165,11 @@ class SwathIndex:
     @classmethod
     def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES) -> SwathIndex:
         raster = igm_raster(Path(igm))
-        per_line = np.full((raster.lines, 4), np.nan)
-        for lo, blk in iter_igm_blocks(raster.path):
-            e, n = blk[:, 0], blk[:, 1]
-            bad = ~(np.isfinite(e) & np.isfinite(n))
-            e, n = np.where(bad, np.nan, e), np.where(bad, np.nan, n)
-            hi = lo + blk.shape[0]
-            per_line[lo:hi] = np.stack([np.fmin.reduce(e, axis=1), np.fmin.reduce(n, axis=1),
-                                        np.fmax.reduce(e, axis=1), np.fmax.reduce(n, axis=1)],
-                                       axis=1)
+        per_line = np.empty((raster.lines, 4))
+        sc = Scratch()
+        for lo in range(0, raster.lines, MAX_READ_LINES):
+            hi = min(lo + MAX_READ_LINES, raster.lines)
+            _line_extents(sc.read_lines("igm", raster, lo, hi), per_line[lo:hi])
         starts = np.arange(0, max(raster.lines - 1, 1), block_lines)
         boxes = np.empty((starts.size, 4))
         boxes[:, :2] = np.fmin.reduceat(per_line[:, :2], starts, axis=0)
@@ -230,6 +231,23 @@ class SwathIndex:
         return runs
 
 
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _line_extents(blk: F64, out: F64) -> None:
+    """out (lines, 4): west, south, east, north of each line of an IGM block (lines, 3,
+    pixels) over its pixels with a finite position (NaN where none), in one pass."""
+    for i in range(blk.shape[0]):
+        west = south = np.inf
+        east = north = -np.inf
+        for j in range(blk.shape[2]):
+            x, y = blk[i, 0, j], blk[i, 1, j]
+            if math.isfinite(x) and math.isfinite(y):
+                west, east = min(west, x), max(east, x)
+                south, north = min(south, y), max(north, y)
+        if west > east:
+            west = south = east = north = np.nan
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = west, south, east, north
+
+
 # -- the nearest pixel of every cell of a tile -----------------------------------------------
 
 class Scratch:
@@ -249,6 +267,37 @@ class Scratch:
         if fill is not None:
             arr.fill(fill)
         return arr
+
+    def planes(self, name: str, shape: tuple[int, int, int], dtype: npt.DTypeLike,
+               fill: float | None = None) -> npt.NDArray[Any]:
+        """A (bands, rows, cols) array whose bands lie PLANE_PAD_BYTES more than a multiple
+        of 4 KB apart: writing a cell's value into every band otherwise hits one cache set
+        per band at once (windows are multiples of 512 cells), several times slower."""
+        bands, rows, cols = shape
+        item = np.dtype(dtype).itemsize
+        plane = rows * cols + (-rows * cols * item % 4096 + PLANE_PAD_BYTES) // item
+        arr = self.get(name, (bands, plane), dtype)[:, :rows * cols].reshape(shape)
+        if fill is not None:
+            arr.fill(fill)
+        return arr
+
+    def read_lines(self, name: str, raster: EnviRaster, line0: int, line1: int
+                   ) -> npt.NDArray[Any]:
+        """raster.read_lines(line0, line1), into a reused array when the file is BIL in
+        native byte order (a fresh array per read costs more in page faults than the copy);
+        anything else, and errors, are read_lines' own."""
+        if raster.interleave != "bil" or not raster.dtype.isnative or \
+                not 0 <= line0 <= line1 <= raster.lines:
+            return raster.read_lines(line0, line1)
+        out = self.get(name, (line1 - line0, raster.bands, raster.pixels), raster.dtype)
+        view, at = out.data.cast("B"), 0
+        with raster.path.open("rb", buffering=0) as fh:
+            fh.seek(raster.header_offset + line0 * raster.line_bytes)
+            while at < len(view) and (got := fh.readinto(view[at:])):
+                at += got
+        if at != len(view):
+            raise InputError(f"{raster.path}: truncated while reading")
+        return out
 
 
 @dataclass(frozen=True)
@@ -280,12 +329,14 @@ def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, row
     for q0, q1 in index.quad_runs(x0, y1, x1, y0):
         lo = max(q0 - DESCENT_MARGIN_LINES, 0)
         hi = min(q1 + 1 + DESCENT_MARGIN_LINES, index.raster.lines)
-        blk = index.raster.read_lines(lo, hi)
+        blk = sc.read_lines("igm", index.raster, lo, hi)
         u = sc.get("u", (hi - lo, blk.shape[2]), np.float64)
         v = sc.get("v", (hi - lo, blk.shape[2]), np.float64)
         box = sc.get("box", (hi - lo, 4), np.float64)
+        gap = sc.get("gap", (hi - lo, blk.shape[2]), np.float64)
         _to_cells(blk, x0, y0, float(grid.cell_m), u, v, box)
-        _rasterise(u, v, box, q0 - lo, q1 - lo, lo, d2, line, pixel, inside)
+        _gaps(u, v, gap)
+        _rasterise(u, v, box, gap, q0 - lo, q1 - lo, lo, d2, line, pixel, inside)
     return TileChoice(line, pixel, d2, inside)
 
 
@@ -307,6 +358,29 @@ def _to_cells(blk: F64, x0: float, y0: float, cell: float, u: F64, v: F64, box: 
             if y == y:
                 vmin, vmax = min(vmin, y), max(vmax, y)
         box[i, 0], box[i, 1], box[i, 2], box[i, 3] = umin, umax, vmin, vmax
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _gaps(u: F64, v: F64, gap: F64) -> None:
+    """gap[i, j]: squared distance from pixel (i, j) to the nearest other pixel of its descent
+    neighbourhood (±DESCENT_LINES, ±DESCENT_PIXELS); inf where there is none. By the triangle
+    inequality, no neighbour is nearer than pixel (i, j) to a point within sqrt(gap) / 2 of
+    it: the descent from there can be skipped (one vectorised pass, each pair once, instead
+    of a search per cell)."""
+    nl, npx = u.shape
+    gap[:] = np.inf
+    for i in range(nl):
+        gi, ui, vi = gap[i], u[i], v[i]
+        for a in range(i, min(i + DESCENT_LINES + 1, nl)):
+            ga, ua, va = gap[a], u[a], v[a]
+            for db in range(-DESCENT_PIXELS, DESCENT_PIXELS + 1):
+                if a == i and db <= 0:
+                    continue
+                for j in range(max(-db, 0), min(npx - db, npx)):
+                    x, y = ua[j + db] - ui[j], va[j + db] - vi[j]
+                    t = x * x + y * y  # NaN compares False: never a neighbour
+                    gi[j] = t if t < gi[j] else gi[j]
+                    ga[j + db] = t if t < ga[j + db] else ga[j + db]
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -351,8 +425,8 @@ def _dist2(x: float, y: float, px: float, py: float) -> float:
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _rasterise(u: F64, v: F64, box: F64, q0: int, q1: int, line_base: int, d2: F64,
-               line: I32, pixel: I32, inside: B) -> None:
+def _rasterise(u: F64, v: F64, box: F64, gap: F64, q0: int, q1: int, line_base: int,
+               d2: F64, line: I32, pixel: I32, inside: B) -> None:
     """Rasterise quads with first line q0..q1-1 of the block (u, v: positions in cell units,
     column and row of the window's cell centres; box: each line's u/v extent) and keep each
     cell's nearest pixel. Corners in ring order a (i, j), b (i, j+1), c (i+1, j+1),
@@ -405,7 +479,8 @@ def _rasterise(u: F64, v: F64, box: F64, q0: int, q1: int, line_base: int, d2: F
                     t = _dist2(dx, dy, fc, fr)
                     if t < best:
                         best, li, pj = t, i + 1, j
-                    li, pj, best = _descend(u, v, li, pj, best, fc, fr)
+                    if gap[li, pj] <= GAP_FACTOR * best:  # else no neighbour is nearer
+                        li, pj, best = _descend(u, v, li, pj, best, fc, fr)
                     if best < d2[r, c]:
                         d2[r, c] = best
                         line[r, c] = line_base + li
@@ -416,13 +491,39 @@ def _rasterise(u: F64, v: F64, box: F64, q0: int, q1: int, line_base: int, d2: F
 # -- reading the chosen pixels of the image --------------------------------------------------
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _copy_pixels(block: npt.NDArray[Any], lo: int, lines: I64, pixels: I64, cells: I64,
-                 out: npt.NDArray[Any]) -> None:
-    """out[b, cells[k]] = block[lines[k] - lo, b, pixels[k]] (cell by cell, every band)."""
-    for k in range(cells.size):
-        li, pj, c = lines[k] - lo, pixels[k], cells[k]
-        for b in range(block.shape[1]):
-            out[b, c] = block[li, b, pj]
+def _chunk_spans(line: npt.NDArray[np.integer[Any]], valid: B, chunk_lines: int) -> I64:
+    """(chunks, 2): the first and last line needed by the valid cells in each chunk of
+    `chunk_lines` image lines, from the chunk of the first such line to that of the last
+    (first > last where a chunk has none); (0, 2) without a valid cell."""
+    first, last = np.iinfo(np.int64).max, -1
+    for c in range(line.size):
+        if valid[c]:
+            first, last = min(first, line[c]), max(last, line[c])
+    if last < 0:
+        return np.empty((0, 2), np.int64)
+    k0 = first // chunk_lines
+    spans = np.empty((last // chunk_lines - k0 + 1, 2), np.int64)
+    spans[:, 0], spans[:, 1] = last + 1, -1
+    for c in range(line.size):
+        if valid[c]:
+            k = line[c] // chunk_lines - k0
+            spans[k, 0], spans[k, 1] = min(spans[k, 0], line[c]), max(spans[k, 1], line[c])
+    return spans
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _copy_pixels(block: npt.NDArray[Any], lo: int, line: npt.NDArray[np.integer[Any]],
+                 pixel: npt.NDArray[np.integer[Any]], valid: B, out: npt.NDArray[Any]) -> None:
+    """out[b, c] = block[line[c] - lo, b, pixel[c]] for the valid cells c whose line is in the
+    block (cell by cell, every band; out's bands should not lie a multiple of 4 KB apart,
+    see Scratch.planes)."""
+    hi = lo + block.shape[0]
+    for c in range(line.size):
+        li = line[c]
+        if valid[c] and lo <= li < hi:
+            pj = pixel[c]
+            for b in range(block.shape[1]):
+                out[b, c] = block[li - lo, b, pj]
 
 
 def gather_pixels(raw: EnviRaster, line: npt.NDArray[np.integer[Any]],
@@ -433,20 +534,15 @@ def gather_pixels(raw: EnviRaster, line: npt.NDArray[np.integer[Any]],
     with `into`, what `into` held); the image is read by chunks of lines, only where some
     cell needs them."""
     rows, cols = line.shape
+    sc = scratch or Scratch()
     if into is None:
-        into = (scratch or Scratch()).get("pixels", (raw.bands, rows, cols),
-                                          raw.dtype.newbyteorder("="), fill)
-    out = into.reshape(raw.bands, rows * cols)
-    cells = np.flatnonzero(valid.ravel())
-    if cells.size:
-        lines = line.ravel()[cells].astype(np.int64)
-        pixels = pixel.ravel()[cells].astype(np.int64)
-        chunk = lines // RAW_CHUNK_LINES
-        k0 = int(chunk.min())
-        for k in np.flatnonzero(np.bincount(chunk - k0)) + k0:
-            sel = np.flatnonzero(chunk == k)
-            lo, hi = int(lines[sel].min()), int(lines[sel].max()) + 1
-            _copy_pixels(raw.read_lines(lo, hi), lo, lines[sel], pixels[sel], cells[sel], out)
+        into = sc.planes("pixels", (raw.bands, rows, cols), raw.dtype.newbyteorder("="), fill)
+    out = np.reshape(into, (raw.bands, rows * cols), copy=False)
+    cell_line, cell_pixel, cell_ok = line.ravel(), pixel.ravel(), valid.ravel()
+    for lo, last in _chunk_spans(cell_line, cell_ok, RAW_CHUNK_LINES).tolist():
+        if last >= lo:
+            _copy_pixels(sc.read_lines("raw", raw, lo, last + 1), lo, cell_line, cell_pixel,
+                         cell_ok, out)
     return out.reshape(raw.bands, rows, cols)
 
 
@@ -702,10 +798,12 @@ def _row_spans(values: I32, first: I64, end: I64) -> None:
 
 
 def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_stem: Path, *,
-                 tile_cells: int | None = None, compress: str = "deflate") -> OrthoResult:
+                 tile_cells: int | None = None, compress: str = "deflate",
+                 workers: int = WORKERS) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and
     `<glt_stem>.bil/.hdr`; each appears only when complete. `tile_cells` forces square work
-    tiles of that side (default: windows sized by WINDOW_BYTES)."""
+    tiles of that side (default: windows sized by WINDOW_BYTES); `workers`: windows computed
+    at once (the products do not depend on it)."""
     index = SwathIndex.build(Path(igm))
     raw = EnviRaster.open(Path(image))
     check_pair(index, raw, grid.epsg)
@@ -721,8 +819,8 @@ def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_ste
             tif.abort()
             raise
         try:
-            filled, infill, dist_sum, dist_max = _ortho_windows(index, raw, grid, nodata, tif,
-                                                                glt, tile_cells)
+            filled, infill, dist_sum, dist_max = _ortho_windows(
+                index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1))
             tif.close()
         except BaseException:
             tif.abort()
@@ -733,30 +831,86 @@ def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_ste
                        dist_sum / filled if filled else math.nan, dist_max)
 
 
-def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
-                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None
-                   ) -> tuple[int, int, float, float]:
-    """Every window: nearest pixels, their values, the GLT; (filled, infill, sum and max of
-    the distances in metres)."""
-    filled = infill = written = 0
-    dist_sum = dist_max = 0.0
-    scratches = (Scratch(), Scratch())  # one window is written while the next is made
-    for window in grid.windows(window_cells(raw), tile_cells):
-        part = index.cell_extent(grid, *window, snap=TIFF_BLOCK)
-        if part is None:
-            continue
-        row0, col0, rows, cols = part  # only where the swath can be: less to fill
-        scratch = scratches[written % 2]
-        ch = nearest_pixels(index, grid, row0, col0, rows, cols, scratch)
-        ok = ch.valid
+def _window_arrays(out: Scratch, raw: EnviRaster, rows: int, cols: int
+                   ) -> tuple[B, npt.NDArray[Any], I32]:
+    """A window's products in `out`: its filled cells, values (bands, rows, cols) and GLT
+    (rows, 2, cols)."""
+    return (out.get("ok", (rows, cols), np.bool_),
+            out.planes("pixels", (raw.bands, rows, cols), raw.dtype.newbyteorder("=")),
+            out.get("glt", (rows, 2, cols), np.int32))
+
+
+def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
+                 part: tuple[int, int, int, int], work: SimpleQueue[Scratch], out: Scratch
+                 ) -> tuple[npt.NDArray[Any], B, I32, tuple[int, int, float, float]] | None:
+    """A window's values for the GeoTIFF, its filled cells, its GLT and GLT figures (see
+    _glt_values), in `out`'s arrays; None if no cell is filled. The arrays it works in are
+    one of `work`'s, needed only while a window is made (less memory to hold and touch)."""
+    row0, col0, rows, cols = part
+    sc = work.get()
+    try:
+        ch = nearest_pixels(index, grid, row0, col0, rows, cols, sc)
+        ok, data, values = _window_arrays(out, raw, rows, cols)
+        np.greater_equal(ch.line, 0, out=ok)
         if not ok.any():
-            continue
-        tif.write(gather_pixels(raw, ch.line, ch.pixel, ok, nodata, scratch), row0, col0, ok)
-        values = scratch.get("glt", (rows, 2, cols), np.int32)
-        n, n_in, d_sum, d_top = _glt_values(ch.line, ch.pixel, ch.inside, ch.d2_cells, values)
-        glt.write_window(row0, col0, values)
-        written += 1
-        filled, infill = filled + n, infill + n_in
-        dist_sum += d_sum * grid.cell_m
-        dist_max = max(dist_max, d_top * grid.cell_m)
+            return None
+        data.fill(nodata)
+        gather_pixels(raw, ch.line, ch.pixel, ok, nodata, sc, into=data)
+        figures = _glt_values(ch.line, ch.pixel, ch.inside, ch.d2_cells, values)
+    finally:
+        work.put(sc)
+    return data, ok, values, figures
+
+
+def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
+                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None, workers: int
+                   ) -> tuple[int, int, float, float]:
+    """Every window, `workers` at a time (the kernels release the GIL), handed to the
+    GeoTIFF writer in order; (filled, infill, sum and max of the distances in metres)."""
+    filled = infill = 0
+    dist_sum = dist_max = 0.0
+    # only where the swath can be: less to fill
+    parts = [p for w in grid.windows(window_cells(raw), tile_cells)
+             if (p := index.cell_extent(grid, *w, snap=TIFF_BLOCK)) is not None]
+    if not parts:
+        return filled, infill, dist_sum, dist_max
+    work: SimpleQueue[Scratch] = SimpleQueue()
+    for _ in range(workers):
+        work.put(Scratch())
+    # a window's products are in use until the GeoTIFF writer is done with them: `workers`
+    # windows being made, one made and waiting for the writer, one being written
+    free = [Scratch() for _ in range(workers + 2)]
+    _, _, rows, cols = max(parts, key=lambda p: p[2] * p[3])
+    for sc in free:  # sized once for the largest window: growing means fresh pages again
+        _window_arrays(sc, raw, rows, cols)
+    todo = iter(parts)
+    writing: Scratch | None = None
+    running: deque[tuple[int, int, Scratch, Future[Any]]] = deque()
+    with ThreadPoolExecutor(workers, thread_name_prefix="sisa-ortho") as pool:
+
+        def start() -> None:
+            part = next(todo, None)
+            if part is not None:
+                sc = free.pop()
+                running.append((part[0], part[1], sc, pool.submit(
+                    _make_window, index, raw, grid, nodata, part, work, sc)))
+
+        for _ in range(workers):
+            start()
+        while running:
+            row0, col0, scratch, future = running.popleft()
+            made = future.result()
+            start()
+            if made is None:
+                free.append(scratch)
+                continue
+            data, ok, values, (n, n_in, d_sum, d_top) = made
+            glt.write_window(row0, col0, values)  # one thread: writers of a file contend
+            tif.write(data, row0, col0, ok)  # returns once the previous write is done
+            if writing is not None:
+                free.append(writing)
+            writing = scratch
+            filled, infill = filled + n, infill + n_in
+            dist_sum += d_sum * grid.cell_m
+            dist_max = max(dist_max, d_top * grid.cell_m)
     return filled, infill, dist_sum, dist_max

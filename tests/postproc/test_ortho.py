@@ -4,8 +4,11 @@ GDAL reading every product."""
 
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,6 +16,7 @@ import rasterio
 from scipy.spatial import cKDTree
 
 import postproc.ortho as ortho
+from postproc.igm import EnviRaster
 from postproc.ortho import OrthoGrid, SwathIndex, orthorectify
 from sisa.errors import InputError
 from tests.postproc.test_igm import (
@@ -196,11 +200,14 @@ def test_grid_snaps_to_cell_multiples() -> None:
 def test_failure_leaves_no_product(made: Made, tmp_path: Path,
                                    monkeypatch: pytest.MonkeyPatch) -> None:
     calls = {"n": 0}
+    lock = threading.Lock()
     real = ortho.gather_pixels
 
     def failing(*args: object, **kw: object) -> np.ndarray:
-        calls["n"] += 1
-        if calls["n"] == 3:
+        with lock:
+            calls["n"] += 1
+            n = calls["n"]
+        if n == 3:
             raise OSError("disk full")
         return real(*args, **kw)  # type: ignore[arg-type]
 
@@ -209,8 +216,151 @@ def test_failure_leaves_no_product(made: Made, tmp_path: Path,
     with pytest.raises(OSError, match="disk full"):
         orthorectify(igm, made.folder / "seg.bil", made.grid, tmp_path / "o.tif",
                      tmp_path / "g", tile_cells=64)
-    assert calls["n"] == 3
+    # the work stops: at most the windows already being made when the failure came finish
+    assert 3 <= calls["n"] <= 3 + ortho.WORKERS
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("tile_cells", [None, 64])
+def test_workers_give_identical_products(made: Made, tmp_path: Path, tile_cells: int | None,
+                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """Windows made on several threads at once: byte for byte the single-thread products,
+    even with a GeoTIFF writer lagging behind (a window's arrays must not be reused before
+    it is written)."""
+    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
+    real = ortho.TiffWriter._write
+
+    def lagging(self: ortho.TiffWriter, *args: Any) -> None:
+        time.sleep(0.002)
+        real(self, *args)
+
+    monkeypatch.setattr(ortho.TiffWriter, "_write", lagging)
+    runs = []
+    for workers in (1, 2, 3):
+        tif, glt = tmp_path / f"o{workers}.tif", tmp_path / f"g{workers}"
+        res = orthorectify(igm, image, made.grid, tif, glt, tile_cells=tile_cells,
+                           workers=workers)
+        with rasterio.open(tif) as ds:
+            runs.append((res, ds.read(), Path(f"{glt}.bil").read_bytes()))
+    for res, data, glt_bytes in runs[1:]:
+        assert res == runs[0][0]
+        np.testing.assert_array_equal(data, runs[0][1])
+        assert glt_bytes == runs[0][2]
+    assert runs[0][0].cells_filled == made.result.cells_filled
+
+
+def _choose(strip: Strip, grid: OrthoGrid, gap: str) -> tuple[np.ndarray, ...]:
+    """The nearest-pixel kernel on a whole strip, with the descent gated by `_gaps` ("gaps"),
+    always run ("always": gap 0) or never run ("never": gap inf)."""
+    lines, pixels = strip.shape
+    blk = np.stack([strip.easting_m, strip.northing_m, strip.height_m], axis=1)
+    u, v, box = np.empty((lines, pixels)), np.empty((lines, pixels)), np.empty((lines, 4))
+    x0, y0 = float(grid.centre_x_m(0)), float(grid.centre_y_m(0))
+    ortho._to_cells(blk, x0, y0, grid.cell_m, u, v, box)
+    gaps = np.empty_like(u)
+    ortho._gaps(u, v, gaps)
+    gaps = {"gaps": gaps, "always": np.zeros_like(u), "never": np.full_like(u, np.inf)}[gap]
+    d2 = np.full((grid.height, grid.width), np.inf)
+    line = np.full((grid.height, grid.width), -1, dtype=np.int32)
+    pixel = np.full_like(line, -1)
+    inside = np.zeros(line.shape, dtype=bool)
+    ortho._rasterise(u, v, box, gaps, 0, lines - 1, 0, d2, line, pixel, inside)
+    return line, pixel, d2, inside
+
+
+def test_skipped_descents_change_nothing(made: Made) -> None:
+    """The descent is skipped where `_gaps` proves no neighbour nearer: the choices are those
+    of always descending, on a strip whose crossing lines need the descent."""
+    gated = _choose(made.strip, made.grid, "gaps")
+    always = _choose(made.strip, made.grid, "always")
+    never = _choose(made.strip, made.grid, "never")
+    for a, b in zip(gated, always, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert (never[0] != always[0]).sum() > 100  # the descent matters on this strip
+
+
+def test_gaps_is_the_nearest_neighbour_of_the_descent() -> None:
+    rng = np.random.default_rng(3)
+    u, v = rng.normal(size=(9, 7)), rng.normal(size=(9, 7))
+    u[4, 3] = np.nan
+    v[0, 0] = np.nan
+    got = np.empty_like(u)
+    ortho._gaps(u, v, got)
+    want = np.full_like(u, np.inf)
+    for i, j in np.ndindex(u.shape):
+        for a in range(max(i - ortho.DESCENT_LINES, 0), min(i + ortho.DESCENT_LINES + 1, 9)):
+            for b in range(max(j - ortho.DESCENT_PIXELS, 0),
+                           min(j + ortho.DESCENT_PIXELS + 1, 7)):
+                d = (u[a, b] - u[i, j]) ** 2 + (v[a, b] - v[i, j]) ** 2
+                if (a, b) != (i, j) and d < want[i, j]:
+                    want[i, j] = d
+    np.testing.assert_array_equal(got, want)
+    assert np.isinf(got[4, 3])  # no position: no neighbour
+    assert np.isinf(got[0, 0])
+    assert np.isfinite(got[4, 2])
+
+
+def test_line_extents_skip_pixels_without_a_position() -> None:
+    rng = np.random.default_rng(5)
+    blk = rng.normal(size=(6, 3, 8)) * 100
+    blk[1, 0, 2] = np.nan  # easting only: the pixel has no position
+    blk[2, 1, 5] = np.inf
+    blk[3, :2] = np.nan  # a line without any position
+    got = np.empty((6, 4))
+    ortho._line_extents(blk, got)
+    e, n = blk[:, 0].copy(), blk[:, 1].copy()
+    bad = ~(np.isfinite(e) & np.isfinite(n))
+    e[bad], n[bad] = np.nan, np.nan
+    with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
+        want = np.stack([np.nanmin(e, axis=1), np.nanmin(n, axis=1), np.nanmax(e, axis=1),
+                         np.nanmax(n, axis=1)], axis=1)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[3]).all()
+
+
+def test_reads_into_reused_arrays_match_read_lines(tmp_path: Path) -> None:
+    img = write_raw(tmp_path / "a.bil", 50, 9)
+    raw = EnviRaster.open(tmp_path / "a.bil")
+    sc = ortho.Scratch()
+    first = sc.read_lines("raw", raw, 3, 20)
+    np.testing.assert_array_equal(first, img[3:20])
+    again = sc.read_lines("raw", raw, 10, 12)
+    assert np.shares_memory(first, again)  # the same array, reused
+    np.testing.assert_array_equal(again, img[10:12])
+    # big-endian or band-sequential: raster.read_lines, which converts
+    img.astype(">u2").transpose(1, 0, 2).tofile(tmp_path / "b.bil")
+    hdr = (tmp_path / "a.hdr").read_text().replace("interleave = bil", "interleave = bsq")
+    (tmp_path / "b.hdr").write_text(hdr.replace("byte order = 0", "byte order = 1"))
+    other = EnviRaster.open(tmp_path / "b.bil")
+    np.testing.assert_array_equal(sc.read_lines("raw", other, 5, 40), img[5:40])
+    with pytest.raises(InputError, match="outside"):
+        sc.read_lines("raw", raw, 40, 51)
+
+
+def test_planes_keep_bands_off_4k_multiples() -> None:
+    sc = ortho.Scratch()
+    for shape, dtype in (((18, 512, 1024), np.uint16), ((3, 7, 5), np.float32)):
+        arr = sc.planes("p", shape, dtype, fill=9)
+        assert arr.shape == shape
+        assert arr.dtype == dtype
+        assert (arr == 9).all()
+        assert arr.strides[0] % 4096 != 0
+        assert arr.strides[0] % 4096 == ortho.PLANE_PAD_BYTES
+        assert arr.strides[1:] == (shape[2] * arr.itemsize, arr.itemsize)
+
+
+def test_chunked_reads_gather_every_line(made: Made, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The image read by chunks of 37 lines, some skipped: the same values."""
+    monkeypatch.setattr(ortho, "RAW_CHUNK_LINES", 37)
+    raw = EnviRaster.open(made.folder / "seg.bil")
+    rng = np.random.default_rng(2)
+    line = rng.integers(0, 600, size=(30, 40)).astype(np.int32)
+    line[line // 37 % 3 == 1] = 0  # some chunks not needed at all
+    pixel = rng.integers(0, 64, size=(30, 40)).astype(np.int32)
+    valid = rng.random((30, 40)) < 0.8
+    got = ortho.gather_pixels(raw, line, pixel, valid, 5)
+    want = np.where(valid, made.raw[line, :, pixel].transpose(2, 0, 1), 5)
+    np.testing.assert_array_equal(got, want)
 
 
 def test_image_must_match_the_igm(made: Made, tmp_path: Path) -> None:

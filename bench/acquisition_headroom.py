@@ -117,7 +117,10 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     errors = errors_after_warm_up(folder / f"f{k:g}.mcap")
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
     fwd = read_columns(folder / f"f{k:g}.mcap", Topic.SYNC_FORWARD)
-    mode2 = fwd["mode"] == 2
+    # as for decode errors, after the first health report: a pulse forwarded just after joining
+    # a running scanner mid-stream may have had its header sent before the port was open
+    warm_ns = int(read_columns(folder / f"f{k:g}.mcap", Topic.HEALTH)["log_time_ns"].min())
+    mode2 = (fwd["mode"] == 2) & (fwd["t_host_ns"] >= warm_ns)
     tied = float((fwd["frame_counter"][mode2] >= 0).sum()) / max(1, int(mode2.sum()))
     # steady-state CPU: while data flowed (from 1 s after the first INS record to 1 s before the
     # last), not start-up imports, the emulator's fast-forward to --start, or the wait at the end
@@ -171,8 +174,8 @@ def main() -> None:
         print(f"recorder CPU at nominal rates: median {statistics.median(nominal_cpu):.1f}% of "
               f"one core over {len(nominal_cpu)} run(s), range {min(nominal_cpu):.1f}–"
               f"{max(nominal_cpu):.1f}% (target < 5%)")
-    print("tied: forwarded frame pulses (mode 2) whose frame counter the sync filter logged, "
-          "i.e. whose scan lines post-processing can time")
+    print("tied: forwarded frame pulses (mode 2, after the first health report) whose frame "
+          "counter the sync filter logged, i.e. whose scan lines post-processing can time")
     print("note: the emulated INS bus is 500 kbit/s; one record is 7 frames (777 bits), so above "
           "~10x (644 records/s) the bus itself saturates and the INS sends fewer records than "
           "its rate ('got Hz'): that is the bus, not the recorder, and counts as no loss here")

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy.typing as npt
 import tomli_w
 
 from emulators.scenario import load_scenario
@@ -64,10 +65,9 @@ def scaled_scenario(k: float, folder: Path) -> Path:
     return path
 
 
-def errors_after_warm_up(log: Path) -> float:
-    """Decode errors after the first health report: joining a stream mid-message at connect time
-    (a partial sentence, half an INS record) is not a loss."""
-    health = read_columns(log, Topic.HEALTH)
+def errors_after_warm_up(health: dict[str, npt.NDArray[Any]]) -> float:
+    """Decode errors after the first health report (`health`: the log's health columns): joining
+    a stream mid-message at connect time (a partial sentence, half an INS record) is not a loss."""
     total = 0.0
     for stream in set(health["stream"]):
         errs = (health["checksum_errors"] + health["framing_errors"])[health["stream"] == stream]
@@ -114,12 +114,13 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     if m is None:
         raise SystemExit(f"scale {k}: no summary from sisa record: {rec_err[-500:]}")
     ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
-    errors = errors_after_warm_up(folder / f"f{k:g}.mcap")
+    health = read_columns(folder / f"f{k:g}.mcap", Topic.HEALTH)
+    errors = errors_after_warm_up(health)
     ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
     fwd = read_columns(folder / f"f{k:g}.mcap", Topic.SYNC_FORWARD)
     # as for decode errors, after the first health report: a pulse forwarded just after joining
     # a running scanner mid-stream may have had its header sent before the port was open
-    warm_ns = int(read_columns(folder / f"f{k:g}.mcap", Topic.HEALTH)["log_time_ns"].min())
+    warm_ns = int(health["log_time_ns"].min())
     mode2 = (fwd["mode"] == 2) & (fwd["t_host_ns"] >= warm_ns)
     tied = float((fwd["frame_counter"][mode2] >= 0).sum()) / max(1, int(mode2.sum()))
     # steady-state CPU: while data flowed (from 1 s after the first INS record to 1 s before the

@@ -89,6 +89,7 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     scenario = scaled_scenario(k, folder)
     run = folder / f"run{k:g}"
     ep = folder / f"ep{k:g}.json"
+    log = folder / f"f{k:g}.mcap"
     emu = subprocess.Popen([sys.executable, "-m", "sisa.cli", "emulate", "--scenario",
                             str(scenario), "--no-images", "--out", str(run), "--start",
                             str(start_s - 3), "--duration", str(seconds + 3), "--endpoints",
@@ -98,8 +99,7 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     e = json.loads(ep.read_text())
     rec = subprocess.Popen([sys.executable, "-m", "sisa.cli", "record", "--quiet", "--scenario",
                             str(scenario), "--gps", e["gps"], "--scanner", e["scanner"], "--ins",
-                            e["ins"], "--pulses", e["pulses"], "--out",
-                            str(folder / f"f{k:g}.mcap")],
+                            e["ins"], "--pulses", e["pulses"], "--out", str(log)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     samples: list[tuple[int, float]] = []  # (wall ns, recorder CPU s), 4 a second
     while rec.poll() is None:
@@ -114,10 +114,10 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     if m is None:
         raise SystemExit(f"scale {k}: no summary from sisa record: {rec_err[-500:]}")
     ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
-    health = read_columns(folder / f"f{k:g}.mcap", Topic.HEALTH)
+    health = read_columns(log, Topic.HEALTH)
     errors = errors_after_warm_up(health)
-    ins_t = read_columns(folder / f"f{k:g}.mcap", Topic.INS_RECORD)["t_host_ns"]
-    fwd = read_columns(folder / f"f{k:g}.mcap", Topic.SYNC_FORWARD)
+    ins_t = read_columns(log, Topic.INS_RECORD)["t_host_ns"]
+    fwd = read_columns(log, Topic.SYNC_FORWARD)
     # as for decode errors, after the first health report: a pulse forwarded just after joining
     # a running scanner mid-stream may have had its header sent before the port was open
     warm_ns = int(health["log_time_ns"].min())

@@ -20,9 +20,11 @@ per codec, and the speed-up is against the faster run: "plain" (-wm 512 -wo
 SKIP_NOSOURCE=YES, one warping thread, GDAL's default block cache of 5 % of RAM) and
 "threads" (the same plus -multi, -wo NUM_THREADS=ALL_CPUS, -co NUM_THREADS=ALL_CPUS,
 --config GDAL_CACHEMAX 1024); on this 2-core machine shared with other work the threaded run
-is often the slower. orthorectify(): its defaults (windows made two at a time on threads by
+is often the slower. Ours is the `sisa ortho` command on gdalwarp's grid (--cell, --bounds),
+as a user runs it, with orthorectify()'s defaults (windows made two at a time on threads by
 numba kernels, the GeoTIFF compressed by GDAL in a background thread with
-NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB).
+NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB); the time of orthorectify() itself is read from
+its summary line.
 
 The position error of a cell is the distance from its centre to the ground position of the
 pixel chosen for it; the exact nearest neighbour comes from a cKDTree over every pixel.
@@ -37,13 +39,14 @@ import argparse
 import json
 import math
 import os
+import re
 import resource
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -161,22 +164,29 @@ def _measure_main(cmd: list[str]) -> None:
         sys.stderr.write(err)
         raise SystemExit(proc.returncode)
     use = resource.getrusage(resource.RUSAGE_CHILDREN)
-    body = json.loads(out) if out.strip().startswith("{") else {}
+    body = {"stdout": out}
     print(json.dumps({"wall_s": wall, "cpu_s": use.ru_utime + use.ru_stime,
                       "peak_rss_mb": use.ru_maxrss / 1024, "out": body}))
 
 
-def _ours_main(igm: str, image: str, grid_json: str, tif: str, glt: str, compress: str) -> None:
-    grid = OrthoGrid(**json.loads(grid_json))
-    t0 = time.perf_counter()
-    res = orthorectify(Path(igm), Path(image), grid, Path(tif), Path(glt), compress=compress)
-    print(json.dumps({"ortho_s": time.perf_counter() - t0, **asdict(res)}))
+SUMMARY = re.compile(r"(?P<filled>\d+) of (?P<cells>\d+) cells filled.*; ortho "
+                     r"(?P<ortho_s>[\d.]+) s")
 
 
 def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str) -> list[str]:
-    return [sys.executable, __file__, "--ours", str(folder / "seg_igm.bil"),
-            str(folder / "seg.bil"), json.dumps(asdict(grid)), str(folder / f"ours_{tag}.tif"),
-            str(folder / f"ours_{tag}_glt"), compress]
+    """`sisa ortho` as a user runs it, on gdalwarp's grid (its -te and -tr)."""
+    return [sys.executable, "-m", "sisa.cli", "ortho", str(folder / "seg_igm.bil"),
+            str(folder / "seg.bil"), "--out", str(folder / f"ours_{tag}.tif"),
+            "--cell", repr(grid.cell_m), "--bounds", *(repr(v) for v in grid.bounds_m),
+            "--compress", compress]
+
+
+def ours_summary(run: Run) -> tuple[int, float]:
+    """(cells filled, seconds in orthorectify()) from `sisa ortho`'s summary line."""
+    got = SUMMARY.search(run.out.get("stdout", ""))
+    if got is None:
+        raise SystemExit(f"sisa ortho: no summary line in {run.out!r}")
+    return int(got["filled"]), float(got["ortho_s"])
 
 
 GDAL_MODES = ("plain", "threads")
@@ -299,18 +309,19 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
         gds = {mode: measured(gdal_cmd(folder, grid, compress, compress, mode), cwd=folder)
                for mode in gdal_modes}
         us = measured(ours_cmd(folder, grid, compress, compress))
+        _, ortho_s = ours_summary(us)
         print(f"[{compress} GeoTIFF, tiled 512]  (load average {os.getloadavg()[0]:.1f} on "
               f"{os.cpu_count()} cores)")
         for mode, gd in gds.items():
             print(f"  gdalwarp ({mode:7s}): {gd.wall_s:7.2f} s wall, {gd.cpu_s:7.2f} s CPU, "
                   f"peak RSS {gd.peak_rss_mb:6.0f} MB")
-        print(f"  sisa orthorectify: {us.wall_s:7.2f} s wall, {us.cpu_s:7.2f} s CPU, peak RSS "
-              f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {us.out['ortho_s']:.2f} s wall)")
+        print(f"  sisa ortho:        {us.wall_s:7.2f} s wall, {us.cpu_s:7.2f} s CPU, peak RSS "
+              f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {ortho_s:.2f} s wall)")
         best = min(gds, key=lambda m: gds[m].wall_s)
         gd = gds[best]
         print(f"  speed-up against the faster gdalwarp ({best}): {gd.wall_s / us.wall_s:.1f}x "
               f"wall, {gd.cpu_s / us.cpu_s:.1f}x CPU (whole processes); "
-              f"{gd.wall_s / us.out['ortho_s']:.1f}x wall against orthorectify() alone")
+              f"{gd.wall_s / ortho_s:.1f}x wall against orthorectify() alone")
     err = errors(folder, grid, codecs[0])
     print(f"cells filled: gdalwarp {err['cells_gdal']:.0f}, ours {err['cells_ours']:.0f}; "
           f"ours but not gdalwarp {err['cells_ours_not_gdal']:.0f}, "
@@ -337,16 +348,13 @@ def big_run(work: Path, size_gb: float, pixels: int, bands: int, cell_m: float) 
           f"{(folder / 'seg_igm.bil').stat().st_size / 1e9:.2f} GB, made in "
           f"{time.perf_counter() - t0:.0f} s; grid {grid.width} x {grid.height}")
     us = measured(ours_cmd(folder, grid, "big", "deflate"))
-    print(f"sisa orthorectify: {us.wall_s:8.1f} s wall, {us.cpu_s:.1f} s CPU, peak RSS "
-          f"{us.peak_rss_mb:7.0f} MB ({us.out['cells_filled']} cells filled)")
+    print(f"sisa ortho: {us.wall_s:8.1f} s wall, {us.cpu_s:.1f} s CPU, peak RSS "
+          f"{us.peak_rss_mb:7.0f} MB ({ours_summary(us)[0]} cells filled)")
 
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--measure":
         _measure_main(sys.argv[3:])
-        return
-    if len(sys.argv) > 1 and sys.argv[1] == "--ours":
-        _ours_main(*sys.argv[2:8])
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--lines", type=int, default=20_000)

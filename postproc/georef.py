@@ -33,7 +33,7 @@ from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import IgmWriter, igm_bounds, write_geolocation_vrt
 from postproc.mosaic import mosaic
 from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
-from postproc.ortho import OrthoGrid, orthorectify
+from postproc.ortho import OrthoGrid, nice_cell_m, orthorectify
 from postproc.quicklook import write_quicklook
 from postproc.raycast import intersect
 from postproc.registration import register_strips
@@ -356,14 +356,6 @@ class GeorefJob:
             "ins_records_timed": int((result.ins.status == TimeStatus.OK).sum()),
             "ins_records": int(result.ins.status.size),
         }
-
-
-def nice_cell_m(gsd_m: float) -> float:
-    """The pixel spacing rounded to two significant digits: 0.964 → 0.96, 3.47 → 3.5."""
-    if not math.isfinite(gsd_m) or gsd_m <= 0:
-        return math.nan
-    digits = 1 - math.floor(math.log10(gsd_m))
-    return round(gsd_m, digits)
 
 
 def _median(parts: list[F64]) -> float:

@@ -343,6 +343,18 @@ def igm_bounds(igm: IgmSource) -> tuple[float, float, float, float]:
     return west, south, east, north
 
 
+
+def igm_pixel_spacing_m(path: Path, sample_lines: int = 64) -> float:
+    """Median distance between neighbouring pixel centres of a line (across track), from
+    `sample_lines` lines spread over the IGM; NaN if no two neighbours have positions."""
+    igm = open_igm(path)
+    rows = np.unique(np.linspace(0, igm.shape[0] - 1, min(sample_lines, igm.shape[0]))
+                     .astype(np.int64))
+    east, north = np.asarray(igm[rows, 0]), np.asarray(igm[rows, 1])
+    step = np.hypot(np.diff(east, axis=1), np.diff(north, axis=1)).ravel()
+    step = step[np.isfinite(step)]
+    return float(np.median(step)) if step.size else float("nan")
+
 # -- GDAL geolocation arrays -----------------------------------------------------------------
 
 def write_geolocation_vrt(vrt_path: Path, image_path: Path, igm_path: Path, epsg: int) -> None:

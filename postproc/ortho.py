@@ -150,6 +150,14 @@ class OrthoGrid:
         return round(row), round(col)
 
 
+def nice_cell_m(gsd_m: float) -> float:
+    """The pixel spacing rounded to two significant digits: 0.964 → 0.96, 3.47 → 3.5."""
+    if not math.isfinite(gsd_m) or gsd_m <= 0:
+        return math.nan
+    digits = 1 - math.floor(math.log10(gsd_m))
+    return round(gsd_m, digits)
+
+
 # -- where each block of lines lies on the ground --------------------------------------------
 
 @dataclass(frozen=True)

@@ -1,0 +1,123 @@
+"""`sisa ortho` as a user runs it: the products `orthorectify` makes, the grid it picks, one-line
+errors with nothing written; and the console entry's exit."""
+
+from __future__ import annotations
+
+import gc
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
+from sisa import cli
+from sisa.commands.ortho import COMPRESSIONS
+from tests.postproc.test_igm import synthetic_strip
+from tests.postproc.test_ortho import Made, make
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Made:
+    return make(tmp_path_factory.mktemp("ortho_cli"), synthetic_strip(400, 48))
+
+
+def sisa_ortho(*args: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "sisa.cli", "ortho", *map(str, args)],
+                          capture_output=True, text=True, timeout=120, check=False)
+
+
+def igm_without_crs(made: Made, folder: Path) -> Path:
+    """The IGM again under a header that names no CRS (ENVI files from other tools)."""
+    header = (made.folder / "seg_igm.hdr").read_text().splitlines()
+    (folder / "nocrs_igm.hdr").write_text("\n".join(
+        x for x in header if not x.startswith(("coordinate system", "map info"))))
+    (folder / "nocrs_igm.bil").symlink_to(made.folder / "seg_igm.bil")
+    return folder / "nocrs_igm.bil"
+
+
+def test_same_products_as_orthorectify(made: Made, tmp_path: Path) -> None:
+    g = made.grid
+    out = tmp_path / "again.tif"
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--cell", g.cell_m, "--bounds", g.west_m, g.north_m - g.height * g.cell_m,
+                      g.west_m + g.width * g.cell_m, g.north_m)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("\n") == 1
+    assert f"{made.result.cells_filled} of {made.result.cells} cells filled" in proc.stdout
+    with rasterio.open(out) as a, rasterio.open(made.tif) as b:
+        assert a.transform == b.transform
+        assert a.crs == b.crs
+        np.testing.assert_array_equal(a.read(), b.read())
+    assert (tmp_path / "again_glt.bil").read_bytes() == made.glt.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["again.tif", "again_glt.bil",
+                                                          "again_glt.hdr"]
+
+
+def test_default_grid_is_the_pixel_spacing_over_the_extent(made: Made, tmp_path: Path) -> None:
+    out = tmp_path / "auto.tif"
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--compress", "none")
+    assert proc.returncode == 0, proc.stderr
+    e, n = made.strip.easting_m, made.strip.northing_m
+    step = np.hypot(np.diff(e, axis=1), np.diff(n, axis=1))
+    cell = nice_cell_m(float(np.median(step[np.isfinite(step)])))
+    assert cell != made.grid.cell_m  # the strip's pixels widen towards the edges
+    with rasterio.open(out) as o:
+        assert o.res == (cell, cell)
+        assert o.compression is None
+        west, north = o.transform.c, o.transform.f
+        assert west <= np.nanmin(e) < west + cell
+        assert north - cell < np.nanmax(n) <= north
+        assert west / cell == pytest.approx(round(west / cell))
+
+
+def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) -> None:
+    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
+    no_crs = igm_without_crs(made, tmp_path)
+    cases = [
+        ((igm, tmp_path / "missing.bil", "--out", tmp_path / "o.tif"), "missing"),
+        ((igm, image, "--out", tmp_path / "o.png"), "name the GeoTIFF"),
+        ((igm, image, "--out", tmp_path / "no" / "o.tif"), "does not exist"),
+        ((igm, image, "--out", tmp_path / "o.tif", "--cell", "-1"), "positive --cell"),
+        ((igm, image, "--out", tmp_path / "o.tif", "--crs", "32630"), "EPSG:32631"),
+        ((no_crs, image, "--out", tmp_path / "o.tif"), "give --crs"),
+        ((image, image, "--out", tmp_path / "o.tif"), "not an IGM"),
+    ]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for args, says in cases:
+        proc = sisa_ortho(*args)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert proc.stdout == ""
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1, proc.stderr
+        assert lines[0].startswith("sisa ortho: error:"), proc.stderr
+        assert says in lines[0], (says, lines[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_the_igm_without_crs_maps_with_crs_given(made: Made, tmp_path: Path) -> None:
+    proc = sisa_ortho(igm_without_crs(made, tmp_path), made.folder / "seg.bil", "--out",
+                      tmp_path / "o.tif", "--crs", "32631", "--cell", "2")
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(tmp_path / "o.tif") as o:
+        assert o.crs.to_epsg() == 32631
+        assert o.res == (2.0, 2.0)
+
+
+def test_compressions_offered_are_the_writers() -> None:
+    assert COMPRESSIONS == TIFF_COMPRESSIONS
+
+
+def test_console_entry_exits_with_the_code_and_leaves_objects_to_the_process(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys, "argv", ["sisa", "scenario", "show", "no-such-preset"])
+    try:
+        with pytest.raises(SystemExit) as done:
+            cli.run()
+        assert done.value.code == 2
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()

@@ -9,6 +9,10 @@ Why it is built this way:
   a bad chunk is skipped and counted, a length beyond `record_size_limit` stops the file (a
   corrupt length must not allocate gigabytes; nor may a compressed chunk inflate past its
   declared size), unknown records are skipped.
+- Channels are declared once, inside the chunk of their first message. When that chunk is
+  damaged, the declarations come from the summary of a complete file (read first, CRC-checked),
+  or from the damaged chunk itself when they are exactly what SISA writes for that topic
+  (a file cut short has no summary); either way only the damaged chunk's own messages are lost.
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
   numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
 - `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the median
@@ -18,10 +22,12 @@ Why it is built this way:
 from __future__ import annotations
 
 import base64
+import contextlib
 import dataclasses
 import io
 import json
 import struct
+import zlib
 from array import array
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,7 +44,14 @@ from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Sche
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from recorder.messages import LoggedMessage, Topic
-from recorder.writer import SCHEMAS, TOPIC_TYPES
+from recorder.writer import (
+    MESSAGE_ENCODING,
+    SCHEMA_BYTES,
+    SCHEMA_ENCODING,
+    SCHEMAS,
+    TOPIC_SCHEMAS,
+    TOPIC_TYPES,
+)
 from sisa.errors import DecodeError, InputError
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
@@ -51,6 +64,7 @@ _BATCH: Final = 4096
 _PARSE_ERRORS: Final = (McapError, ValueError, struct.error, UnicodeDecodeError, KeyError)
 _JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, RecursionError)
 _RECORD_HEAD: Final = 9  # opcode u8, length u64
+_FOOTER_BODY: Final = 20  # summary_start u64, summary_offset_start u64, summary_crc u32
 _KNOWN_OPCODES: Final = frozenset(int(op) for op in Opcode)
 
 PathArg = Path | str
@@ -312,6 +326,9 @@ class _FileScan:
     def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
         fs = self.fstats
         with open_log(self.path) as fh:
+            for declared in _summary_declarations(fh, fs.size_bytes, self.limit):
+                self._declare(declared)
+            fh.seek(len(MCAP_MAGIC))
             source = _WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
             fs.bytes_readable = source.position
             try:
@@ -389,6 +406,7 @@ class _FileScan:
         except _PARSE_ERRORS as exc:
             self.fstats.chunks_skipped += 1
             self._problem(f"chunk ending at byte {end} skipped: {exc}")
+            self._salvage_declarations(chunk)
             return []
         self.fstats.chunks_read += 1
         out: list[tuple[ChannelInfo, Message]] = []
@@ -398,6 +416,26 @@ class _FileScan:
             else:
                 self._declare(record)
         return out
+
+    def _salvage_declarations(self, chunk: Chunk) -> None:
+        """The channels a damaged chunk declares that are exactly what SISA writes (topic,
+        encoding, schema name and text), read up to the damage: the later chunks' messages
+        on them are not lost with it. Anything else in it is not trusted."""
+        schemas: dict[int, Schema] = {}
+        try:
+            data = _uncompressed(chunk, self.limit).data
+            for record in StreamReader(_RecordBytes(data, self.limit), skip_magic=True,
+                                       record_size_limit=None).records:
+                if isinstance(record, Schema) and _is_ours(record):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel) and record.id not in self.channels:
+                    schema = schemas.get(record.schema_id) or self.schemas.get(record.schema_id)
+                    if schema is not None and record.message_encoding == MESSAGE_ENCODING \
+                            and TOPIC_SCHEMAS.get(record.topic) == schema.name:
+                        self.schemas.setdefault(schema.id, schema)
+                        self._declare(record)
+        except (*_PARSE_ERRORS, _OverLimitError):
+            return  # the damage itself: what came before it is kept
 
     def _message(self, msg: Message) -> list[tuple[ChannelInfo, Message]]:
         channel = self.channels.get(msg.channel_id)
@@ -409,6 +447,40 @@ class _FileScan:
     def _problem(self, text: str) -> None:
         if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:
             self.fstats.problems.append(text)
+
+
+def _summary_declarations(fh: BinaryIO, size: int, limit: int) -> list[Schema | Channel]:
+    """The Schema and Channel records of the summary section, when the file ends in a footer
+    whose summary CRC checks; none otherwise (a file cut short, a damaged summary)."""
+    footer_at = size - len(MCAP_MAGIC) - _RECORD_HEAD - _FOOTER_BODY
+    if footer_at <= len(MCAP_MAGIC):
+        return []
+    fh.seek(footer_at)
+    footer = fh.read(_RECORD_HEAD + _FOOTER_BODY + len(MCAP_MAGIC))
+    if footer[0] != Opcode.FOOTER or footer[-len(MCAP_MAGIC):] != MCAP_MAGIC or \
+            int.from_bytes(footer[1:_RECORD_HEAD], "little") != _FOOTER_BODY:
+        return []
+    summary_start, _, summary_crc = struct.unpack_from("<QQI", footer, _RECORD_HEAD)
+    if not len(MCAP_MAGIC) < summary_start < footer_at or footer_at - summary_start > limit \
+            or summary_crc == 0:
+        return []
+    fh.seek(summary_start)
+    summary = fh.read(footer_at - summary_start)
+    if zlib.crc32(footer[:_RECORD_HEAD + 16], zlib.crc32(summary)) != summary_crc:
+        return []
+    out: list[Schema | Channel] = []
+    # it ends in EndOfFile (no footer in these bytes); its CRC has checked what came before
+    with contextlib.suppress(*_PARSE_ERRORS, _OverLimitError):
+        for record in StreamReader(_RecordBytes(summary, limit), skip_magic=True,
+                                   record_size_limit=None).records:
+            if isinstance(record, Schema | Channel):
+                out.append(record)
+    return out
+
+
+def _is_ours(schema: Schema) -> bool:
+    """A schema exactly as SISA's recorder writes it."""
+    return schema.encoding == SCHEMA_ENCODING and SCHEMA_BYTES.get(schema.name) == schema.data
 
 
 def _uncompressed(chunk: Chunk, limit: int) -> Chunk:

@@ -128,6 +128,12 @@ SCHEMAS: Final[Mapping[str, dict[str, Any]]] = {
     **{cls.schema_name: json_schema(cls) for cls in LOGGED_TYPES},
     LOCATION_FIX_SCHEMA_NAME: LOCATION_FIX_SCHEMA,
 }
+SCHEMA_BYTES: Final[Mapping[str, bytes]] = {
+    name: json.dumps(schema).encode() for name, schema in SCHEMAS.items()}  # as written
+TOPIC_SCHEMAS: Final[Mapping[str, str]] = {  # topic → the schema its channel is declared with
+    **{str(topic): cls.schema_name for topic, cls in TOPIC_TYPES.items()},
+    str(Topic.GPS_LOCATION): LOCATION_FIX_SCHEMA_NAME,
+}
 
 
 def part_path(path: Path, index: int) -> Path:
@@ -290,7 +296,7 @@ class _Part:
         channel_id = self.channels.get(key)
         if channel_id is None:
             schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
-                                                  json.dumps(SCHEMAS[schema_name]).encode())
+                                                  SCHEMA_BYTES[schema_name])
             channel_id = self.mcap.register_channel(str(topic), MESSAGE_ENCODING, schema_id)
             self.channels[key] = channel_id
         return channel_id

@@ -292,9 +292,10 @@ def bit_flips(draw: st.DrawFn) -> BitFlip:
 
 
 def prop_one_bit_flip_is_contained(case: BitFlip) -> int:
-    """A bit flipped inside one record loses at most that record's messages (plus, for a chunk,
-    the later messages on channels only that chunk declared: see the xfail below). A length
-    that the flip sends beyond the size limit may stop the file, but only there."""
+    """A bit flipped inside one record loses at most that record's messages (plus, for a chunk
+    of a file without a summary, the later messages on channels that chunk declared, when the
+    flip hit the declarations themselves). A length that the flip sends beyond the size limit
+    may stop the file, but only there."""
     layout = seed_layout(case.seed)
     hit = layout[case.record]
     data = bytearray(mcap_seeds()[case.seed])
@@ -308,7 +309,9 @@ def prop_one_bit_flip_is_contained(case: BitFlip) -> int:
         shutil.rmtree(folder, ignore_errors=True)
     total = sum(r.messages for r in layout)
     before = sum(r.messages for r in layout[:case.record])
-    orphaned = sum(1 for r in layout[case.record + 1:] for c in r.channels if c in hit.declares)
+    summary = any(r.opcode == 0x02 for r in layout)  # a footer: the summary declares them all
+    orphaned = 0 if summary else sum(1 for r in layout[case.record + 1:] for c in r.channels
+                                     if c in hit.declares)
     stopped = any("exceeds" in p for p in stats.files[0].problems)
     assert stats.messages >= (before if stopped else total - hit.messages - orphaned), \
         f"one flipped bit in a {hit.opcode:#04x} record lost {total - stats.messages} messages"
@@ -513,19 +516,43 @@ def test_one_damaged_index_record_loses_no_message(tmp_path: Path) -> None:
     assert any("damaged record" in p for p in stats.files[0].problems)
 
 
-@pytest.mark.xfail(strict=True, reason="known limitation of recorder/reader.py: schemas and "
-                   "channels are declared once, inside the chunk of their first message; when "
-                   "that chunk is damaged every later message of those topics is lost too")
-def test_a_damaged_chunk_loses_only_its_own_messages(tmp_path: Path) -> None:
-    layout = seed_layout(0)
+@pytest.mark.parametrize(("seed", "where"), [
+    (0, "end"),  # a complete file: the summary declares the channels again
+    (2, "end"),  # cut short (no summary): the declarations before the damage are salvaged
+    (0, "start"),  # the damage inside the declarations: the summary still has them
+])
+def test_a_damaged_chunk_loses_only_its_own_messages(tmp_path: Path, seed: int,
+                                                     where: str) -> None:
+    layout = seed_layout(seed)
     first = next(r for r in layout if r.opcode == CHUNK)
-    data = bytearray(mcap_seeds()[0])
-    data[first.offset + 9 + first.length - 5] ^= 0x10  # inside its records: CRC mismatch
+    assert first.declares, "the first chunk declares the channels of its messages"
+    data = bytearray(mcap_seeds()[seed])
+    at = first.offset + 9 + (first.length - 5 if where == "end" else 60)
+    data[at] ^= 0x10  # inside its records: a CRC mismatch
     path = tmp_path / "damaged.mcap"
     path.write_bytes(bytes(data))
     stats = scan_log(path)
     assert stats.files[0].chunks_skipped == 1
     assert stats.messages == sum(r.messages for r in layout) - first.messages
+
+
+def test_a_damaged_declaration_is_not_salvaged(tmp_path: Path) -> None:
+    """Cut short and damaged inside a schema's text: that schema, and so its channel, is not
+    trusted; the later messages of its topic are lost (and counted), the others are read."""
+    layout = seed_layout(2)
+    first = next(r for r in layout if r.opcode == CHUNK)
+    data = bytearray(mcap_seeds()[2])
+    body = bytes(data[first.offset + 9:first.offset + 9 + first.length])
+    at = first.offset + 9 + body.index(b'"properties"') + 3  # inside the first schema's JSON
+    data[at] ^= 0x01
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(bytes(data))
+    stats = scan_log(path)
+    lost = stats.files[0]
+    assert lost.chunks_skipped == 1
+    total = sum(r.messages for r in layout)
+    assert stats.messages < total - first.messages
+    assert any("undeclared channel" in p for p in lost.problems)
 
 
 @pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")

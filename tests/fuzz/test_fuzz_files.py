@@ -37,6 +37,7 @@ import tomli_w
 from hypothesis import strategies as st
 
 from emulators.scenario import PRESETS, Scenario, load_scenario
+from postproc.sensorfile import SensorModel
 from recorder.messages import InsRecordLog
 from recorder.reader import LogReader, read_log, read_messages, read_topics, scan_log
 from recorder.recover import recover
@@ -52,10 +53,6 @@ INTERESTING_U64 = (0, 1, 7, 8, 9, 22, 255, 2**16, 2**31, 2**32 - 1, 2**32, 2**62
                    2**63 - 1, 2**64 - 1)
 CHUNK = 0x06
 
-try:  # the sensor file is being written by the post-processing work; fuzz it once it exists
-    from postproc.sensorfile import SensorModel
-except ImportError:  # pragma: no cover - depends on the state of postproc/
-    SensorModel = None  # type: ignore[assignment,misc]
 
 
 # --- MCAP seeds: real recordings ----------------------------------------------------------------
@@ -423,7 +420,6 @@ def check_scenario_file(data: bytes) -> int:
 
 def check_sensor_file(data: bytes) -> int:
     """SensorModel.load: a model with finite numbers, or one InputError line naming the file."""
-    assert SensorModel is not None
     folder = Path(tempfile.mkdtemp(dir=_workdir()))
     try:
         path = folder / "sensor.toml"
@@ -443,12 +439,10 @@ def check_sensor_file(data: bytes) -> int:
 
 @st.composite
 def sensor_documents(draw: st.DrawFn) -> bytes:
-    assert SensorModel is not None
     return tomli_w.dumps(draw(model_documents(SensorModel))).encode()
 
 
 def _sensor_texts() -> tuple[bytes, ...]:
-    assert SensorModel is not None
     return (SensorModel().to_toml().encode(),)
 
 
@@ -463,13 +457,10 @@ FUZZERS: list[Fuzzer] = [
     Fuzzer("scenario/damaged-presets", st.deferred(lambda: damaged_text(_preset_texts())),
            check_scenario_file, examples=40),
     Fuzzer("scenario/random-bytes", st.binary(max_size=200), check_scenario_file, examples=20),
+    Fuzzer("sensor/documents", st.deferred(sensor_documents), check_sensor_file, examples=40),
+    Fuzzer("sensor/damaged", st.deferred(lambda: damaged_text(_sensor_texts())),
+           check_sensor_file, examples=30),
 ]
-if SensorModel is not None:
-    FUZZERS += [
-        Fuzzer("sensor/documents", st.deferred(sensor_documents), check_sensor_file, examples=40),
-        Fuzzer("sensor/damaged", st.deferred(lambda: damaged_text(_sensor_texts())),
-               check_sensor_file, examples=30),
-    ]
 
 
 @pytest.mark.parametrize("fuzzer", FUZZERS, ids=[f.name for f in FUZZERS])
@@ -484,18 +475,14 @@ def test_the_seed_recordings_read_whole() -> None:
         assert check_mcap(data) == 0
 
 
-@pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
 def test_sensor_file_with_a_huge_integer_is_one_line(tmp_path: Path) -> None:
-    assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text("time_delay_ms = " + "9" * 4400 + "\n")
     with pytest.raises(InputError, match=r"sensor\.toml"):
         SensorModel.load(path)
 
 
-@pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
 def test_sensor_file_with_nan_is_refused(tmp_path: Path) -> None:
-    assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text("[mounting]\nlever_arm_m = [nan, 0.0, inf]\n")
     with pytest.raises(InputError, match=r"sensor\.toml"):
@@ -555,19 +542,12 @@ def test_a_damaged_declaration_is_not_salvaged(tmp_path: Path) -> None:
     assert any("undeclared channel" in p for p in lost.problems)
 
 
-@pytest.mark.skipif(SensorModel is None, reason="postproc/sensorfile.py does not exist yet")
 def test_sensor_file_key_with_a_newline_is_one_line(tmp_path: Path) -> None:
-    assert SensorModel is not None
     path = tmp_path / "sensor.toml"
     path.write_text('"lever\\narm" = 0\n')
     with pytest.raises(InputError) as err:
         SensorModel.load(path)
     assert "\n" not in str(err.value)
-
-
-def test_the_sensor_file_is_fuzzed_once_it_exists() -> None:
-    path = Path(__file__).resolve().parents[2] / "postproc" / "sensorfile.py"
-    assert (SensorModel is not None) == path.is_file()
 
 
 # --- the regression corpus ----------------------------------------------------------------------
@@ -612,8 +592,6 @@ def corpus_files() -> list[Path]:
 def test_the_regression_corpus_replays_clean(path: Path) -> None:
     kind = path.name.split("-")[0]
     assert kind in REPLAY, f"{path.name}: unknown corpus kind (one of {sorted(REPLAY)})"
-    if kind == "sensor" and SensorModel is None:
-        pytest.skip("postproc/sensorfile.py does not exist yet")
     assert path.stat().st_size <= 64 * 1024, "corpus files stay small"
     with time_limit(20.0):
         REPLAY[kind](path.read_bytes())
@@ -621,7 +599,7 @@ def test_the_regression_corpus_replays_clean(path: Path) -> None:
 
 def test_the_corpus_covers_every_kind() -> None:
     kinds = {p.name.split("-")[0] for p in corpus_files()}
-    assert kinds >= set(REPLAY) - ({"sensor"} if SensorModel is None else set())
+    assert kinds >= set(REPLAY)
 
 
 def test_an_assembler_corpus_line_parses() -> None:

@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 import rasterio
 from affine import Affine
+from rasterio.errors import RasterioIOError
 from rasterio.windows import Window
 
 from postproc.igm import (
@@ -608,12 +609,18 @@ class TiffWriter:
             packing["zstd_level"] = TIFF_ZSTD_LEVEL
         if compress == "none":
             packing["sparse_ok"] = True
-        self._ds = rasterio.open(
-            self._tmp, "w", driver="GTiff", width=grid.width, height=grid.height,
-            count=raw.bands, dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
-            transform=grid.transform, nodata=nodata, tiled=True, blockxsize=TIFF_BLOCK,
-            blockysize=TIFF_BLOCK, interleave="band", bigtiff="IF_SAFER",
-            num_threads="ALL_CPUS", **packing)
+        try:
+            self._ds = rasterio.open(
+                self._tmp, "w", driver="GTiff", width=grid.width, height=grid.height,
+                count=raw.bands, dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
+                transform=grid.transform, nodata=nodata, tiled=True, blockxsize=TIFF_BLOCK,
+                blockysize=TIFF_BLOCK, interleave="band", bigtiff="IF_SAFER",
+                num_threads="ALL_CPUS", **packing)
+        except RasterioIOError as exc:  # a grid GDAL cannot hold, a folder it cannot write
+            self._tmp.unlink(missing_ok=True)
+            raise InputError(f"{self.path}: GDAL cannot create a {grid.width} x {grid.height} "
+                             f"GeoTIFF of {raw.bands} bands: "
+                             f"{str(exc).replace(self._tmp.name, self.path.name)}") from None
         self._ds.update_tags(AREA_OR_POINT="Area", TIFFTAG_IMAGEDESCRIPTION=description)
         for b, label in enumerate(band_labels(raw)):
             self._ds.set_band_description(b + 1, label)
@@ -675,7 +682,12 @@ class GltWriter:
         self.image_name, self.ortho_name = image_name, ortho_name
         self._tmp = partial_path(self.path)
         self._fd: int | None = os.open(self._tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
-        os.ftruncate(self._fd, grid.height * 2 * grid.width * 4)
+        try:
+            os.ftruncate(self._fd, grid.height * 2 * grid.width * 4)
+        except OSError as exc:  # EFBIG: a grid beyond what the file system holds
+            self.abort()
+            raise InputError(f"{self.path}: a GLT of {grid.width} x {grid.height} cells "
+                             f"cannot be created: {exc.strerror or exc}") from None
 
     def write_window(self, row0: int, col0: int, values: I32) -> None:
         """values (rows, 2, cols): sample and line of the window, as the GLT holds them."""

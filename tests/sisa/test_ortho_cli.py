@@ -85,6 +85,8 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
         ((igm, image, "--out", tmp_path / "o.tif", "--crs", "32630"), "EPSG:32631"),
         ((no_crs, image, "--out", tmp_path / "o.tif"), "give --crs"),
         ((image, image, "--out", tmp_path / "o.tif"), "not an IGM"),
+        ((igm, image, "--out", tmp_path / "o.tif", "--cell", "1", "--bounds", "0", "0", "1e7",
+          "1e7"), "GDAL cannot create a 10000000 x 10000000 GeoTIFF"),
     ]
     before = sorted(p.name for p in tmp_path.iterdir())
     for args, says in cases:

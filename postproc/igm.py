@@ -343,7 +343,6 @@ def igm_bounds(igm: IgmSource) -> tuple[float, float, float, float]:
     return west, south, east, north
 
 
-
 def igm_pixel_spacing_m(path: Path, sample_lines: int = 64) -> float:
     """Median distance between neighbouring pixel centres of a line (across track), from
     `sample_lines` lines spread over the IGM; NaN if no two neighbours have positions."""
@@ -354,6 +353,7 @@ def igm_pixel_spacing_m(path: Path, sample_lines: int = 64) -> float:
     step = np.hypot(np.diff(east, axis=1), np.diff(north, axis=1)).ravel()
     step = step[np.isfinite(step)]
     return float(np.median(step)) if step.size else float("nan")
+
 
 # -- GDAL geolocation arrays -----------------------------------------------------------------
 

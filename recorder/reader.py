@@ -466,7 +466,8 @@ def _summary_declarations(fh: BinaryIO, size: int, limit: int) -> list[Schema | 
         return []
     fh.seek(summary_start)
     summary = fh.read(footer_at - summary_start)
-    if zlib.crc32(footer[:_RECORD_HEAD + 16], zlib.crc32(summary)) != summary_crc:
+    checked = footer[:_RECORD_HEAD + _FOOTER_BODY - 4]  # the footer up to its CRC field
+    if zlib.crc32(checked, zlib.crc32(summary)) != summary_crc:
         return []
     out: list[Schema | Channel] = []
     # it ends in EndOfFile (no footer in these bytes); its CRC has checked what came before

@@ -123,3 +123,27 @@ def test_console_entry_exits_with_the_code_and_leaves_objects_to_the_process(
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def test_a_float_radiance_image_maps_like_its_dn(made: Made, tmp_path: Path) -> None:
+    """A calibrated float32 image (no ignore value) with the DN image's IGM: the same choice
+    of pixel in every cell, NaN outside the swath, the float predictor."""
+    header = (made.folder / "seg.hdr").read_text()
+    assert "data type = 12" in header
+    (tmp_path / "rad.hdr").write_text("\n".join(
+        "data type = 4" if x.startswith("data type") else x for x in header.splitlines()
+        if not x.startswith("data ignore value")) + "\n")
+    (made.raw.astype("<f4") * np.float32(0.01)).tofile(tmp_path / "rad.bil")
+    g = made.grid
+    proc = sisa_ortho(made.folder / "seg_igm.bil", tmp_path / "rad.bil", "--out",
+                      tmp_path / "rad.tif", "--cell", g.cell_m, "--bounds", *g.bounds_m)
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(tmp_path / "rad.tif") as r:
+        assert r.dtypes[0] == "float32"
+        assert np.isnan(r.nodata)
+        assert r.tags(ns="IMAGE_STRUCTURE")["PREDICTOR"] == "3"
+        rad = r.read()
+    dn, _ = made.read()
+    filled = dn[0] != 0
+    np.testing.assert_array_equal(rad[:, filled], dn[:, filled].astype("f4") * np.float32(0.01))
+    assert np.isnan(rad[:, ~filled]).all()

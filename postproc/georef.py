@@ -33,7 +33,7 @@ from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import IgmWriter, igm_bounds, write_geolocation_vrt
 from postproc.mosaic import mosaic
 from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
-from postproc.ortho import OrthoGrid, nice_cell_m, orthorectify
+from postproc.ortho import OrthoGrid, SwathIndex, nice_cell_m, orthorectify
 from postproc.quicklook import write_quicklook
 from postproc.raycast import intersect
 from postproc.registration import register_strips
@@ -277,9 +277,10 @@ class GeorefJob:
         seg.files["geolocation_vrt"] = vrt.name
         if not self.opt.products:
             return
-        grid = OrthoGrid.covering(igm_bounds(seg.igm), cell_m, self.epsg)
+        index = SwathIndex.build(seg.igm)
+        grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
         tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
-        orthorectify(seg.igm, seg.image, grid, tif, glt)
+        orthorectify(index, seg.image, grid, tif, glt)
         png = Path(f"{stem}_quicklook.png")
         write_quicklook(tif, png)
         seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)

@@ -817,14 +817,15 @@ def _row_spans(values: I32, first: I64, end: I64) -> None:
         first[r], end[r] = a, b
 
 
-def orthorectify(igm: Path, image: Path, grid: OrthoGrid, out_tif: Path, glt_stem: Path, *,
-                 tile_cells: int | None = None, compress: str = "deflate",
+def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,
+                 glt_stem: Path, *, tile_cells: int | None = None, compress: str = "deflate",
                  workers: int = WORKERS) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and
-    `<glt_stem>.bil/.hdr`; each appears only when complete. `tile_cells` forces square work
-    tiles of that side (default: windows sized by WINDOW_BYTES); `workers`: windows computed
-    at once (the products do not depend on it)."""
-    index = SwathIndex.build(Path(igm))
+    `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`: the IGM file, or its
+    SwathIndex when the caller built one for the grid's bounds (one pass over the IGM, not
+    two). `tile_cells` forces square work tiles of that side (default: windows sized by
+    WINDOW_BYTES); `workers`: windows computed at once (the products do not depend on it)."""
+    index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
     raw = EnviRaster.open(Path(image))
     check_pair(index, raw, grid.epsg)
     nodata = output_nodata(raw)

@@ -10,7 +10,8 @@ Why it is built this way:
   corrupt length must not allocate gigabytes; nor may a compressed chunk inflate past its
   declared size), unknown records are skipped.
 - Channels are declared once, inside the chunk of their first message. When that chunk is
-  damaged, the declarations come from the summary of a complete file (read first, CRC-checked),
+  damaged, the declarations come from the summary of a complete file (read when a message's
+  channel is missing, CRC-checked),
   or from the damaged chunk itself when they are exactly what SISA writes for that topic
   (a file cut short has no summary); either way only the damaged chunk's own messages are lost.
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
@@ -322,13 +323,11 @@ class _FileScan:
         self.limit = record_size_limit
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, ChannelInfo] = {}
+        self._summary_read = False  # its declarations, looked up once a channel is missing
 
     def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
         fs = self.fstats
         with open_log(self.path) as fh:
-            for declared in _summary_declarations(fh, fs.size_bytes, self.limit):
-                self._declare(declared)
-            fh.seek(len(MCAP_MAGIC))
             source = _WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
             fs.bytes_readable = source.position
             try:
@@ -439,6 +438,12 @@ class _FileScan:
 
     def _message(self, msg: Message) -> list[tuple[ChannelInfo, Message]]:
         channel = self.channels.get(msg.channel_id)
+        if channel is None and not self._summary_read:  # its declaration was in a bad chunk
+            self._summary_read = True
+            with open_log(self.path) as fh:
+                for declared in _summary_declarations(fh, self.fstats.size_bytes, self.limit):
+                    self._declare(declared)
+            channel = self.channels.get(msg.channel_id)
         if channel is None:
             self._problem(f"message on undeclared channel {msg.channel_id} skipped")
             return []

@@ -49,8 +49,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    from postproc.igm import igm_bounds, igm_epsg, igm_pixel_spacing_m
-    from postproc.ortho import OrthoGrid, nice_cell_m, orthorectify
+    from postproc.igm import igm_epsg, igm_pixel_spacing_m
+    from postproc.ortho import OrthoGrid, SwathIndex, nice_cell_m, orthorectify
 
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff"):
@@ -69,11 +69,11 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"cell size {cell_m}: give a positive --cell in metres"
                          if args.cell is not None else
                          f"{args.igm}: no two neighbouring pixels have positions: give --cell")
-    bounds = args.bounds if args.bounds is not None else igm_bounds(args.igm)
-    grid = OrthoGrid.covering(bounds, cell_m, epsg)
-    glt = out.with_name(f"{out.stem}_glt")
     t0 = time.perf_counter()
-    res = orthorectify(args.igm, args.image, grid, out, glt, compress=args.compress)
+    index = SwathIndex.build(args.igm)  # the IGM's extent, and then the ortho's index
+    grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
+    glt = out.with_name(f"{out.stem}_glt")
+    res = orthorectify(index, args.image, grid, out, glt, compress=args.compress)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

@@ -12,7 +12,8 @@ other bands a textured scene with sensor noise). Both tools map it onto the same
 nearest neighbour, each in its own process (wall time, and peak RSS from the rusage of that
 child), writing the same GeoTIFF layout twice: as the product (tiled 512, band-interleaved,
 DEFLATE level 1 with the horizontal predictor) and uncompressed (sparse), which times the
-resampling without the compression both pay alike.
+resampling without the compression both pay alike. Every timed run starts alike: the output
+of an earlier run deleted and all dirty pages written back (sync), untimed.
 
 Options each tool gets. Both: the creation options above; both compress with GDAL's GTiff
 driver (libdeflate for DEFLATE) on every core (NUM_THREADS=ALL_CPUS). gdalwarp runs twice
@@ -144,9 +145,14 @@ class Run:
     out: dict[str, Any]
 
 
-def measured(cmd: list[str], cwd: Path | None = None) -> Run:
+def measured(cmd: list[str], cwd: Path | None = None, outputs: tuple[Path, ...] = ()) -> Run:
     """`cmd` under a fresh Python that reports the child's wall time and peak RSS
-    (RUSAGE_CHILDREN of a process whose only child is `cmd`)."""
+    (RUSAGE_CHILDREN of a process whose only child is `cmd`). Each run starts alike: its
+    `outputs` from an earlier run deleted and every dirty page written back (sync), untimed;
+    else a run pays for deleting the previous output or for writing back the one before."""
+    for path in outputs:
+        path.unlink(missing_ok=True)
+    os.sync()
     wrapper = [sys.executable, __file__, "--measure", "--", *cmd]
     proc = subprocess.run(wrapper, capture_output=True, text=True, check=False, cwd=cwd)
     if proc.returncode != 0:
@@ -167,6 +173,10 @@ def _measure_main(cmd: list[str]) -> None:
     body = {"stdout": out}
     print(json.dumps({"wall_s": wall, "cpu_s": use.ru_utime + use.ru_stime,
                       "peak_rss_mb": use.ru_maxrss / 1024, "out": body}))
+
+
+def ours_outputs(folder: Path, tag: str) -> tuple[Path, ...]:
+    return tuple(folder / f"ours_{tag}{end}" for end in (".tif", "_glt.bil", "_glt.hdr"))
 
 
 SUMMARY = re.compile(r"(?P<filled>\d+) of (?P<cells>\d+) cells filled.*; ortho "
@@ -306,9 +316,11 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
               f"{' '.join(Path(a).name if '/' in a else a for a in shown[1:])}")
     for compress in codecs:
         # GDAL 3.6 + NUM_THREADS needs the VRT's folder as working directory: see igm.py
-        gds = {mode: measured(gdal_cmd(folder, grid, compress, compress, mode), cwd=folder)
+        gds = {mode: measured(gdal_cmd(folder, grid, compress, compress, mode), cwd=folder,
+                              outputs=(folder / f"gdal_{compress}.tif",))
                for mode in gdal_modes}
-        us = measured(ours_cmd(folder, grid, compress, compress))
+        us = measured(ours_cmd(folder, grid, compress, compress), outputs=ours_outputs(
+            folder, compress))
         _, ortho_s = ours_summary(us)
         print(f"[{compress} GeoTIFF, tiled 512]  (load average {os.getloadavg()[0]:.1f} on "
               f"{os.cpu_count()} cores)")
@@ -347,7 +359,7 @@ def big_run(work: Path, size_gb: float, pixels: int, bands: int, cell_m: float) 
           f"{(folder / 'seg.bil').stat().st_size / 1e9:.2f} GB raw (sparse), IGM "
           f"{(folder / 'seg_igm.bil').stat().st_size / 1e9:.2f} GB, made in "
           f"{time.perf_counter() - t0:.0f} s; grid {grid.width} x {grid.height}")
-    us = measured(ours_cmd(folder, grid, "big", "deflate"))
+    us = measured(ours_cmd(folder, grid, "big", "deflate"), outputs=ours_outputs(folder, "big"))
     print(f"sisa ortho: {us.wall_s:8.1f} s wall, {us.cpu_s:.1f} s CPU, peak RSS "
           f"{us.peak_rss_mb:7.0f} MB ({ours_summary(us)[0]} cells filled)")
 

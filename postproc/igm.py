@@ -145,6 +145,25 @@ def partial_path(final: Path) -> Path:
     return final.with_name(f".{final.name}.partial-{os.getpid()}")
 
 
+def replace_file(tmp: Path, final: Path) -> None:
+    """Rename the finished `tmp` to `final`, replacing any file there. A file in the way is
+    renamed aside first and deleted after: ext4 (auto_da_alloc) writes the whole new file
+    out to disk inside a rename that replaces one, seconds for a GB product (a re-run of
+    `sisa ortho` measured 12-14 s against 4 s). Should the process die between the renames,
+    the old file is left beside, hidden, not lost."""
+    if final.is_dir() or not os.path.lexists(final):
+        os.replace(tmp, final)  # nothing to set aside (a folder: os.replace's own error)
+        return
+    aside = final.with_name(f".{final.name}.old-{os.getpid()}")
+    os.rename(final, aside)
+    try:
+        os.rename(tmp, final)
+    except BaseException:
+        os.rename(aside, final)
+        raise
+    aside.unlink()
+
+
 def envi_list(items: Sequence[object]) -> str:
     return "{" + ", ".join(str(i) for i in items) + "}"
 
@@ -173,7 +192,7 @@ def commit_envi(tmp_data: Path, data: Path, header_text: str) -> None:
     tmp_hdr = partial_path(hdr)
     tmp_hdr.write_text(header_text, encoding="ascii")
     hdr.unlink(missing_ok=True)
-    os.replace(tmp_data, data)
+    replace_file(tmp_data, data)
     os.replace(tmp_hdr, hdr)
 
 

@@ -43,6 +43,7 @@ from postproc.igm import (
     igm_raster,
     partial_path,
     projected_crs,
+    replace_file,
 )
 from sisa.errors import InputError
 
@@ -661,7 +662,7 @@ class TiffWriter:
         except BaseException:
             self.abort()
             raise
-        os.replace(self._tmp, self.path)
+        replace_file(self._tmp, self.path)
 
     def abort(self) -> None:
         try:

@@ -14,7 +14,14 @@ import rasterio
 from pyproj import CRS
 from rasterio.errors import NotGeoreferencedWarning
 
-from postproc.igm import IGM_BAND_NAMES, IgmWriter, igm_epsg, open_igm, write_geolocation_vrt
+from postproc.igm import (
+    IGM_BAND_NAMES,
+    IgmWriter,
+    igm_epsg,
+    open_igm,
+    replace_file,
+    write_geolocation_vrt,
+)
 from postproc.ortho import OrthoGrid
 from sisa.errors import InputError
 
@@ -170,6 +177,28 @@ def test_failed_or_short_write_leaves_nothing(tmp_path: Path) -> None:
             IgmWriter(tmp_path / "b", 10, 4, EPSG) as w:
         w.write_block(0, e, e, e)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_replace_file_sets_the_old_file_aside_and_restores_it_on_failure(
+        tmp_path: Path) -> None:
+    final, tmp = tmp_path / "p.bil", tmp_path / ".p.bil.partial"
+    final.write_bytes(b"old")
+    tmp.write_bytes(b"new")
+    replace_file(tmp, final)
+    assert final.read_bytes() == b"new"
+    assert [p.name for p in tmp_path.iterdir()] == ["p.bil"]
+    with pytest.raises(FileNotFoundError):  # nothing to move in: the old file stays
+        replace_file(tmp, final)
+    assert final.read_bytes() == b"new"
+    assert [p.name for p in tmp_path.iterdir()] == ["p.bil"]
+    replace_file(final, tmp_path / "q.bil")  # nothing in the way
+    assert (tmp_path / "q.bil").read_bytes() == b"new"
+    folder = tmp_path / "d.bil"
+    (folder / "inside").mkdir(parents=True)
+    with pytest.raises(IsADirectoryError):  # a folder in the way is an error, and left alone
+        replace_file(tmp_path / "q.bil", folder)
+    assert (folder / "inside").is_dir()
+    assert (tmp_path / "q.bil").read_bytes() == b"new"
 
 
 def test_blocks_must_follow_each_other(tmp_path: Path) -> None:

@@ -56,6 +56,23 @@ def test_same_products_as_orthorectify(made: Made, tmp_path: Path) -> None:
                                                           "again_glt.hdr"]
 
 
+def test_run_again_replaces_the_products_and_leaves_nothing_beside(made: Made,
+                                                                   tmp_path: Path) -> None:
+    out = tmp_path / "seg.tif"
+    for name in ("seg.tif", "seg_glt.bil", "seg_glt.hdr"):
+        (tmp_path / name).write_bytes(b"an older product")
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--compress", "none")
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(out) as o, rasterio.open(made.tif) as ref:
+        assert o.count == ref.count
+        assert o.read(1).any()
+    assert (tmp_path / "seg_glt.bil").stat().st_size > len(b"an older product")
+    assert "GLT" in (tmp_path / "seg_glt.hdr").read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seg.tif", "seg_glt.bil",
+                                                          "seg_glt.hdr"]
+
+
 def test_default_grid_is_the_pixel_spacing_over_the_extent(made: Made, tmp_path: Path) -> None:
     out = tmp_path / "auto.tif"
     proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,

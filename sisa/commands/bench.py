@@ -33,7 +33,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--duration", type=float, default=None,
                         help="seconds of flight to run (default: the whole scenario)")
     parser.add_argument("--no-images", action="store_true", help="do not render image lines")
-    parser.set_defaults(handler=_run)
+    parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
 def _scenario_args(args: argparse.Namespace) -> list[str]:

@@ -39,7 +39,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="do not render the scanner's image lines")
     parser.add_argument("--endpoints", type=Path, default=None,
                         help="also write the endpoints as JSON to this file")
-    parser.set_defaults(handler=_run)
+    parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -49,7 +49,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="start a new file every N MB")
     parser.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     parser.add_argument("--quiet", action="store_true", help="no live status, summary only")
-    parser.set_defaults(handler=_run)
+    parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -88,7 +88,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--realtime", action="store_true",
                         help="ask for real-time scheduling (SCHED_FIFO, as `chrt -f 10`): "
                              "keeps the timing on a loaded machine; needs the privilege")
-    parser.set_defaults(handler=_run)
+    parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
 @dataclass(frozen=True)

@@ -157,3 +157,31 @@ def test_show_notes_header_settings_that_cannot_tie_lines(tmp_path, capsys):
     assert "not narrower than a line period" not in out
     assert table["derived"]["header_late_by_max_ms"] == 5.3
     assert "past the end of sisa.header_window_ms" in out
+
+
+GC_PROBE = """
+import gc, sys
+from sisa.cli import main
+code = main(sys.argv[1:], batch_gc=True)
+print(code, *gc.get_threshold())
+"""
+
+
+@pytest.mark.parametrize(("argv", "batch"), [
+    (["scenario", "show", "bench"], True),
+    (["record", "--gps", "/nonexistent", "--scanner", "/nonexistent", "--ins",
+      "slcan:/nonexistent", "--pulses", "127.0.0.1:1", "--out", "x.mcap"], False),
+    (["emulate", "--preset", "no-such-preset", "--out", "x"], False),
+])
+def test_console_script_collects_less_often_in_batch_commands_only(argv, batch, tmp_path):
+    """Batch commands start faster with fewer collections; a real-time loop keeps the
+    interpreter's short pauses (the thresholds are set before the command runs)."""
+    from sisa.cli import BATCH_GC_THRESHOLDS
+
+    proc = subprocess.run([sys.executable, "-c", GC_PROBE, *argv], capture_output=True,
+                          text=True, timeout=60, check=False, cwd=tmp_path)
+    code, *thresholds = map(int, proc.stdout.split()[-4:])
+    assert code == (0 if batch else 2), proc.stderr
+    default = subprocess.run([sys.executable, "-c", "import gc; print(*gc.get_threshold())"],
+                             capture_output=True, text=True, check=True).stdout.split()
+    assert tuple(thresholds) == (BATCH_GC_THRESHOLDS if batch else tuple(map(int, default)))

@@ -51,6 +51,8 @@ def test_every_pixel_within_a_hundredth_of_a_pixel(processed):
     assert "every pixel vs truth" in stdout
 
 
+# the IGM and the geolocation VRT have geolocation arrays, no geotransform: by design
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
 def test_products_are_read_by_gdal(processed):
     _, out, _ = processed
     summary = json.loads((out / "georef_summary.json").read_text())

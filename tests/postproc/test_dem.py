@@ -10,7 +10,7 @@ import pytest
 import rasterio
 from pyproj import Transformer
 from rasterio.crs import CRS
-from rasterio.transform import Affine, from_origin
+from rasterio.transform import Affine
 from rasterio.windows import from_bounds
 
 from emulators.scenario import load_scenario
@@ -19,6 +19,11 @@ from postproc.dem import Dem
 from sisa.errors import InputError
 
 UTM31N = 32631
+
+
+def north_up(west: float, north: float, xsize: float, ysize: float) -> Affine:
+    """rasterio's from_origin without its deprecated `*` composition (a warning per call)."""
+    return Affine(xsize, 0.0, west, 0.0, -ysize, north)
 
 
 def write_tif(path: Path, data: np.ndarray, transform: Affine, crs: int | str = UTM31N,
@@ -34,7 +39,7 @@ def write_tif(path: Path, data: np.ndarray, transform: Affine, crs: int | str = 
 def small(tmp_path: Path) -> Path:
     """5 rows x 4 cols, value = 10·row + col, 2 m cells, corner (401000, 4600000)."""
     data = (10.0 * np.arange(5)[:, None] + np.arange(4)[None, :]).astype(np.float32)
-    return write_tif(tmp_path / "small.tif", data, from_origin(401_000.0, 4_600_000.0, 2.0, 2.0))
+    return write_tif(tmp_path / "small.tif", data, north_up(401_000.0, 4_600_000.0, 2.0, 2.0))
 
 
 def test_samples_belong_to_cell_centres(small: Path) -> None:
@@ -68,7 +73,7 @@ def test_height_is_bilinear_between_centres(small: Path) -> None:
 
 def test_window_covers_the_bounds_plus_margin_only(tmp_path: Path) -> None:
     data = np.random.default_rng(2).uniform(100, 900, (300, 400)).astype(np.float32)
-    path = write_tif(tmp_path / "big.tif", data, from_origin(500_000.0, 4_700_000.0, 5.0, 5.0))
+    path = write_tif(tmp_path / "big.tif", data, north_up(500_000.0, 4_700_000.0, 5.0, 5.0))
     bounds = (500_600.0, 4_699_000.0, 500_900.0, 4_699_400.0)
     dem = Dem.read(path, bounds_m=bounds, margin_m=50.0)
     w, s, e, n = dem.bounds_m
@@ -88,7 +93,7 @@ def test_window_covers_the_bounds_plus_margin_only(tmp_path: Path) -> None:
 def test_nodata_becomes_nan_and_no_surface_next_to_it(tmp_path: Path) -> None:
     data = np.full((6, 6), 250.0, np.float32)
     data[2, 3] = -9999.0
-    path = write_tif(tmp_path / "hole.tif", data, from_origin(400_000.0, 4_600_000.0, 1.0, 1.0),
+    path = write_tif(tmp_path / "hole.tif", data, north_up(400_000.0, 4_600_000.0, 1.0, 1.0),
                      nodata=-9999.0)
     dem = Dem.read(path)
     assert np.isnan(dem.heights_m[2, 3])
@@ -114,7 +119,7 @@ def test_geoid_raster_in_another_crs_is_sampled_at_the_centres(tmp_path: Path,
     lon_c = lon0 + step * (np.arange(60) + 0.5)
     lat_c = lat0 - step * (np.arange(60) + 0.5)
     grid = (40.0 + 3.0 * lon_c[None, :] - 0.5 * lat_c[:, None]).astype(np.float32)
-    geoid = write_tif(tmp_path / "geoid.tif", grid, from_origin(lon0, lat0, step, step), 4326)
+    geoid = write_tif(tmp_path / "geoid.tif", grid, north_up(lon0, lat0, step, step), 4326)
     dem = Dem.read(small, geoid=geoid)
     plain = Dem.read(small)
     e, n = np.meshgrid(*plain.centres_m())
@@ -125,7 +130,7 @@ def test_geoid_raster_in_another_crs_is_sampled_at_the_centres(tmp_path: Path,
 
 def test_geoid_that_does_not_cover_the_dem_is_refused(tmp_path: Path, small: Path) -> None:
     grid = np.zeros((10, 10), np.float32)
-    geoid = write_tif(tmp_path / "far.tif", grid, from_origin(20.0, 10.0, 0.1, 0.1), 4326)
+    geoid = write_tif(tmp_path / "far.tif", grid, north_up(20.0, 10.0, 0.1, 0.1), 4326)
     with pytest.raises(InputError, match=r"far\.tif"):
         Dem.read(small, geoid=geoid)
 
@@ -140,7 +145,7 @@ def test_bad_inputs_raise_one_line_input_errors(tmp_path: Path, small: Path, cas
         path = tmp_path / "dem.tif"
         path.write_text("not a raster\n")
     elif case == "geographic":
-        path = write_tif(tmp_path / "geo.tif", data, from_origin(2.0, 41.0, 1e-4, 1e-4), 4326)
+        path = write_tif(tmp_path / "geo.tif", data, north_up(2.0, 41.0, 1e-4, 1e-4), 4326)
     elif case == "rotated":
         path = write_tif(tmp_path / "rot.tif", data,
                          Affine(2.0, 0.5, 400_000.0, 0.5, -2.0, 4_600_000.0))

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 import rasterio
-from rasterio.transform import from_origin
 
 from postproc.registration import register_strips, tile_shift
+from tests.postproc.test_dem import north_up
 
 
 def _texture(shape, seed=3):
@@ -31,7 +31,7 @@ def _write(path, img, west, north, cell, nodata_cols=0):
         data[:, :nodata_cols] = 0
     with rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0],
                        count=1, dtype="uint16", crs="EPSG:32631", nodata=0,
-                       transform=from_origin(west, north, cell, cell)) as ds:
+                       transform=north_up(west, north, cell, cell)) as ds:
         ds.write(data, 1)
 
 

@@ -18,7 +18,7 @@ import contextlib
 import math
 import os
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -818,14 +818,20 @@ def _row_spans(values: I32, first: I64, end: I64) -> None:
         first[r], end[r] = a, b
 
 
+Progress = Callable[[int], None]  # called with the number of grid cells just mapped
+
+
 def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,
                  glt_stem: Path, *, tile_cells: int | None = None, compress: str = "deflate",
-                 workers: int = WORKERS) -> OrthoResult:
+                 workers: int = WORKERS, progress: Progress | None = None,
+                 on_total: Progress | None = None) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and
     `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`: the IGM file, or its
     SwathIndex when the caller built one for the grid's bounds (one pass over the IGM, not
     two). `tile_cells` forces square work tiles of that side (default: windows sized by
-    WINDOW_BYTES); `workers`: windows computed at once (the products do not depend on it)."""
+    WINDOW_BYTES); `workers`: windows computed at once (the products do not depend on it).
+    `on_total` is told how many cells the swath can reach (the windows to map), `progress`
+    how many of them each finished window held."""
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
     raw = EnviRaster.open(Path(image))
     check_pair(index, raw, grid.epsg)
@@ -842,7 +848,8 @@ def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: 
             raise
         try:
             filled, infill, dist_sum, dist_max = _ortho_windows(
-                index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1))
+                index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1),
+                progress, on_total)
             tif.close()
         except BaseException:
             tif.abort()
@@ -885,7 +892,8 @@ def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: fl
 
 
 def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
-                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None, workers: int
+                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None, workers: int,
+                   progress: Progress | None, on_total: Progress | None
                    ) -> tuple[int, int, float, float]:
     """Every window, `workers` at a time (the kernels release the GIL), handed to the
     GeoTIFF writer in order; (filled, infill, sum and max of the distances in metres)."""
@@ -894,6 +902,8 @@ def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: 
     # only where the swath can be: less to fill
     parts = [p for w in grid.windows(window_cells(raw), tile_cells)
              if (p := index.cell_extent(grid, *w, snap=TIFF_BLOCK)) is not None]
+    if on_total is not None:
+        on_total(sum(p[2] * p[3] for p in parts))
     if not parts:
         return filled, infill, dist_sum, dist_max
     work: SimpleQueue[Scratch] = SimpleQueue()
@@ -907,22 +917,24 @@ def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: 
         _window_arrays(sc, raw, rows, cols)
     todo = iter(parts)
     writing: Scratch | None = None
-    running: deque[tuple[int, int, Scratch, Future[Any]]] = deque()
+    running: deque[tuple[tuple[int, int, int, int], Scratch, Future[Any]]] = deque()
     with ThreadPoolExecutor(workers, thread_name_prefix="sisa-ortho") as pool:
 
         def start() -> None:
             part = next(todo, None)
             if part is not None:
                 sc = free.pop()
-                running.append((part[0], part[1], sc, pool.submit(
+                running.append((part, sc, pool.submit(
                     _make_window, index, raw, grid, nodata, part, work, sc)))
 
         for _ in range(workers):
             start()
         while running:
-            row0, col0, scratch, future = running.popleft()
+            (row0, col0, n_rows, n_cols), scratch, future = running.popleft()
             made = future.result()
             start()
+            if progress is not None:
+                progress(n_rows * n_cols)
             if made is None:
                 free.append(scratch)
                 continue

@@ -19,12 +19,11 @@ OUT/
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, terminal_progress
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -88,17 +87,11 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
 def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions
                ) -> GeorefResult:
     """The job with a progress bar over scan lines (on a terminal)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
     from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
-    with Progress("[progress.description]{task.description}", BarColumn(),
-                  MofNCompleteColumn(), TimeRemainingColumn(), transient=True,
-                  disable=not sys.stderr.isatty()) as bar:
-        task = bar.add_task("sync + georeference", total=None)
-        return job.run(progress=lambda n: bar.advance(task, n),
-                       on_total=lambda n: bar.update(task, total=n))
+    with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):
+        return job.run(progress=progress, on_total=on_total)
 
 
 def headline(result: GeorefResult) -> str:

@@ -15,7 +15,7 @@ import math
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, terminal_progress
 from sisa.errors import InputError
 
 # postproc.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL (a test checks)
@@ -73,7 +73,9 @@ def _run(args: argparse.Namespace) -> int:
     index = SwathIndex.build(args.igm)  # the IGM's extent, and then the ortho's index
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
     glt = out.with_name(f"{out.stem}_glt")
-    res = orthorectify(index, args.image, grid, out, glt, compress=args.compress)
+    with terminal_progress("ortho") as (progress, on_total):
+        res = orthorectify(index, args.image, grid, out, glt, compress=args.compress,
+                           progress=progress, on_total=on_total)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

@@ -179,6 +179,19 @@ def test_small_tiles_give_the_same_products(made: Made, tmp_path: Path) -> None:
     np.testing.assert_array_equal(a, b)
 
 
+def test_progress_counts_every_window_once(made: Made, tmp_path: Path) -> None:
+    totals: list[int] = []
+    steps: list[int] = []
+    res = orthorectify(made.folder / "seg_igm.bil", made.folder / "seg.bil", made.grid,
+                       tmp_path / "p.tif", tmp_path / "p_glt", tile_cells=37,
+                       progress=steps.append, on_total=totals.append)
+    assert len(totals) == 1
+    assert len(steps) > 1  # small tiles: many windows
+    assert sum(steps) == totals[0]
+    assert res.cells_filled <= totals[0] < res.cells  # the windows the swath reaches, not all
+    assert (tmp_path / "p_glt.bil").read_bytes() == made.glt.read_bytes()
+
+
 def test_grid_snaps_to_cell_multiples() -> None:
     g = OrthoGrid.covering((461_000.3, 4_661_000.7, 461_010.1, 4_661_020.2), 1.5, EPSG)
     assert (g.west_m, g.north_m) == (460_999.5, 4_661_020.5)

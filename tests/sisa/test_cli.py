@@ -185,3 +185,28 @@ def test_console_script_collects_less_often_in_batch_commands_only(argv, batch, 
     default = subprocess.run([sys.executable, "-c", "import gc; print(*gc.get_threshold())"],
                              capture_output=True, text=True, check=True).stdout.split()
     assert tuple(thresholds) == (BATCH_GC_THRESHOLDS if batch else tuple(map(int, default)))
+
+
+def test_progress_bar_draws_on_a_terminal_stderr_and_never_on_stdout(monkeypatch, capsys):
+    """`sisa georef` once drew its bar on stdout: a stray blank line before its summary when
+    stdout was a file, and no bar at all."""
+    import os
+    import pty
+
+    from sisa.commands import terminal_progress
+
+    with terminal_progress("lines") as (advance, set_total):  # stderr captured: no terminal
+        assert advance is None
+        assert set_total is None
+    master, slave = pty.openpty()
+    with os.fdopen(slave, "w") as tty:
+        monkeypatch.setattr(sys, "stderr", tty)
+        with terminal_progress("lines", show_count=True) as (advance, set_total):
+            set_total(10)
+            advance(4)
+            advance(6)
+    drawn = os.read(master, 65536)
+    os.close(master)
+    assert b"lines" in drawn
+    assert b"10/10" in drawn
+    assert capsys.readouterr().out == ""

@@ -73,6 +73,39 @@ def test_run_again_replaces_the_products_and_leaves_nothing_beside(made: Made,
                                                           "seg_glt.hdr"]
 
 
+def test_progress_bar_on_a_terminal_only(made: Made, tmp_path: Path) -> None:
+    """stderr a terminal: a bar, drawn and cleared; stdout keeps its one summary line."""
+    import os
+    import pty
+
+    master, slave = pty.openpty()
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sisa.cli", "ortho", made.folder / "seg_igm.bil",
+             made.folder / "seg.bil", "--out", tmp_path / "t.tif"],
+            stdout=subprocess.PIPE, stderr=slave, text=True,
+            env={**os.environ, "COLUMNS": "100", "TERM": "xterm"})
+        os.close(slave)
+        shown = b""
+        while True:
+            try:
+                got = os.read(master, 65536)
+            except OSError:  # EIO: the child closed the terminal
+                break
+            if not got:
+                break
+            shown += got
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        os.close(master)
+    assert proc.returncode == 0
+    assert out.count("\n") == 1
+    assert "cells filled" in out
+    assert b"ortho" in shown  # the bar's label
+    assert sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out",
+                      tmp_path / "p.tif").stderr == ""  # not a terminal: nothing
+
+
 def test_default_grid_is_the_pixel_spacing_over_the_extent(made: Made, tmp_path: Path) -> None:
     out = tmp_path / "auto.tif"
     proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,

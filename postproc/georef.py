@@ -16,7 +16,6 @@ import functools
 import json
 import math
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -30,10 +29,10 @@ from rasterio.errors import NotGeoreferencedWarning
 from postproc.dem import Dem, dem_extent
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
-from postproc.igm import IgmWriter, igm_bounds, write_geolocation_vrt
+from postproc.igm import IgmWriter, write_geolocation_vrt
 from postproc.mosaic import mosaic
 from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
-from postproc.ortho import OrthoGrid, SwathIndex, nice_cell_m, orthorectify
+from postproc.ortho import OrthoGrid, Progress, SwathIndex, nice_cell_m, orthorectify
 from postproc.quicklook import write_quicklook
 from postproc.raycast import intersect
 from postproc.registration import register_strips
@@ -52,7 +51,6 @@ I64 = npt.NDArray[np.int64]
 
 BLOCK_LINES: Final = 4096
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
-Progress = Callable[[int], None]  # called with the number of lines just finished
 
 
 @dataclass(frozen=True)
@@ -270,13 +268,15 @@ class GeorefJob:
             igm=Path(f"{stem}_igm.bil"), image=image,
             files={"eo": f"{stem.name}_eo.csv", "igm": f"{stem.name}_igm.bil"})
 
-    def products(self, seg: SegmentResult, cell_m: float) -> None:
+    def products(self, seg: SegmentResult, cell_m: float) -> SwathIndex | None:
+        """The segment's VRT and, with products, its ortho, GLT and quicklook; the index of
+        its IGM they were made from (the mosaic's too), None without products."""
         stem = self.out / f"segment_{seg.segment:03d}"
         vrt = Path(f"{stem}_geoloc.vrt")
         write_geolocation_vrt(vrt, seg.image, seg.igm, self.epsg)
         seg.files["geolocation_vrt"] = vrt.name
         if not self.opt.products:
-            return
+            return None
         index = SwathIndex.build(seg.igm)
         grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
         tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
@@ -284,11 +284,14 @@ class GeorefJob:
         png = Path(f"{stem}_quicklook.png")
         write_quicklook(tif, png)
         seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)
+        return index
 
     # -- the whole job -----------------------------------------------------------------------
 
-    def run(self, progress: Progress | None = None,
-            on_total: Callable[[int], None] | None = None) -> GeorefResult:
+    def run(self, progress: Progress | None = None, on_total: Progress | None = None
+            ) -> GeorefResult:
+        """Sync, then every segment; `on_total` is told the scan lines to georeference,
+        `progress` each block of lines done."""
         self.out.mkdir(parents=True, exist_ok=True)
         result, traj = self.read_and_sync()
         self.write_sync(result)
@@ -307,8 +310,10 @@ class GeorefJob:
         if not math.isfinite(cell_m) or cell_m <= 0:
             raise InputError("no pixel could be georeferenced: does the DEM cover the flight?")
         features = []
+        indexes: list[SwathIndex] = []
         for seg in done:
-            self.products(seg, cell_m)
+            if (index := self.products(seg, cell_m)) is not None:
+                indexes.append(index)
             features.append(footprint_feature(seg.igm, self.epsg, properties={
                 "segment": seg.segment, "lines": seg.lines,
                 "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
@@ -316,9 +321,9 @@ class GeorefJob:
         mosaic_path: Path | None = None
         if self.opt.products and done:
             mosaic_path = self.out / "mosaic.tif"
-            mosaic([(d.igm, d.image) for d in done],
-                   OrthoGrid.covering(_union_bounds([d.igm for d in done]), cell_m,
-                                      self.epsg), mosaic_path)
+            mosaic([(index, d.image) for index, d in zip(indexes, done, strict=True)],
+                   OrthoGrid.covering(_union_bounds([index.bounds_m for index in indexes]),
+                                      cell_m, self.epsg), mosaic_path)
             write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
         summary = self._summary(result, done, cell_m)
         summary["strip_registration"] = self.registrations(done)
@@ -365,7 +370,7 @@ def _median(parts: list[F64]) -> float:
     return float(np.median(vals)) if vals.size else math.nan
 
 
-def _union_bounds(igms: list[Path]) -> tuple[float, float, float, float]:
-    b = [igm_bounds(i) for i in igms]
+def _union_bounds(b: list[tuple[float, float, float, float]]
+                  ) -> tuple[float, float, float, float]:
     return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
             max(x[3] for x in b))

@@ -95,16 +95,22 @@ def _glt_grid(path: Path) -> OrthoGrid:
     return OrthoGrid(t.c, t.f, t.a, width, height, int(epsg))
 
 
-def _open_segment(geometry: Path, image: Path, grid: OrthoGrid) -> _Segment:
-    geo, raw = EnviRaster.open(Path(geometry)), EnviRaster.open(Path(image))
-    if geo.bands == 3 and geo.dtype.kind == "f" and geo.dtype.itemsize == 8:
+def _open_segment(geometry: Path | SwathIndex, image: Path, grid: OrthoGrid) -> _Segment:
+    raw = EnviRaster.open(Path(image))
+    if isinstance(geometry, SwathIndex):  # an IGM its caller has indexed already
+        index = geometry
+    else:
+        geo = EnviRaster.open(Path(geometry))
+        if geo.bands == GLT_BANDS and geo.dtype.kind == "i" and geo.dtype.itemsize == 4:
+            glt_grid = _glt_grid(geo.path)
+            return _Segment(raw, glt_grid.bounds_m, glt=geo,
+                            glt_offset=glt_grid.offset_in(grid))
+        if not (geo.bands == 3 and geo.dtype.kind == "f" and geo.dtype.itemsize == 8):
+            raise InputError(f"{geometry}: neither an IGM (3 float64 bands) nor a GLT (2 int32 "
+                             "bands)")
         index = SwathIndex.build(geo.path)
-        check_pair(index, raw, grid.epsg)
-        return _Segment(raw, index.bounds_m, index=index)
-    if geo.bands == GLT_BANDS and geo.dtype.kind == "i" and geo.dtype.itemsize == 4:
-        glt_grid = _glt_grid(geo.path)
-        return _Segment(raw, glt_grid.bounds_m, glt=geo, glt_offset=glt_grid.offset_in(grid))
-    raise InputError(f"{geometry}: neither an IGM (3 float64 bands) nor a GLT (2 int32 bands)")
+    check_pair(index, raw, grid.epsg)
+    return _Segment(raw, index.bounds_m, index=index)
 
 
 @dataclass(frozen=True)
@@ -114,10 +120,11 @@ class MosaicResult:
     cells_per_segment: tuple[int, ...]
 
 
-def mosaic(segments: Sequence[tuple[Path, Path]], grid: OrthoGrid, out_tif: Path, *,
-           tile_cells: int | None = None, compress: str = "deflate") -> MosaicResult:
+def mosaic(segments: Sequence[tuple[Path | SwathIndex, Path]], grid: OrthoGrid, out_tif: Path,
+           *, tile_cells: int | None = None, compress: str = "deflate") -> MosaicResult:
     """Mosaic [(IGM or GLT, raw image), ...] onto `grid` as one GeoTIFF (written whole or not
-    at all). All images must have the same bands and data type."""
+    at all); an IGM may come as the SwathIndex its caller built (no second pass over it). All
+    images must have the same bands and data type."""
     if not segments:
         raise InputError("mosaic: no segment given")
     segs = [_open_segment(g, i, grid) for g, i in segments]

@@ -818,7 +818,7 @@ def _row_spans(values: I32, first: I64, end: I64) -> None:
         first[r], end[r] = a, b
 
 
-Progress = Callable[[int], None]  # called with the number of grid cells just mapped
+Progress = Callable[[int], None]  # told a count of work just done (lines, grid cells)
 
 
 def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,

@@ -41,7 +41,7 @@ import numpy.typing as npt
 import zstandard
 from mcap.exceptions import McapError, RecordLengthLimitExceeded
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, Footer, Header, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from recorder.messages import LoggedMessage, Topic
@@ -216,6 +216,12 @@ class _RecordBytes(io.BytesIO):
         return super().read(n)
 
 
+def _records(data: bytes, limit: int, *, emit_chunks: bool = False) -> Iterator[McapRecord]:
+    """The MCAP records in `data` (no magic), under the reader's size limit."""
+    return StreamReader(_RecordBytes(data, limit), skip_magic=True, emit_chunks=emit_chunks,
+                        record_size_limit=None).records
+
+
 def _paths(path_or_paths: Paths) -> list[Path]:
     if isinstance(path_or_paths, str | Path):
         return [Path(path_or_paths)]
@@ -357,8 +363,7 @@ class _FileScan:
             if head[0] not in _KNOWN_OPCODES:
                 continue  # a record type from a later MCAP version: skipped, as the spec says
             try:
-                record = next(StreamReader(_RecordBytes(head + body, self.limit), skip_magic=True,
-                                           emit_chunks=True, record_size_limit=None).records)
+                record = next(_records(head + body, self.limit, emit_chunks=True))
             except _OverLimitError:
                 raise
             except _PARSE_ERRORS as exc:
@@ -423,8 +428,7 @@ class _FileScan:
         schemas: dict[int, Schema] = {}
         try:
             data = _uncompressed(chunk, self.limit).data
-            for record in StreamReader(_RecordBytes(data, self.limit), skip_magic=True,
-                                       record_size_limit=None).records:
+            for record in _records(data, self.limit):
                 if isinstance(record, Schema) and _is_ours(record):
                     schemas[record.id] = record
                 elif isinstance(record, Channel) and record.id not in self.channels:
@@ -477,8 +481,7 @@ def _summary_declarations(fh: BinaryIO, size: int, limit: int) -> list[Schema | 
     out: list[Schema | Channel] = []
     # it ends in EndOfFile (no footer in these bytes); its CRC has checked what came before
     with contextlib.suppress(*_PARSE_ERRORS, _OverLimitError):
-        for record in StreamReader(_RecordBytes(summary, limit), skip_magic=True,
-                                   record_size_limit=None).records:
+        for record in _records(summary, limit):
             if isinstance(record, Schema | Channel):
                 out.append(record)
     return out

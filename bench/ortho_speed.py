@@ -49,7 +49,6 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -142,7 +141,7 @@ class Run:
     wall_s: float
     cpu_s: float  # user + system, all threads: less sensitive than wall time to a busy machine
     peak_rss_mb: float
-    out: dict[str, Any]
+    stdout: str
 
 
 def measured(cmd: list[str], cwd: Path | None = None, outputs: tuple[Path, ...] = ()) -> Run:
@@ -158,7 +157,7 @@ def measured(cmd: list[str], cwd: Path | None = None, outputs: tuple[Path, ...] 
     if proc.returncode != 0:
         raise SystemExit(f"{cmd[0]} failed: {proc.stderr.strip()[-2000:]}")
     got = json.loads(proc.stdout)
-    return Run(got["wall_s"], got["cpu_s"], got["peak_rss_mb"], got["out"])
+    return Run(got["wall_s"], got["cpu_s"], got["peak_rss_mb"], got["stdout"])
 
 
 def _measure_main(cmd: list[str]) -> None:
@@ -170,9 +169,8 @@ def _measure_main(cmd: list[str]) -> None:
         sys.stderr.write(err)
         raise SystemExit(proc.returncode)
     use = resource.getrusage(resource.RUSAGE_CHILDREN)
-    body = {"stdout": out}
     print(json.dumps({"wall_s": wall, "cpu_s": use.ru_utime + use.ru_stime,
-                      "peak_rss_mb": use.ru_maxrss / 1024, "out": body}))
+                      "peak_rss_mb": use.ru_maxrss / 1024, "stdout": out}))
 
 
 def ours_outputs(folder: Path, tag: str) -> tuple[Path, ...]:
@@ -193,9 +191,9 @@ def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str) -> list[str
 
 def ours_summary(run: Run) -> tuple[int, float]:
     """(cells filled, seconds in orthorectify()) from `sisa ortho`'s summary line."""
-    got = SUMMARY.search(run.out.get("stdout", ""))
+    got = SUMMARY.search(run.stdout)
     if got is None:
-        raise SystemExit(f"sisa ortho: no summary line in {run.out!r}")
+        raise SystemExit(f"sisa ortho: no summary line in {run.stdout!r}")
     return int(got["filled"]), float(got["ortho_s"])
 
 

@@ -31,4 +31,12 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(scratch, ignore_errors=True)
         raise
-    os.replace(scratch, out)
+    # Something may have taken the name while the run was made (another run to the same
+    # folder): keep the result where it is rather than lose it or replace the other one.
+    kept = f"the result is kept in {scratch}"
+    if out.exists() or out.is_symlink():
+        raise InputError(f"{out} appeared while this run was made: {kept}")
+    try:
+        os.replace(scratch, out)
+    except OSError as exc:
+        raise InputError(f"cannot move the result to {out} ({exc.strerror}): {kept}") from None

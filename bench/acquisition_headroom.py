@@ -22,6 +22,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -33,6 +34,7 @@ from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
 from recorder.reader import read_columns
+from sisa.commands.bench import DRAIN_S, stop_after_hold
 
 SUMMARY = re.compile(
     r"INS (\d+), GPS sentences (\d+), frame headers (\d+), PPS (\d+), ppf (\d+); (\d+) decode "
@@ -93,7 +95,7 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     emu = subprocess.Popen([sys.executable, "-m", "sisa.cli", "emulate", "--scenario",
                             str(scenario), "--no-images", "--out", str(run), "--start",
                             str(start_s - 3), "--duration", str(seconds + 3), "--endpoints",
-                            str(ep)], stdout=subprocess.PIPE, text=True)
+                            str(ep), "--hold"], stdout=subprocess.PIPE, text=True)
     while not (ep.exists() and ep.stat().st_size):
         time.sleep(0.05)
     e = json.loads(ep.read_text())
@@ -102,17 +104,23 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
                             e["ins"], "--pulses", e["pulses"], "--out", str(log)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     samples: list[tuple[int, float]] = []  # (wall ns, recorder CPU s), 4 a second
-    while rec.poll() is None:
-        try:
-            samples.append((time.time_ns(), proc_cpu_s_rss_mb(rec.pid)[0]))
-        except (OSError, IndexError, ValueError):
-            break
-        time.sleep(0.25)
-    rec_out, rec_err = rec.communicate()  # ends when the emulator's ports close
-    emu_out, _ = emu.communicate()
-    m = SUMMARY.search(rec_out)
+    sampling = threading.Event()
+
+    def sample() -> None:
+        while not sampling.wait(0.25):
+            try:
+                samples.append((time.time_ns(), proc_cpu_s_rss_mb(rec.pid)[0]))
+            except (OSError, IndexError, ValueError):
+                return
+
+    sampler = threading.Thread(target=sample)
+    sampler.start()
+    rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S)  # as `sisa bench` ends its run
+    sampling.set()
+    sampler.join()
+    m = SUMMARY.search(rec_end.stdout)
     if m is None:
-        raise SystemExit(f"scale {k}: no summary from sisa record: {rec_err[-500:]}")
+        raise SystemExit(f"scale {k}: no summary from sisa record: {rec_end.stderr[-500:]}")
     ins, _gps, headers, _pps, ppf, _errors, drops, late, _cpu, _wall = map(float, m.groups())
     health = read_columns(log, Topic.HEALTH)
     errors = errors_after_warm_up(health)
@@ -128,7 +136,8 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
     steady = [(t, c) for t, c in samples if ins_t[0] + 1e9 <= t <= ins_t[-1] - 1e9]
     (t0, c0), (t1, c1) = steady[0], steady[-1]
     ins_hz = (len(ins_t) - 1) / max(1e-9, (ins_t[-1] - ins_t[0]) / 1e9)
-    late_ms = float(re.search(r"([\d.]+) ms behind", emu_out).group(1))  # type: ignore[union-attr]
+    late_ms = float(re.search(r"([\d.]+) ms behind",  # type: ignore[union-attr]
+                              emu_end.stdout).group(1))
     return {"k": k, "ins_recorded": ins, "ins_hz": ins_hz, "headers": headers, "ppf": ppf,
             "errors": errors, "drops": drops, "late": late, "tied_pct": 100 * tied,
             "cpu_pct": 100 * (c1 - c0) / ((t1 - t0) / 1e9),

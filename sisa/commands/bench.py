@@ -5,6 +5,7 @@ cleanly at the end. The run folder has the same layout as `sisa simulate`'s."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -13,12 +14,15 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
+from sisa.commands.emulate import HELD_LINE
 from sisa.errors import SisaError
 from sisa.outdir import staged_output_dir
 
 ANNOUNCE_TIMEOUT_S = 60.0
+DRAIN_S = 0.5  # after the emulator's last output: a frame header's latency, the read clock
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -42,7 +46,7 @@ def _scenario_args(args: argparse.Namespace) -> list[str]:
     return ["--preset", args.preset]
 
 
-def _wait_for_endpoints(path: Path, proc: subprocess.Popen[bytes]) -> dict[str, str]:
+def _wait_for_endpoints(path: Path, proc: subprocess.Popen[str]) -> dict[str, str]:
     deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
     while time.monotonic() < deadline:
         if path.exists() and path.stat().st_size:
@@ -52,6 +56,14 @@ def _wait_for_endpoints(path: Path, proc: subprocess.Popen[bytes]) -> dict[str, 
             raise SisaError(f"sisa emulate exited early with code {proc.returncode}")
         time.sleep(0.05)
     raise SisaError("sisa emulate did not announce its ports in time")
+
+
+class Ended(NamedTuple):
+    """A child process that has ended: its exit code and what it last wrote to its pipes."""
+
+    code: int
+    stdout: str
+    stderr: str
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -64,43 +76,64 @@ def _run(args: argparse.Namespace) -> int:
         endpoints_file = run / "endpoints.json"
         emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),
                    "--speed", str(args.speed), "--start", str(args.start),
-                   "--endpoints", str(endpoints_file)]
+                   "--endpoints", str(endpoints_file), "--hold"]
         if args.duration is not None:
             emu_cmd += ["--duration", str(args.duration)]
         if args.no_images:
             emu_cmd.append("--no-images")
-        emu = subprocess.Popen(emu_cmd, stdout=subprocess.DEVNULL)
-        rec: subprocess.Popen[bytes] | None = None
+        emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
+        rec: subprocess.Popen[str] | None = None
         try:
             ep = _wait_for_endpoints(endpoints_file, emu)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args), "--quiet",
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
-                                    "--out", str(run / "flight.mcap")])
-            emu_code = emu.wait()
-            rec_code = _stop(rec)
-        finally:
-            _stop(emu)
+                                    "--out", str(run / "flight.mcap")],
+                                   stdout=subprocess.PIPE, text=True)
+            rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
+        finally:  # both have ended by now, unless something went wrong: then ask them
             if rec is not None:
-                _stop(rec)
-        if emu_code != 0 or rec_code != 0:
-            raise SisaError(f"sisa emulate exited {emu_code}, sisa record exited {rec_code}")
+                _stop(rec, ask=True)
+            _stop(emu, ask=True)
+        if emu_end.code != 0 or rec_end.code != 0:
+            raise SisaError(f"sisa emulate exited {emu_end.code}, sisa record exited "
+                            f"{rec_end.code}")
         for part in ("scanner", "truth"):
             if (run / "emulator" / part).exists():
                 os.replace(run / "emulator" / part, run / part)
         shutil.rmtree(run / "emulator", ignore_errors=True)
-    print(f"{args.out}: flight.mcap, scanner/, truth/ from a real-time run of {scn.block.name}")
+    # its summary, told once the run is in place, names the file where it now is
+    print(rec_end.stdout.replace(str(run), str(args.out)), end="")
+    parts = [f"{p}/" if (args.out / p).is_dir() else p
+             for p in ("flight.mcap", "scanner", "truth") if (args.out / p).exists()]
+    print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}")
     return 0
 
 
-def _stop(proc: subprocess.Popen[bytes], grace_s: float = 15.0) -> int:
-    """Wait for a process that should end by itself; then ask it (SIGINT), then insist."""
+def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drain_s: float
+                    ) -> tuple[Ended, Ended]:
+    """(the recorder, the emulator) once ended. Once `sisa emulate --hold` says the scenario is
+    over, give the recorder `drain_s` for what is still in flight, stop it, then the emulator:
+    the recorder ends on a stop, not on its devices going away (no disconnects logged, and no
+    wait for it to give them up). Without that line (the emulator ended early) both just end."""
+    assert emu.stdout is not None
+    if any(line.rstrip("\n") == HELD_LINE for line in emu.stdout):
+        time.sleep(drain_s)
+        return _stop(rec, ask=True), _stop(emu, ask=True)
+    return _stop(rec), _stop(emu)
+
+
+def _stop(proc: subprocess.Popen[str], grace_s: float = 15.0, *, ask: bool = False) -> Ended:
+    """Wait for a process that should end by itself (with `ask`, at once: ask it with SIGINT),
+    then ask it, then insist; with what it wrote to its pipes from then on."""
+    if not ask:
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            out, err = proc.communicate(timeout=grace_s)
+            return Ended(proc.returncode, out or "", err or "")
+    proc.send_signal(signal.SIGINT)
     try:
-        return proc.wait(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout=grace_s)
+        out, err = proc.communicate(timeout=grace_s)
     except subprocess.TimeoutExpired:
         proc.kill()
-        return proc.wait()
+        out, err = proc.communicate()
+    return Ended(proc.returncode, out or "", err or "")

@@ -14,6 +14,8 @@ from types import FrameType
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import InputError
 
+HELD_LINE = "emulate: the scenario is over; every port held open, silent, until Ctrl-C"
+
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "emulate", "run the GPS receiver, INS and scanner emulators in real "
@@ -39,6 +41,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="do not render the scanner's image lines")
     parser.add_argument("--endpoints", type=Path, default=None,
                         help="also write the endpoints as JSON to this file")
+    parser.add_argument("--hold", action="store_true",
+                        help="at the end of the scenario (or --duration), keep every port "
+                             "open and silent until Ctrl-C, so that a recorder on them can be "
+                             "stopped before its devices go away")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
@@ -80,6 +86,10 @@ def _run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     try:
         runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
+        if args.hold and not stop.is_set():
+            print(HELD_LINE, flush=True)
+            while not stop.wait(0.5):  # a bare wait() would defer the signal handler
+                pass
     finally:
         bridge.close()
         system.write_truth(args.out / "truth")

@@ -1,0 +1,39 @@
+"""`sisa bench` end to end: the emulator and the recorder as separate processes in real time,
+stopped in order at the end (the recorder first, its devices still there)."""
+
+import subprocess
+import sys
+
+import numpy as np
+
+from emulators.truth import read_truth_csv
+from recorder.messages import Topic
+from recorder.reader import read_columns
+
+SECONDS = 5
+
+
+def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
+    run = tmp_path / "run"
+    done = subprocess.run(
+        [sys.executable, "-m", "sisa.cli", "bench", "--preset", "bench", "--out", str(run),
+         "--start", "351", "--duration", str(SECONDS), "--no-images"],
+        capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    for part in ("flight.mcap", "scenario.toml", "truth/ins_records.csv"):
+        assert (run / part).exists(), part
+    assert not (run / "emulator").exists()
+    assert not (run / "scanner").exists()  # --no-images: the scanner recorded nothing
+    assert f"{run}: flight.mcap, truth/ from a real-time run of bench" in done.stdout
+    assert f"recorded {run}/flight.mcap: INS " in done.stdout  # where the file is now
+    # the recorder was stopped while every device was still there: no link lost at the end
+    assert " lost " not in done.stderr, done.stderr
+    assert "0 decode errors, 0 drops" in done.stdout, done.stdout
+    assert "0 disconnects, 0 reconnects" in done.stdout, done.stdout
+    # every INS record from the recorder's first to the last one the INS sent, none lost
+    ins = read_columns(run / "flight.mcap", Topic.INS_RECORD)["ins_time_ticks"]
+    sent = read_truth_csv(run / "truth" / "ins_records.csv")["ins_time_ticks"]
+    assert len(ins) >= SECONDS * 64 - 2
+    np.testing.assert_array_equal(ins, sent[-len(ins):])
+    forwarded = read_columns(run / "flight.mcap", Topic.SYNC_FORWARD)
+    assert (forwarded["mode"] == 2).any()  # the scanner was recording

@@ -16,8 +16,9 @@ Why it is built this way:
   (a file cut short has no summary); either way only the damaged chunk's own messages are lost.
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
   numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
-- `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the median
-  interval), messages lost by sequence number, whether each file ended cleanly.
+- `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the usual
+  interval: the median, or the time between bursts for a topic that talks in bursts), messages
+  lost by sequence number, whether each file ended cleanly.
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ from sisa.errors import DecodeError, InputError
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_RECORD_SIZE_LIMIT: Final = 256 * 2**20  # our chunks are 64 KiB; 256 MiB is corruption
 GAP_FACTOR: Final = 2.0
+RHYTHM_NS: Final = 2_000_000_000  # a silence a topic keeps at least this often is its rhythm
 MAX_GAPS_KEPT: Final = 1000
 MAX_PROBLEMS_KEPT: Final = 20
 _SEQUENCE_MOD: Final = 2**32
@@ -87,7 +89,7 @@ class ChannelInfo:
 
 @dataclass(frozen=True)
 class Gap:
-    """A silence on one topic longer than `GAP_FACTOR` times its median interval."""
+    """A silence on one topic longer than `GAP_FACTOR` times its usual interval."""
 
     topic: str
     start_ns: int  # log time of the last message before the gap
@@ -106,6 +108,7 @@ class TopicStats:
     first_ns: int = 0
     last_ns: int = 0
     median_interval_ns: int = 0
+    usual_interval_ns: int = 0  # see _usual_interval_ns
     gaps: list[Gap] = field(default_factory=list)  # the first MAX_GAPS_KEPT, in time order
     gap_count: int = 0
     lost_by_sequence: int = 0  # jumps in the writer's per-topic sequence numbers
@@ -303,8 +306,18 @@ class LogReader:
         self._times.clear()
 
 
+def _usual_interval_ns(intervals: npt.NDArray[np.uint64], median_ns: int) -> int:
+    """The longest silence a topic keeps at least once every RHYTHM_NS on average: its median
+    interval for a steady stream, the time between bursts for one that talks in bursts (a GPS
+    receiver's sentences, once a second), which the median would call a gap every time."""
+    recurrences = int(intervals.sum() // RHYTHM_NS)
+    if not 1 <= recurrences < len(intervals):
+        return median_ns
+    return max(median_ns, int(np.partition(intervals, -recurrences)[-recurrences]))
+
+
 def _fill_timing(ts: TopicStats, times: npt.NDArray[np.uint64]) -> None:
-    """Count, span, median interval and the gaps longer than GAP_FACTOR x the median."""
+    """Count, span, median and usual interval, the gaps longer than GAP_FACTOR x the usual."""
     ts.count = len(times)
     if not ts.count:
         return
@@ -313,9 +326,10 @@ def _fill_timing(ts: TopicStats, times: npt.NDArray[np.uint64]) -> None:
         return
     intervals = np.diff(times)
     ts.median_interval_ns = int(np.median(intervals))
-    if ts.median_interval_ns <= 0:
+    ts.usual_interval_ns = _usual_interval_ns(intervals, ts.median_interval_ns)
+    if ts.usual_interval_ns <= 0:
         return
-    (idx,) = np.nonzero(intervals > GAP_FACTOR * ts.median_interval_ns)
+    (idx,) = np.nonzero(intervals > GAP_FACTOR * ts.usual_interval_ns)
     ts.gap_count = len(idx)
     ts.gaps = [Gap(ts.topic, int(times[i]), int(times[i + 1])) for i in idx[:MAX_GAPS_KEPT]]
 

@@ -104,14 +104,14 @@ def _topic_table(stats: LogStats) -> list[str]:
     if not stats.topics:
         return []
     head = (f"{'topic':<20} {'schema':<22} {'count':>9} {'rate_hz':>9} {'first_s':>9} "
-            f"{'last_s':>9} {'median_ms':>9} {'gaps':>5} {'lost':>5}")
+            f"{'last_s':>9} {'usual_ms':>9} {'gaps':>5} {'lost':>5}")
     lines = [head]
     for topic in topics_in(stats):
         t = stats.topics[topic]
         first_s, last_s = ((t.first_ns - stats.start_ns) / 1e9, (t.last_ns - stats.start_ns) / 1e9)
         lines.append(
             f"{topic:<20} {t.schema_name:<22} {t.count:>9} {t.rate_hz:>9.2f} {first_s:>9.3f} "
-            f"{last_s:>9.3f} {t.median_interval_ns / 1e6:>9.3f} {t.gap_count:>5} "
+            f"{last_s:>9.3f} {t.usual_interval_ns / 1e6:>9.3f} {t.gap_count:>5} "
             f"{t.lost_by_sequence:>5}")
     return lines
 
@@ -121,9 +121,9 @@ def _gap_lines(stats: LogStats, limit: int) -> list[str]:
     if not total or limit <= 0:
         return []
     gaps = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:limit]
-    lines = [f"gaps longer than 2x the topic's median interval: {total} (largest {len(gaps)})"]
+    lines = [f"gaps longer than 2x the topic's usual interval: {total} (largest {len(gaps)})"]
     for g in gaps:
-        median = stats.topics[g.topic].median_interval_ns
+        usual = stats.topics[g.topic].usual_interval_ns
         lines.append(f"  {g.topic:<20} at +{(g.start_ns - stats.start_ns) / 1e9:.3f} s: "
-                     f"{g.duration_ns / 1e9:.3f} s (median {median / 1e9:.4f} s)")
+                     f"{g.duration_ns / 1e9:.3f} s (usual {usual / 1e9:.4f} s)")
     return lines

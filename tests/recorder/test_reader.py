@@ -177,6 +177,24 @@ def test_stats_find_the_gap_and_the_rates(tmp_path):
     assert ins.lost_by_sequence == 0  # the writer never saw them: a gap, not a loss
 
 
+
+def test_a_topic_that_talks_in_bursts_has_gaps_only_where_it_went_quiet(tmp_path):
+    """GPS sentences: 5 chunks 15 ms apart once a second for 30 s, then 3 s of nothing: the
+    silence between bursts is its rhythm, the outage is its only gap."""
+    path = tmp_path / "bursts.mcap"
+    seconds = [*range(0, 12), *range(15, 30)]
+    with FlightRecorder(path) as rec:
+        for sec in seconds:
+            for k in range(5):
+                t = T0_NS + sec * 1_000_000_000 + k * 15_000_000
+                rec.write(RawBytes(t, "gps", b"$GPZDA*00\r\n"), Topic.GPS_RAW)
+    gps = scan_log(path).topics["/gps/raw"]
+    assert gps.median_interval_ns == 15_000_000
+    assert gps.usual_interval_ns == 940_000_000
+    assert gps.gap_count == 1
+    assert gps.gaps[0].start_ns == T0_NS + 11 * 1_000_000_000 + 60_000_000
+    assert gps.gaps[0].duration_ns == 3_940_000_000
+
 def test_columns_are_numpy_arrays_of_the_declared_types(flight):
     cols = read_columns(flight, Topic.INS_RECORD)
     assert cols["counter"].dtype == np.int64

@@ -20,11 +20,12 @@ def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
          "--start", "351", "--duration", str(SECONDS), "--no-images"],
         capture_output=True, text=True, timeout=240)
     assert done.returncode == 0, done.stderr
-    for part in ("flight.mcap", "scenario.toml", "truth/ins_records.csv"):
+    for part in ("flight.mcap", "scenario.toml", "truth/ins_records.csv", "terrain/dem.tif",
+                 "terrain/ground_points.csv"):
         assert (run / part).exists(), part
     assert not (run / "emulator").exists()
     assert not (run / "scanner").exists()  # --no-images: the scanner recorded nothing
-    assert f"{run}: flight.mcap, truth/ from a real-time run of bench" in done.stdout
+    assert f"{run}: flight.mcap, terrain/, truth/ from a real-time run of bench" in done.stdout
     assert f"recorded {run}/flight.mcap: INS " in done.stdout  # where the file is now
     # the recorder was stopped while every device was still there: no link lost at the end
     assert " lost " not in done.stderr, done.stderr

@@ -67,7 +67,9 @@ class Ended(NamedTuple):
 
 
 def _run(args: argparse.Namespace) -> int:
+    from emulators.terrain import Terrain
     from sisa.commands.scenario import scenario_toml
+    from sisa.simulation import write_survey_data
 
     scn = scenario_from_args(args)
     sisa = [sys.executable, "-m", "sisa.cli"]
@@ -84,6 +86,8 @@ def _run(args: argparse.Namespace) -> int:
         emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
         rec: subprocess.Popen[str] | None = None
         try:
+            # the DEM and ground points, as `sisa simulate` writes them, while the emulator starts
+            write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
             ep = _wait_for_endpoints(endpoints_file, emu)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args), "--quiet",
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
@@ -105,7 +109,7 @@ def _run(args: argparse.Namespace) -> int:
     # its summary, told once the run is in place, names the file where it now is
     print(rec_end.stdout.replace(str(run), str(args.out)), end="")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
-             for p in ("flight.mcap", "scanner", "truth") if (args.out / p).exists()]
+             for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
     print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}")
     return 0
 

@@ -44,6 +44,14 @@ def gps_week_and_tow_ns(t_gps_ns: int) -> tuple[int, int]:
     return int(week), int(tow_ns)
 
 
+def gps_time_label(t_gps_ns: int) -> str:
+    """'2026-06-15 09:05:47 GPS (week 2423, 119 147 s)': as a receiver shows it, to the second
+    (GPS time, which runs ahead of UTC by the leap seconds)."""
+    week, tow_ns = gps_week_and_tow_ns(t_gps_ns)
+    when = datetime_from_gps_ns(t_gps_ns).strftime("%Y-%m-%d %H:%M:%S")
+    return f"{when} GPS (week {week}, {tow_ns // NS_PER_S:_} s)".replace("_", " ")
+
+
 def day_of_week(t_ns: int) -> int:
     """Ashtech day of week, 1..7 with Sunday = 1 (the GPS epoch was a Sunday)."""
     return int((t_ns % NS_PER_WEEK) // NS_PER_DAY) + 1

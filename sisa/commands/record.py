@@ -214,10 +214,12 @@ class _Status:
                           str(c.gaps), str(c.stats.errors), str(c.drops), str(c.deadline_misses),
                           f"{state} ({link.reconnects} reconnects)" if link.disconnects
                           else state)
+        from sisa.timescale import gps_time_label
+
         free_gb = shutil.disk_usage(self.out.parent).free / 1e9
         pps = self.acq.last_pps_gps_ns
         table.caption = (f"sync mode {self.acq.filter.mode}, session {self.acq.session}, "
-                         f"last PPS {'-' if pps is None else pps // 1_000_000_000} s GPS, "
+                         f"last PPS {'-' if pps is None else gps_time_label(pps)}, "
                          f"disk free {free_gb:.1f} GB")
         return table
 

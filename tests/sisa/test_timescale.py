@@ -46,3 +46,9 @@ def test_host_unix_clock_and_gps_time():
     expected = dt.datetime(2026, 6, 15, 9, 0, 0, tzinfo=dt.UTC).timestamp() * 1e9
     assert unix == int(expected)
     assert ts.gps_ns_from_unix_ns(unix, 18) == t
+
+
+def test_gps_time_label_is_calendar_week_and_seconds_of_week():
+    t = ts.gps_ns_from_datetime(dt.datetime(2026, 6, 15, 9, 5, 47)) + 999_999_999
+    assert ts.gps_time_label(t) == "2026-06-15 09:05:47 GPS (week 2423, 119 147 s)"
+    assert ts.gps_time_label(0) == "1980-01-06 00:00:00 GPS (week 0, 0 s)"

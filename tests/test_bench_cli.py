@@ -1,8 +1,11 @@
 """`sisa bench` end to end: the emulator and the recorder as separate processes in real time,
 stopped in order at the end (the recorder first, its devices still there)."""
 
+import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -38,3 +41,24 @@ def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
     np.testing.assert_array_equal(ins, sent[-len(ins):])
     forwarded = read_columns(run / "flight.mcap", Topic.SYNC_FORWARD)
     assert (forwarded["mode"] == 2).any()  # the scanner was recording
+
+
+def test_ctrl_c_ends_a_bench_early_and_keeps_the_run(tmp_path):
+    """Ctrl-C reaches the bench and both children (one process group, as from a terminal)."""
+    run = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "bench", "--preset", "bench", "--out", str(run),
+         "--start", "351", "--no-images"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not any(p.stat().st_size > 100_000 for p in tmp_path.glob(".run.partial-*/*.mcap")):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "nothing recorded"
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert "stopped early (Ctrl-C)" in out
+    assert len(read_columns(run / "flight.mcap", Topic.INS_RECORD)["counter"]) > 100
+    assert (run / "truth" / "ins_records.csv").is_file()
+    assert not list(tmp_path.glob(".run.partial-*"))

@@ -1,6 +1,7 @@
 """`sisa bench`: the desk test. `sisa emulate` and `sisa record` run as separate processes on
 virtual ports (ptys), CAN (SLCAN on a pty) and the pulse link, in real time; both are stopped
-cleanly at the end. The run folder has the same layout as `sisa simulate`'s."""
+cleanly at the end, or at Ctrl-C, which keeps the run so far. The run folder has the same layout
+as `sisa simulate`'s."""
 
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ DRAIN_S = 0.5  # after the emulator's last output: a frame header's latency, the
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "bench", "desk test: sisa emulate and sisa record as separate "
-                         "processes on virtual ports, in real time",
+                         "processes on virtual ports, in real time (Ctrl-C ends it early and "
+                         "keeps the run)",
                          "sisa bench --preset bench --out runs/bench-rt --duration 120")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
@@ -94,7 +96,12 @@ def _run(args: argparse.Namespace) -> int:
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
                                     "--out", str(run / "flight.mcap")],
                                    stdout=subprocess.PIPE, text=True)
-            rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
+            try:
+                rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
+                early = ""
+            except KeyboardInterrupt:  # Ctrl-C (to both, from the terminal): a shorter run
+                rec_end, emu_end = _stop(rec, ask=True), _stop(emu, ask=True)
+                early = ", stopped early (Ctrl-C)"
         finally:  # both have ended by now, unless something went wrong: then ask them
             if rec is not None:
                 _stop(rec, ask=True)
@@ -110,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
     print(rec_end.stdout.replace(str(run), str(args.out)), end="")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
              for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
-    print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}")
+    print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{early}")
     return 0
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -38,6 +38,22 @@ def terminal_progress(label: str, *, show_count: bool = False
 
 class Formatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the examples in --help laid out as written."""
+
+
+FLIGHT_HELP = ("the flight log (MCAP; the numbered parts of a split recording are found beside "
+               "it), or every part in order")
+
+
+def flight_parts(files: Sequence[Path]) -> list[Path]:
+    """The files of a flight log: as given when several; when one, it and the numbered parts of
+    a split recording beside it (flight.mcap, flight_001.mcap, ...: `sisa record --split-*`),
+    so that naming the first part never reads a flight only in part. A missing file is left
+    for the reader to report."""
+    from recorder.writer import split_parts
+
+    if len(files) != 1:
+        return list(files)
+    return split_parts(files[0]) or list(files)
 
 
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,

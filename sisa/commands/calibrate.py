@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, flight_parts
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -50,7 +50,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa calibrate runs/high runs/low --out runs/cal "
                          "--estimate boresight,selfcal,delay   # two flights, one sensor")
     parser.add_argument("flight", nargs="+", type=Path, metavar="RUN_OR_FLIGHT",
-                        help="a run folder of `sisa simulate`, or the flight log (MCAP parts); "
+                        help="a run folder of `sisa simulate`, or the flight log (MCAP; its "
+                             "numbered parts are found beside it); "
                              "several run folders: flights sharing the sensor, adjusted together")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
     parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
@@ -152,11 +153,11 @@ def _flight_paths(args: argparse.Namespace) -> list[Path]:
         log = args.flight[0] / "flight.mcap"
         if not log.is_file():
             raise InputError(f"{args.flight[0]}: no flight.mcap: not a run folder")
-        return [log]
+        return flight_parts([log])
     for p in args.flight:
         if not p.is_file():
             raise InputError(f"{p}: no such flight log")
-    return list(args.flight)
+    return flight_parts(args.flight)
 
 
 def _sensor(args: argparse.Namespace) -> SensorModel:

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import SubParsers, add_command, terminal_progress
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, terminal_progress
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -37,7 +37,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa georef runs/bench/flight.mcap --scanner runs/bench/scanner "
                          "--dem runs/bench/terrain/dem.tif --out runs/bench-georef")
     parser.add_argument("flight", nargs="+", type=Path, metavar="FLIGHT",
-                        help="the flight log (MCAP), or every part of a split recording in order")
+                        help=FLIGHT_HELP)
     parser.add_argument("--scanner", type=Path, required=True, metavar="DIR",
                         help="the scanner's recording folder (segment_NNN.bil/.hdr/.lines.csv)")
     parser.add_argument("--dem", type=Path, required=True, help="DEM GeoTIFF (projected CRS)")
@@ -108,6 +108,6 @@ def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     options = options_from_args(args)
     with staged_output_dir(args.out) as out:
-        result = run_georef(args.flight, args.scanner, out, options)
+        result = run_georef(flight_parts(args.flight), args.scanner, out, options)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
     return 0

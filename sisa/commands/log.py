@@ -11,7 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import add_command
+from sisa.commands import FLIGHT_HELP, add_command, flight_parts
 
 if TYPE_CHECKING:
     from recorder.reader import FileStats, LogStats
@@ -23,9 +23,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     actions = parser.add_subparsers(dest="log_command", metavar="ACTION")
     info = add_command(actions, "info", "per-topic counts, rates, time span and gaps of a "
                        "flight log (also a truncated one)",
-                       "sisa log info runs/flight.mcap runs/flight_001.mcap")
+                       "sisa log info runs/flight.mcap")
     info.add_argument("files", nargs="+", type=Path, metavar="FILE",
-                      help="an MCAP file, or every part of a split recording in order")
+                      help=FLIGHT_HELP)
     info.add_argument("--gaps", type=int, default=10, metavar="N",
                       help="list at most N gaps, largest first (default: 10)")
     info.set_defaults(handler=_info)
@@ -46,7 +46,7 @@ def _usage(parser: argparse.ArgumentParser) -> int:
 def _info(args: argparse.Namespace) -> int:
     from recorder.reader import scan_log
 
-    stats = scan_log(args.files)
+    stats = scan_log(flight_parts(args.files))
     for fs in stats.files:
         print(_file_line(fs))
     for line in _summary_lines(stats):

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import SubParsers, add_command, flight_parts
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
@@ -87,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     options = options_from_args(args, sensor_of(scn, nominal=args.nominal))
     out = args.out if args.out is not None else run / "process"
     with staged_output_dir(out) as tmp:
-        result = run_georef([run / "flight.mcap"], run / "scanner", tmp, options)
+        result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options)
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}

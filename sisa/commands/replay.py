@@ -24,7 +24,7 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts
 from sisa.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
@@ -62,8 +62,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa replay runs/bench/flight.mcap --endpoints ep.json   "
                          "(then: sisa record ... on the printed ports)")
     parser.add_argument("files", nargs="+", type=Path, metavar="FLIGHT",
-                        help="the flight log (its numbered parts are found beside it), or "
-                             "every part of a split recording in order")
+                        help=FLIGHT_HELP)
     parser.add_argument("--rate", type=float, default=1.0,
                         help="times real time (default 1.0: the recorded timing)")
     parser.add_argument("--start", type=float, default=0.0, metavar="SECONDS",
@@ -109,14 +108,6 @@ class _Span:
         return (self.until_ns - self.from_ns) / 1e9
 
 
-def _paths(files: list[Path]) -> list[Path]:
-    from recorder.writer import split_parts
-
-    if len(files) > 1:
-        return files
-    return split_parts(files[0]) or files  # a missing file is reported by the reader
-
-
 def _check_numbers(args: argparse.Namespace) -> None:
     for name in ("rate", "start", "duration"):
         value = getattr(args, name)
@@ -143,7 +134,7 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.replay import survey_log
 
     _check_numbers(args)
-    paths = _paths(args.files)
+    paths = flight_parts(args.files)
     target = CanTarget.parse(args.can)
     survey = survey_log(paths)
     span = _span(args, survey)

@@ -13,7 +13,7 @@ import argparse
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts
 from sisa.outdir import staged_output_dir
 
 
@@ -23,7 +23,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa sync runs/bench/flight.mcap --scanner runs/bench/scanner "
                          "--out runs/bench-sync")
     parser.add_argument("flight", nargs="+", type=Path, metavar="FLIGHT",
-                        help="the flight log (MCAP), or every part of a split recording in order")
+                        help=FLIGHT_HELP)
     parser.add_argument("--scanner", type=Path, default=None, metavar="DIR",
                         help="the scanner's recording folder (segment_NNN.lines.csv); without "
                              "it, lines are the frame headers in the log")
@@ -43,8 +43,9 @@ def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     with staged_output_dir(args.out) as out:
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
-        result = synchronise(read_sync_input(args.flight), lines)
-        result.report["inputs"] = {"flight": [str(p) for p in args.flight],
+        flight = flight_parts(args.flight)
+        result = synchronise(read_sync_input(flight), lines)
+        result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}
         ins, ln = result.ins, result.lines
         write_ins_times(out / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)

@@ -336,6 +336,57 @@ def test_lines_from_the_files_and_from_the_headers_agree(imaged: Path) -> None:
         assert np.array_equal(getattr(with_files.lines, f), getattr(from_headers.lines, f))
 
 
+def _split_in_two(flight: Path, first: Path) -> None:
+    """Write `flight` as a split recording would be: `first`, then first_001.mcap from the
+    middle of the log time on, each part a whole MCAP file of its own."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with flight.open("rb") as fh:
+        messages = list(make_reader(fh).iter_messages(log_time_order=True))
+    middle = messages[len(messages) // 2][2].log_time
+    names = (first, first.with_name(f"{first.stem}_001{first.suffix}"))
+    for k, name in enumerate(names):
+        with name.open("wb") as out:
+            writer = Writer(out)
+            writer.start()
+            schema_ids: dict[int, int] = {}
+            channel_ids: dict[int, int] = {}
+            for schema, channel, message in messages:
+                if (message.log_time >= middle) != bool(k):
+                    continue
+                if channel.id not in channel_ids:
+                    if schema.id not in schema_ids:
+                        schema_ids[schema.id] = writer.register_schema(
+                            schema.name, schema.encoding, schema.data)
+                    channel_ids[channel.id] = writer.register_channel(
+                        channel.topic, channel.message_encoding, schema_ids[schema.id])
+                writer.add_message(channel_ids[channel.id], message.log_time, message.data,
+                                   message.publish_time, message.sequence)
+            writer.finish()
+
+
+def test_the_first_part_of_a_split_log_brings_the_others(imaged: Path, tmp_path: Path) -> None:
+    """`sisa sync flight.mcap` on a split recording reads flight_001.mcap too (the whole
+    flight's times), as `sisa log info` does: naming the first part never syncs half a flight."""
+    split = tmp_path / "split" / "flight.mcap"
+    split.parent.mkdir()
+    _split_in_two(imaged / "flight.mcap", split)
+    times = {}
+    for name, flight in (("whole", imaged / "flight.mcap"), ("split", split)):
+        out = tmp_path / f"sync_{name}"
+        proc = _sisa("sync", str(flight), "--scanner", str(imaged / "scanner"), "--out", str(out))
+        assert proc.returncode == 0, proc.stderr
+        times[name] = (out / "line_times.csv").read_text(encoding="utf-8"), \
+            (out / "ins_times.csv").read_text(encoding="utf-8")
+    assert times["split"] == times["whole"]
+    report = json.loads((tmp_path / "sync_split" / "sync_report.json").read_text("utf-8"))
+    assert [Path(p).name for p in report["inputs"]["flight"]] == ["flight.mcap", "flight_001.mcap"]
+    info = _sisa("log", "info", str(split))
+    assert info.returncode == 0, info.stderr
+    assert "flight_001.mcap" in info.stdout
+
+
 @pytest.mark.parametrize("bad", ["missing", "not_mcap", "scanner_missing", "out_exists"])
 def test_bad_input_is_one_line_exit_2_and_nothing_written(imaged: Path, tmp_path: Path,
                                                          bad: str) -> None:

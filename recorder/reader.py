@@ -17,8 +17,8 @@ Why it is built this way:
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
   numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
 - `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the usual
-  interval: the median, or the time between bursts for a topic that talks in bursts), messages
-  lost by sequence number, whether each file ended cleanly.
+  interval around them: docs/flight-log.md), messages lost by sequence number, whether each file
+  ended cleanly.
 """
 
 from __future__ import annotations
@@ -60,6 +60,10 @@ MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_RECORD_SIZE_LIMIT: Final = 256 * 2**20  # our chunks are 64 KiB; 256 MiB is corruption
 GAP_FACTOR: Final = 2.0
 RHYTHM_NS: Final = 2_000_000_000  # a silence a topic keeps at least this often is its rhythm
+RHYTHM_BIN_NS: Final = 20_000_000_000  # ... judged over this much log time and its neighbours
+# the sync unit's own outputs, silent by design between forwarded pulses (the LFSR's runs of
+# zeros, up to 4 s with 4 bits): their silences say nothing about a device, so no gaps
+PATTERNED_TOPICS: Final = frozenset({Topic.SYNC_FORWARD.value, Topic.PULSE_OUT.value})
 MAX_GAPS_KEPT: Final = 1000
 MAX_PROBLEMS_KEPT: Final = 20
 _SEQUENCE_MOD: Final = 2**32
@@ -89,11 +93,12 @@ class ChannelInfo:
 
 @dataclass(frozen=True)
 class Gap:
-    """A silence on one topic longer than `GAP_FACTOR` times its usual interval."""
+    """A silence on one topic longer than `GAP_FACTOR` times its usual interval around it."""
 
     topic: str
     start_ns: int  # log time of the last message before the gap
     end_ns: int  # log time of the first message after it
+    usual_ns: int = 0  # the topic's usual interval around it (_local_usual_ns)
 
     @property
     def duration_ns(self) -> int:
@@ -110,7 +115,7 @@ class TopicStats:
     median_interval_ns: int = 0
     usual_interval_ns: int = 0  # see _usual_interval_ns
     gaps: list[Gap] = field(default_factory=list)  # the first MAX_GAPS_KEPT, in time order
-    gap_count: int = 0
+    gap_count: int | None = 0  # None: not counted (PATTERNED_TOPICS)
     lost_by_sequence: int = 0  # jumps in the writer's per-topic sequence numbers
 
     @property
@@ -316,8 +321,30 @@ def _usual_interval_ns(intervals: npt.NDArray[np.uint64], median_ns: int) -> int
     return max(median_ns, int(np.partition(intervals, -recurrences)[-recurrences]))
 
 
+def _local_usual_ns(starts_ns: npt.NDArray[np.uint64], intervals: npt.NDArray[np.uint64],
+                    overall_ns: int) -> npt.NDArray[np.int64]:
+    """The usual interval around each interval: as _usual_interval_ns, over the RHYTHM_BIN_NS
+    of log time it starts in and the bins either side (the longest silence kept at least every
+    RHYTHM_NS there), so a topic whose rhythm changes in flight (frame pulses while the scanner
+    records, the PPS alone between strips) is judged by the rhythm it had at the time. Where
+    those bins hold too few intervals to tell, the topic's overall usual interval."""
+    k = RHYTHM_BIN_NS // RHYTHM_NS
+    bins = ((starts_ns - starts_ns[0]) // RHYTHM_BIN_NS).astype(np.int64)
+    n_bins = int(bins[-1]) + 1
+    order = np.lexsort((-intervals.astype(np.int64), bins))  # by bin, longest first
+    first = np.searchsorted(bins[order], np.arange(n_bins))
+    count = np.bincount(bins, minlength=n_bins)
+    per_bin = np.full(n_bins + 2, -1, dtype=np.int64)  # -1: cannot tell; padded both sides
+    enough = count >= k
+    per_bin[1:-1][enough] = intervals[order[first[enough] + k - 1]].astype(np.int64)
+    around = np.maximum(np.maximum(per_bin[:-2], per_bin[1:-1]), per_bin[2:])
+    usual = around[bins]
+    return np.where(usual >= 0, usual, overall_ns)
+
+
 def _fill_timing(ts: TopicStats, times: npt.NDArray[np.uint64]) -> None:
-    """Count, span, median and usual interval, the gaps longer than GAP_FACTOR x the usual."""
+    """Count, span, median and usual interval; the gaps: intervals longer than GAP_FACTOR x
+    the usual interval around them."""
     ts.count = len(times)
     if not ts.count:
         return
@@ -327,11 +354,14 @@ def _fill_timing(ts: TopicStats, times: npt.NDArray[np.uint64]) -> None:
     intervals = np.diff(times)
     ts.median_interval_ns = int(np.median(intervals))
     ts.usual_interval_ns = _usual_interval_ns(intervals, ts.median_interval_ns)
-    if ts.usual_interval_ns <= 0:
+    if ts.topic in PATTERNED_TOPICS:
+        ts.gap_count = None
         return
-    (idx,) = np.nonzero(intervals > GAP_FACTOR * ts.usual_interval_ns)
+    usual = _local_usual_ns(times[:-1], intervals, ts.usual_interval_ns)
+    (idx,) = np.nonzero((usual > 0) & (intervals > GAP_FACTOR * usual))
     ts.gap_count = len(idx)
-    ts.gaps = [Gap(ts.topic, int(times[i]), int(times[i + 1])) for i in idx[:MAX_GAPS_KEPT]]
+    ts.gaps = [Gap(ts.topic, int(times[i]), int(times[i + 1]), int(usual[i]))
+               for i in idx[:MAX_GAPS_KEPT]]
 
 
 class _FileScan:

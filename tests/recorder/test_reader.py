@@ -195,6 +195,30 @@ def test_a_topic_that_talks_in_bursts_has_gaps_only_where_it_went_quiet(tmp_path
     assert gps.gaps[0].start_ns == T0_NS + 11 * 1_000_000_000 + 60_000_000
     assert gps.gaps[0].duration_ns == 3_940_000_000
 
+
+def test_a_topic_whose_rhythm_changes_is_judged_by_the_rhythm_it_has_then(tmp_path):
+    """Pulse edges: the PPS alone for 40 s, frame pulses at 20 Hz besides for 120 s (the
+    scanner recording), the PPS alone again with a 3 s outage: only the outage is a gap (the
+    median, 50 ms, or the flight's overall rhythm would call every PPS-only second one).
+    Forwarded pulses are not judged at all."""
+    path = tmp_path / "pulses.mcap"
+    pps = [s for s in range(200) if not 170 <= s < 173]
+    ppf = [40.0 + k / 20 for k in range(1, 2400)]
+    edges = sorted([(s * 1.0, "PPS") for s in pps] + [(t, "PPF") for t in ppf])
+    with FlightRecorder(path) as rec:
+        for k, (t_s, line) in enumerate(edges):
+            t = T0_NS + round(t_s * 1e9)
+            rec.write(PulseEdgeLog(t, line, t, k), Topic.PULSE_IN)
+            if line == "PPS" and k % 3:
+                rec.write(PulseEdgeLog(t, "INS_SYNC", t, k), Topic.PULSE_OUT)
+    stats = scan_log(path).topics
+    edges_in = stats["/pulses/in"]
+    assert edges_in.median_interval_ns == 50_000_000
+    assert edges_in.gap_count == 1
+    assert edges_in.gaps[0].start_ns == T0_NS + 169 * 1_000_000_000
+    assert edges_in.gaps[0].usual_ns == 1_000_000_000
+    assert stats["/pulses/out"].gap_count is None
+
 def test_columns_are_numpy_arrays_of_the_declared_types(flight):
     cols = read_columns(flight, Topic.INS_RECORD)
     assert cols["counter"].dtype == np.int64

@@ -1,6 +1,6 @@
-"""`sisa process RUN`: the post-processing of a simulated run, end to end — sync,
-georeferencing and products as `sisa georef`, with the run's scenario as the sensor file, plus
-an accuracy report against the run's truth.
+"""`sisa process RUN`: the post-processing of a simulated (or `sisa bench`) run, end to end —
+sync, georeferencing and products as `sisa georef`, with the run's scenario as the sensor file,
+plus an accuracy report against the run's truth.
 
 RUN/process/ (or --out)
   ...                  everything `sisa georef` writes
@@ -27,10 +27,12 @@ if TYPE_CHECKING:
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
-    parser = add_command(sub, "process", "sync, georeference and report on a simulated run, "
+    parser = add_command(sub, "process", "sync, georeference and report on a simulated (or "
+                         "bench) run, "
                          "with its accuracy against truth",
                          "sisa process runs/bench")
-    parser.add_argument("run", type=Path, metavar="RUN", help="a run folder of `sisa simulate`")
+    parser.add_argument("run", type=Path, metavar="RUN",
+                        help="a run folder of `sisa simulate` or `sisa bench`")
     parser.add_argument("--out", type=Path, default=None,
                         help="new output folder (default: RUN/process)")
     parser.add_argument("--nominal", action="store_true",
@@ -81,7 +83,8 @@ def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     run: Path = args.run
     if not (run / "flight.mcap").is_file():
-        raise InputError(f"{run}: not a run folder of `sisa simulate` (no flight.mcap)")
+        raise InputError(f"{run}: not a run folder of `sisa simulate` or `sisa bench` (no "
+                         "flight.mcap)")
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
     options = options_from_args(args, sensor_of(scn, nominal=args.nominal))

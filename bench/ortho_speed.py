@@ -24,8 +24,9 @@ SKIP_NOSOURCE=YES, one warping thread, GDAL's default block cache of 5 % of RAM)
 is often the slower. Ours is the `sisa ortho` command on gdalwarp's grid (--cell, --bounds),
 as a user runs it, with orthorectify()'s defaults (windows made two at a time on threads by
 numba kernels, the GeoTIFF compressed by GDAL in a background thread with
-NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB); the time of orthorectify() itself is read from
-its summary line.
+NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB), which also writes the GLT; and once more with
+--no-glt, the GeoTIFF alone, the one product gdalwarp makes. The time of orthorectify() itself
+is read from the summary line.
 
 The position error of a cell is the distance from its centre to the ground position of the
 pixel chosen for it; the exact nearest neighbour comes from a cKDTree over every pixel.
@@ -181,12 +182,13 @@ SUMMARY = re.compile(r"(?P<filled>\d+) of (?P<cells>\d+) cells filled.*; ortho "
                      r"(?P<ortho_s>[\d.]+) s")
 
 
-def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str) -> list[str]:
+def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str, glt: bool = True
+             ) -> list[str]:
     """`sisa ortho` as a user runs it, on gdalwarp's grid (its -te and -tr)."""
     return [sys.executable, "-m", "sisa.cli", "ortho", str(folder / "seg_igm.bil"),
             str(folder / "seg.bil"), "--out", str(folder / f"ours_{tag}.tif"),
             "--cell", repr(grid.cell_m), "--bounds", *(repr(v) for v in grid.bounds_m),
-            "--compress", compress]
+            "--compress", compress, *([] if glt else ["--no-glt"])]
 
 
 def ours_summary(run: Run) -> tuple[int, float]:
@@ -320,6 +322,9 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
         us = measured(ours_cmd(folder, grid, compress, compress), outputs=ours_outputs(
             folder, compress))
         _, ortho_s = ours_summary(us)
+        alone = measured(ours_cmd(folder, grid, f"{compress}_alone", compress, glt=False),
+                         outputs=ours_outputs(folder, f"{compress}_alone"))
+        _, alone_ortho_s = ours_summary(alone)
         print(f"[{compress} GeoTIFF, tiled 512]  (load average {os.getloadavg()[0]:.1f} on "
               f"{os.cpu_count()} cores)")
         for mode, gd in gds.items():
@@ -327,11 +332,16 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
                   f"peak RSS {gd.peak_rss_mb:6.0f} MB")
         print(f"  sisa ortho:        {us.wall_s:7.2f} s wall, {us.cpu_s:7.2f} s CPU, peak RSS "
               f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {ortho_s:.2f} s wall)")
+        print(f"  ... --no-glt:      {alone.wall_s:7.2f} s wall, {alone.cpu_s:7.2f} s CPU, peak "
+              f"RSS {alone.peak_rss_mb:6.0f} MB (orthorectify() itself {alone_ortho_s:.2f} s "
+              "wall): the GeoTIFF alone, as gdalwarp makes")
         best = min(gds, key=lambda m: gds[m].wall_s)
         gd = gds[best]
         print(f"  speed-up against the faster gdalwarp ({best}): {gd.wall_s / us.wall_s:.1f}x "
               f"wall, {gd.cpu_s / us.cpu_s:.1f}x CPU (whole processes); "
-              f"{gd.wall_s / ortho_s:.1f}x wall against orthorectify() alone")
+              f"{gd.wall_s / ortho_s:.1f}x wall against orthorectify() alone; the GeoTIFF "
+              f"alone (--no-glt): {gd.wall_s / alone.wall_s:.1f}x wall, "
+              f"{gd.cpu_s / alone.cpu_s:.1f}x CPU")
     err = errors(folder, grid, codecs[0])
     print(f"cells filled: gdalwarp {err['cells_gdal']:.0f}, ours {err['cells_ours']:.0f}; "
           f"ours but not gdalwarp {err['cells_ours_not_gdal']:.0f}, "

@@ -822,16 +822,17 @@ Progress = Callable[[int], None]  # told a count of work just done (lines, grid 
 
 
 def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,
-                 glt_stem: Path, *, tile_cells: int | None = None, compress: str = "deflate",
+                 glt_stem: Path | None, *, tile_cells: int | None = None,
+                 compress: str = "deflate",
                  workers: int = WORKERS, progress: Progress | None = None,
                  on_total: Progress | None = None) -> OrthoResult:
-    """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and
-    `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`: the IGM file, or its
-    SwathIndex when the caller built one for the grid's bounds (one pass over the IGM, not
-    two). `tile_cells` forces square work tiles of that side (default: windows sized by
-    WINDOW_BYTES); `workers`: windows computed at once (the products do not depend on it).
-    `on_total` is told how many cells the swath can reach (the windows to map), `progress`
-    how many of them each finished window held."""
+    """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
+    unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
+    the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
+    over the IGM, not two). `tile_cells` forces square work tiles of that side (default:
+    windows sized by WINDOW_BYTES); `workers`: windows computed at once (the products do not
+    depend on it). `on_total` is told how many cells the swath can reach (the windows to map),
+    `progress` how many of them each finished window held."""
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
     raw = EnviRaster.open(Path(image))
     check_pair(index, raw, grid.epsg)
@@ -841,21 +842,21 @@ def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: 
             "pixel-centre ground position (IGM) is nearest to the cell centre")
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
         tif = TiffWriter(out_tif, grid, raw, nodata, desc, compress)
+        glt: GltWriter | None = None
         try:
-            glt = GltWriter(Path(glt_stem), grid, raw.path.name, out_tif.name)
-        except BaseException:
-            tif.abort()
-            raise
-        try:
+            if glt_stem is not None:
+                glt = GltWriter(Path(glt_stem), grid, raw.path.name, out_tif.name)
             filled, infill, dist_sum, dist_max = _ortho_windows(
                 index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1),
                 progress, on_total)
             tif.close()
         except BaseException:
             tif.abort()
-            glt.abort()
+            if glt is not None:
+                glt.abort()
             raise
-        glt.close()
+        if glt is not None:
+            glt.close()
     return OrthoResult(grid.width * grid.height, filled, infill,
                        dist_sum / filled if filled else math.nan, dist_max)
 
@@ -892,7 +893,8 @@ def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: fl
 
 
 def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
-                   tif: TiffWriter, glt: GltWriter, tile_cells: int | None, workers: int,
+                   tif: TiffWriter, glt: GltWriter | None, tile_cells: int | None,
+                   workers: int,
                    progress: Progress | None, on_total: Progress | None
                    ) -> tuple[int, int, float, float]:
     """Every window, `workers` at a time (the kernels release the GIL), handed to the
@@ -939,7 +941,8 @@ def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: 
                 free.append(scratch)
                 continue
             data, ok, values, (n, n_in, d_sum, d_top) = made
-            glt.write_window(row0, col0, values)  # one thread: writers of a file contend
+            if glt is not None:  # one thread: writers of a file contend
+                glt.write_window(row0, col0, values)
             tif.write(data, row0, col0, ok)  # returns once the previous write is done
             if writing is not None:
                 free.append(writing)

@@ -56,6 +56,20 @@ def test_same_products_as_orthorectify(made: Made, tmp_path: Path) -> None:
                                                           "again_glt.hdr"]
 
 
+
+def test_no_glt_writes_the_same_geotiff_alone(made: Made, tmp_path: Path) -> None:
+    g = made.grid
+    out = tmp_path / "alone.tif"
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--cell", g.cell_m, "--bounds", g.west_m, g.north_m - g.height * g.cell_m,
+                      g.west_m + g.width * g.cell_m, g.north_m, "--no-glt")
+    assert proc.returncode == 0, proc.stderr
+    assert "no GLT" in proc.stdout
+    assert f"{made.result.cells_filled} of {made.result.cells} cells filled" in proc.stdout
+    with rasterio.open(out) as a, rasterio.open(made.tif) as b:
+        np.testing.assert_array_equal(a.read(), b.read())
+    assert [p.name for p in tmp_path.iterdir()] == ["alone.tif"]
+
 def test_run_again_replaces_the_products_and_leaves_nothing_beside(made: Made,
                                                                    tmp_path: Path) -> None:
     out = tmp_path / "seg.tif"

@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
             # the DEM and ground points, as `sisa simulate` writes them, while the emulator starts
             write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
             ep = _wait_for_endpoints(endpoints_file, emu)
-            rec = subprocess.Popen([*sisa, "record", *_scenario_args(args), "--quiet",
+            rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
                                     "--out", str(run / "flight.mcap")],

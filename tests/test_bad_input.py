@@ -135,6 +135,13 @@ IN_A_CHILD = [  # what changes the process (signal handlers, switch interval) ru
 ]
 
 FOUND_BY_THIS_SUITE = [  # were bugs; fixed
+    # ran silently through the flight and recorded nothing
+    _case("emulate --start 600 --out {d}/emu", "--start 600 s", "the bench flight lasts 549"),
+    _case("emulate --start -1 --out {d}/emu", "--start -1 s"),
+    _case("emulate --duration 0 --out {d}/emu", "--duration"),
+    _case("bench --start 600 --out {d}/run", "--start 600 s", "the bench flight lasts 549"),
+    _case("bench --duration -5 --out {d}/run", "--duration"),
+    _case("bench --speed 0 --out {d}/run", "--speed"),
     _case("emulate --can nosuch:chan --out {d}/emu", "nosuch:chan"),
     _case("georef {d}/flight.mcap --scanner {d}/folder --dem {d}/picture.png --out {d}/geo",
           "{d}/picture.png"),
@@ -176,8 +183,8 @@ def _run_child(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
 
 
 @pytest.mark.parametrize("case", [*IN_A_CHILD, *FOUND_BY_THIS_SUITE],
-                         ids=[c.id for c in IN_A_CHILD] + ["found: emulate --can nosuch:chan",
-                                                           "found: georef PNG DEM"])
+                         ids=[c.id for c in IN_A_CHILD]
+                         + [f"found: {c.id}" for c in FOUND_BY_THIS_SUITE])
 def test_bad_arguments_in_a_child_process(case: Case, inputs: Path) -> None:
     argv, says = _expand(case, inputs)
     before = _tree(inputs)

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
-from sisa.commands.emulate import HELD_LINE
+from sisa.commands.emulate import HELD_LINE, check_span
 from sisa.errors import SisaError
 from sisa.outdir import staged_output_dir
 
@@ -70,10 +70,12 @@ class Ended(NamedTuple):
 
 def _run(args: argparse.Namespace) -> int:
     from emulators.terrain import Terrain
+    from emulators.trajectory import TruthTrajectory
     from sisa.commands.scenario import scenario_toml
     from sisa.simulation import write_survey_data
 
     scn = scenario_from_args(args)
+    check_span(scn, TruthTrajectory.from_scenario(scn), args)  # before anything starts
     sisa = [sys.executable, "-m", "sisa.cli"]
     with staged_output_dir(args.out) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")

@@ -10,9 +10,14 @@ import threading
 import time
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.errors import InputError
+
+if TYPE_CHECKING:
+    from emulators.scenario import Scenario
+    from emulators.trajectory import TruthTrajectory
 
 HELD_LINE = "emulate: the scenario is over; every port held open, silent, until Ctrl-C"
 
@@ -48,21 +53,34 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
+def check_span(scn: Scenario, traj: TruthTrajectory, args: argparse.Namespace) -> None:
+    """--speed, --start and --duration against the scenario's flight, before anything runs."""
+    flight_s = (traj.t_end_ns - traj.t_start_ns) / 1e9
+    if args.speed <= 0:
+        raise InputError("--speed must be positive")
+    if not 0 <= args.start < flight_s:
+        raise InputError(f"--start {args.start:g} s: the {scn.block.name} flight lasts "
+                         f"{flight_s:.1f} s")
+    if args.duration is not None and args.duration <= 0:
+        raise InputError("--duration must be positive")
+
+
 def _run(args: argparse.Namespace) -> int:
     from emulators.bridge import CanTarget, RealTimeBridge
     from emulators.runtime import Runner
     from emulators.system import EmulatedSystem
+    from emulators.trajectory import TruthTrajectory
 
     scn = scenario_from_args(args)
-    if args.speed <= 0:
-        raise InputError("--speed must be positive")
+    traj = TruthTrajectory.from_scenario(scn)
+    check_span(scn, traj, args)
     target = CanTarget.parse(args.can)
     if args.out.exists():
         raise InputError(f"{args.out} already exists: choose a new output folder")
     args.out.mkdir(parents=True)
     try:
         system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner",
-                                real_time=True)
+                                traj=traj, real_time=True)
         runner = Runner(system.devices, lambda out: (), speed=args.speed)
         bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port)
     except BaseException:  # a bus or port that cannot be opened: leave nothing behind

@@ -134,6 +134,8 @@ def test_bad_requests_are_one_line_errors(run: Path, capsys: pytest.CaptureFixtu
     assert main(["calibrate", str(run), "--out", str(out), "--obs",
                  str(run.parent / "obs.csv")]) == 2
     assert "no column 'sigma_px'" in capsys.readouterr().err
+    assert main(["calibrate", str(run), "--out", str(out), "--seed", "-3"]) == 2
+    assert "--seed -3: use a whole number" in capsys.readouterr().err  # was numpy's traceback
     assert not out.exists()
 
 

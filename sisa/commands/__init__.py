@@ -9,6 +9,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from sisa.errors import InputError
+
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
 
@@ -54,6 +56,14 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
     if len(files) != 1:
         return list(files)
     return split_parts(files[0]) or list(files)
+
+
+MAX_SEED = 2**32 - 1  # numpy's seeds, and the scenario's
+
+
+def check_seed(seed: int | None, option: str = "--seed") -> None:
+    if seed is not None and not 0 <= seed <= MAX_SEED:
+        raise InputError(f"{option} {seed}: use a whole number from 0 to {MAX_SEED}")
 
 
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,

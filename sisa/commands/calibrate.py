@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command, flight_parts
+from sisa.commands import SubParsers, add_command, check_seed, flight_parts
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -209,6 +209,7 @@ def _observations(args: argparse.Namespace, points: GroundPoints
         raise InputError("a flight log needs --obs (image measurements of the ground points)")
     from sisa.gcpsim import SimSettings, simulate_observations
 
+    check_seed(args.seed)
     if (args.noise_px < 0 or args.tie_points < 0 or args.blunders < 0 or args.max_views < 1
             or args.single_view_control < 0):
         raise InputError("--noise-px, --tie-points, --blunders and --single-view-control must "

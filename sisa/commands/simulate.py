@@ -9,7 +9,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_scenario_args,
+    check_seed,
+    scenario_from_args,
+)
 from sisa.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -46,6 +52,7 @@ def _run(args: argparse.Namespace) -> int:
     from sisa.simulation import simulate
 
     scn = scenario_from_args(args)
+    check_seed(args.seed)
     if args.seed is not None:
         scn = scn.model_copy(update={"seed": args.seed})
     if args.error_free:

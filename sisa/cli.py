@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import argparse
 import gc
+import math
 import sys
 from collections.abc import Callable, Sequence
 
 from sisa import __version__
-from sisa.errors import SisaError
+from sisa.errors import InputError, SisaError
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -95,6 +96,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     if batch_gc and not getattr(args, "real_time_loop", False):
         gc.set_threshold(*BATCH_GC_THRESHOLDS)
     try:
+        _check_finite(args)
         return handler(args)
     except SisaError as exc:
         print(f"sisa {args.command}: error: {exc}", file=sys.stderr)
@@ -105,6 +107,15 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     except KeyboardInterrupt:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _check_finite(args: argparse.Namespace) -> None:
+    """Every number given on the command line is finite: no option has a use for nan or inf,
+    and they slip through range checks (nan <= 0 is False)."""
+    for name, value in vars(args).items():
+        for v in value if isinstance(value, list) else [value]:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InputError(f"--{name.replace('_', '-')} {v}: must be a finite number")
 
 
 def run() -> None:

@@ -135,6 +135,12 @@ IN_A_CHILD = [  # what changes the process (signal handlers, switch interval) ru
 ]
 
 FOUND_BY_THIS_SUITE = [  # were bugs; fixed
+    # tracebacks (socket.bind, int(nan)), or a bench run at infinite speed
+    _case("emulate --pulses-port 70000 --out {d}/emu", "--pulses-port 70000", "0 to 65535"),
+    _case("replay {d}/flight.mcap --pulses-port -1 --once", "--pulses-port -1"),
+    _case("emulate --speed nan --out {d}/emu", "--speed nan", "finite"),
+    _case("bench --speed inf --out {d}/run", "--speed inf", "finite"),
+    _case("calibrate {d}/folder --out {d}/cal --sim-delay-ms nan", "--sim-delay-ms nan"),
     _case("simulate --seed -1 --no-images --out {d}/sim", "--seed -1"),  # numpy's traceback
     _case("simulate --seed 4294967296 --no-images --out {d}/sim", "--seed 4294967296"),
     # ran silently through the flight and recorded nothing

@@ -275,7 +275,7 @@ def test_space_pauses_and_resumes_and_q_stops(tmp_path):
     (["missing.mcap"], "no such file"),
     (["notmcap.mcap"], "not an MCAP file"),
     (["kb.mcap", "--rate", "0"], "--rate must be positive"),
-    (["kb.mcap", "--rate", "nan"], "--rate must be a finite number"),
+    (["kb.mcap", "--rate", "nan"], "--rate nan: must be a finite number"),
     (["kb.mcap", "--start", "30"], "beyond the end of the log"),
     (["noraw.mcap"], "no raw channel to replay"),
 ])

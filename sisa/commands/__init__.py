@@ -66,6 +66,11 @@ def check_seed(seed: int | None, option: str = "--seed") -> None:
         raise InputError(f"{option} {seed}: use a whole number from 0 to {MAX_SEED}")
 
 
+def check_port(port: int, option: str = "--pulses-port") -> None:
+    if not 0 <= port <= 65535:
+        raise InputError(f"{option} {port}: a TCP port is 0 to 65535 (0: any free port)")
+
+
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,
                 example: str) -> argparse.ArgumentParser:
     """A subcommand parser whose --help ends with a worked example."""

@@ -12,7 +12,13 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
 
-from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_scenario_args,
+    check_port,
+    scenario_from_args,
+)
 from sisa.errors import InputError
 
 if TYPE_CHECKING:
@@ -56,7 +62,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 def check_span(scn: Scenario, traj: TruthTrajectory, args: argparse.Namespace) -> None:
     """--speed, --start and --duration against the scenario's flight, before anything runs."""
     flight_s = (traj.t_end_ns - traj.t_start_ns) / 1e9
-    if args.speed <= 0:
+    if args.speed <= 0:  # (sisa.cli has checked that every number is finite)
         raise InputError("--speed must be positive")
     if not 0 <= args.start < flight_s:
         raise InputError(f"--start {args.start:g} s: the {scn.block.name} flight lasts "
@@ -74,6 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     scn = scenario_from_args(args)
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)
+    check_port(args.pulses_port)
     target = CanTarget.parse(args.can)
     if args.out.exists():
         raise InputError(f"{args.out} already exists: choose a new output folder")

@@ -136,6 +136,8 @@ def test_bad_requests_are_one_line_errors(run: Path, capsys: pytest.CaptureFixtu
     assert "no column 'sigma_px'" in capsys.readouterr().err
     assert main(["calibrate", str(run), "--out", str(out), "--seed", "-3"]) == 2
     assert "--seed -3: use a whole number" in capsys.readouterr().err  # was numpy's traceback
+    assert main(["calibrate", str(run), "--out", str(out), "--prior-attitude-arcsec", "-20"]) == 2
+    assert "--prior-attitude-arcsec must be ≥ 0" in capsys.readouterr().err  # was: no prior
     assert not out.exists()
 
 

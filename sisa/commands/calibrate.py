@@ -186,6 +186,10 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
     from postproc.calib_params import PriorSigmas, parse_groups
     from postproc.calibrate import CalibrationOptions
 
+    for flag in ("--prior-x0-um", "--prior-y0-um", "--prior-attitude-arcsec"):
+        if getattr(args, flag[2:].replace("-", "_")) < 0:  # it meant "none", silently
+            raise InputError(f"{flag} must be ≥ 0 (0: no prior)")
+
     def prior(v: float) -> float | None:
         return v if v > 0 else None
 

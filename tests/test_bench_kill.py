@@ -50,7 +50,14 @@ def test_twenty_random_kills_lose_at_most_1_5_s(emulator, tmp_path, node_reader)
     for k in range(KILLS):
         out = tmp_path / f"kill{k:02d}.mcap"
         proc = _record(emulator, out)
-        time.sleep(rng.uniform(2.5, 5.0))
+        # the random moment is counted from when the recorder has its file open: on a loaded
+        # machine its start (imports, ports) alone can take longer than the shortest wait
+        deadline = time.monotonic() + 60
+        while not out.exists():
+            assert proc.poll() is None, f"kill {k}: sisa record exited {proc.returncode}"
+            assert time.monotonic() < deadline, f"kill {k}: sisa record did not start"
+            time.sleep(0.02)
+        time.sleep(rng.uniform(2.0, 4.5))
         t_kill = time.time_ns()
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()

@@ -327,16 +327,19 @@ def _local_usual_ns(starts_ns: npt.NDArray[np.uint64], intervals: npt.NDArray[np
     of log time it starts in and the bins either side (the longest silence kept at least every
     RHYTHM_NS there), so a topic whose rhythm changes in flight (frame pulses while the scanner
     records, the PPS alone between strips) is judged by the rhythm it had at the time. Where
-    those bins hold too few intervals to tell, the topic's overall usual interval."""
-    k = RHYTHM_BIN_NS // RHYTHM_NS
+    those bins are too short (under two RHYTHM_NS: the log's last seconds, a short log) or hold
+    too few intervals to tell, the topic's overall usual interval."""
     bins = ((starts_ns - starts_ns[0]) // RHYTHM_BIN_NS).astype(np.int64)
     n_bins = int(bins[-1]) + 1
+    span_ns = int(starts_ns[-1] - starts_ns[0] + intervals[-1])
+    extent_ns = np.minimum(RHYTHM_BIN_NS, span_ns - np.arange(n_bins) * RHYTHM_BIN_NS)
+    k = extent_ns // RHYTHM_NS  # the silences a bin's rhythm keeps: its k-th longest
     order = np.lexsort((-intervals.astype(np.int64), bins))  # by bin, longest first
     first = np.searchsorted(bins[order], np.arange(n_bins))
     count = np.bincount(bins, minlength=n_bins)
     per_bin = np.full(n_bins + 2, -1, dtype=np.int64)  # -1: cannot tell; padded both sides
-    enough = count >= k
-    per_bin[1:-1][enough] = intervals[order[first[enough] + k - 1]].astype(np.int64)
+    enough = (k >= 2) & (count >= k)
+    per_bin[1:-1][enough] = intervals[order[first[enough] + k[enough] - 1]].astype(np.int64)
     around = np.maximum(np.maximum(per_bin[:-2], per_bin[1:-1]), per_bin[2:])
     usual = around[bins]
     return np.where(usual >= 0, usual, overall_ns)

@@ -194,6 +194,13 @@ def test_a_topic_that_talks_in_bursts_has_gaps_only_where_it_went_quiet(tmp_path
     assert gps.gap_count == 1
     assert gps.gaps[0].start_ns == T0_NS + 11 * 1_000_000_000 + 60_000_000
     assert gps.gaps[0].duration_ns == 3_940_000_000
+    short = tmp_path / "short.mcap"  # 4 s of it (a recording killed early): no gap at all
+    with FlightRecorder(short) as rec:
+        for sec in range(4):
+            for k in range(5):
+                t = T0_NS + sec * 1_000_000_000 + k * 15_000_000
+                rec.write(RawBytes(t, "gps", b"$GPZDA*00\r\n"), Topic.GPS_RAW)
+    assert scan_log(short).topics["/gps/raw"].gap_count == 0
 
 
 def test_a_topic_whose_rhythm_changes_is_judged_by_the_rhythm_it_has_then(tmp_path):

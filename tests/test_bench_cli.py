@@ -12,6 +12,8 @@ import numpy as np
 from emulators.truth import read_truth_csv
 from recorder.messages import Topic
 from recorder.reader import read_columns
+from sisa.commands.bench import stop_after_hold
+from sisa.commands.emulate import HELD_LINE
 
 SECONDS = 5
 
@@ -62,3 +64,29 @@ def test_ctrl_c_ends_a_bench_early_and_keeps_the_run(tmp_path):
     assert len(read_columns(run / "flight.mcap", Topic.INS_RECORD)["counter"]) > 100
     assert (run / "truth" / "ins_records.csv").is_file()
     assert not list(tmp_path.glob(".run.partial-*"))
+
+
+def _child(code: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+
+
+def test_a_recorder_that_fails_stops_the_bench_at_once():
+    """The emulator would play out its scenario (here 60 s); the recorder exits 3 at once: the
+    bench ends within seconds with both codes, not when the scenario would have."""
+    emu = _child("import time\nprint('emulate: ports', flush=True)\ntime.sleep(60)")
+    rec = _child("import sys\nsys.exit(3)")
+    started = time.monotonic()
+    rec_end, emu_end = stop_after_hold(emu, rec, drain_s=0.5)
+    assert time.monotonic() - started < 20
+    assert rec_end.code == 3
+    assert emu_end.code != 0  # interrupted
+
+
+def test_an_emulator_that_holds_is_stopped_after_the_recorder():
+    emu = _child(f"import time\nprint({HELD_LINE!r}, flush=True)\n"
+                 "try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    print('bye')")
+    rec = _child("import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
+                 "    print('recorded')")
+    rec_end, emu_end = stop_after_hold(emu, rec, drain_s=0.1)
+    assert (rec_end.code, rec_end.stdout) == (0, "recorded\n")
+    assert (emu_end.code, emu_end.stdout) == (0, "bye\n")

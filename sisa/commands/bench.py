@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -128,9 +129,21 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
     """(the recorder, the emulator) once ended. Once `sisa emulate --hold` says the scenario is
     over, give the recorder `drain_s` for what is still in flight, stop it, then the emulator:
     the recorder ends on a stop, not on its devices going away (no disconnects logged, and no
-    wait for it to give them up). Without that line (the emulator ended early) both just end."""
+    wait for it to give them up). If the recorder ends first (it failed), the emulator is
+    stopped at once rather than left to play out the scenario; if the emulator ends without
+    holding, both just end."""
     assert emu.stdout is not None
+    held = threading.Event()
+
+    def stop_emulator_if_recorder_ends() -> None:
+        rec.wait()
+        if not held.is_set():
+            emu.send_signal(signal.SIGINT)
+
+    watcher = threading.Thread(target=stop_emulator_if_recorder_ends, daemon=True)
+    watcher.start()
     if any(line.rstrip("\n") == HELD_LINE for line in emu.stdout):
+        held.set()
         time.sleep(drain_s)
         return _stop(rec, ask=True), _stop(emu, ask=True)
     return _stop(rec), _stop(emu)

@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -90,3 +91,36 @@ def test_an_emulator_that_holds_is_stopped_after_the_recorder():
     rec_end, emu_end = stop_after_hold(emu, rec, drain_s=0.1)
     assert (rec_end.code, rec_end.stdout) == (0, "recorded\n")
     assert (emu_end.code, emu_end.stdout) == (0, "bye\n")
+
+
+def test_a_recorder_killed_mid_run_ends_the_bench_and_keeps_what_it_recorded(tmp_path):
+    """Power lost to the recorder alone (SIGKILL): the bench stops the emulator at once, keeps
+    the run folder with the log as far as it got, and says so (exit 2)."""
+    run = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "bench", "--preset", "bench", "--out", str(run),
+         "--start", "351", "--no-images"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not any(p.stat().st_size > 100_000 for p in tmp_path.glob(".run.partial-*/*.mcap")):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "nothing recorded"
+        time.sleep(0.2)
+    recorders = [int(p.parent.name) for p in Path("/proc").glob("[0-9]*/cmdline")
+                 if b"\0record\0" in _read(p) and str(tmp_path).encode() in _read(p)]
+    assert len(recorders) == 1
+    os.kill(recorders[0], signal.SIGKILL)
+    started = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    assert time.monotonic() - started < 30  # not the ~200 s of scenario left
+    assert proc.returncode == 2
+    assert f"sisa record exited -9; the run so far is in {run}" in err
+    assert len(read_columns(run / "flight.mcap", Topic.INS_RECORD)["counter"]) > 100
+    assert (run / "truth" / "ins_records.csv").is_file()
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError:  # the process has gone
+        return b""

@@ -109,15 +109,18 @@ def _run(args: argparse.Namespace) -> int:
             if rec is not None:
                 _stop(rec, ask=True)
             _stop(emu, ask=True)
-        if emu_end.code != 0 or rec_end.code != 0:
-            raise SisaError(f"sisa emulate exited {emu_end.code}, sisa record exited "
-                            f"{rec_end.code}")
+        failed = (f"sisa emulate exited {emu_end.code}, sisa record exited {rec_end.code}"
+                  if emu_end.code != 0 or rec_end.code != 0 else None)
+        if failed and not (run / "flight.mcap").exists():
+            raise SisaError(failed)  # nothing recorded: nothing to keep
         for part in ("scanner", "truth"):
             if (run / "emulator" / part).exists():
                 os.replace(run / "emulator" / part, run / part)
         shutil.rmtree(run / "emulator", ignore_errors=True)
     # its summary, told once the run is in place, names the file where it now is
     print(rec_end.stdout.replace(str(run), str(args.out)), end="")
+    if failed:  # what was recorded is kept (the log is readable up to the failure)
+        raise SisaError(f"{failed}; the run so far is in {args.out}")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
              for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
     print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{early}")

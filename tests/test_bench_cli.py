@@ -46,18 +46,25 @@ def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
     assert (forwarded["mode"] == 2).any()  # the scanner was recording
 
 
-def test_ctrl_c_ends_a_bench_early_and_keeps_the_run(tmp_path):
-    """Ctrl-C reaches the bench and both children (one process group, as from a terminal)."""
-    run = tmp_path / "run"
+def _bench_recording(run: Path) -> subprocess.Popen[str]:
+    """`sisa bench` into `run` in a process group of its own (as from a terminal), once its
+    recorder has logged a few seconds."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "sisa.cli", "bench", "--preset", "bench", "--out", str(run),
          "--start", "351", "--no-images"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
-    while not any(p.stat().st_size > 100_000 for p in tmp_path.glob(".run.partial-*/*.mcap")):
+    while not any(p.stat().st_size > 100_000 for p in run.parent.glob(".run.partial-*/*.mcap")):
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "nothing recorded"
         time.sleep(0.2)
+    return proc
+
+
+def test_ctrl_c_ends_a_bench_early_and_keeps_the_run(tmp_path):
+    """Ctrl-C reaches the bench and both children (one process group, as from a terminal)."""
+    run = tmp_path / "run"
+    proc = _bench_recording(run)
     os.killpg(proc.pid, signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
@@ -97,15 +104,7 @@ def test_a_recorder_killed_mid_run_ends_the_bench_and_keeps_what_it_recorded(tmp
     """Power lost to the recorder alone (SIGKILL): the bench stops the emulator at once, keeps
     the run folder with the log as far as it got, and says so (exit 2)."""
     run = tmp_path / "run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sisa.cli", "bench", "--preset", "bench", "--out", str(run),
-         "--start", "351", "--no-images"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    deadline = time.monotonic() + 120
-    while not any(p.stat().st_size > 100_000 for p in tmp_path.glob(".run.partial-*/*.mcap")):
-        assert proc.poll() is None, proc.communicate()
-        assert time.monotonic() < deadline, "nothing recorded"
-        time.sleep(0.2)
+    proc = _bench_recording(run)
     recorders = [int(p.parent.name) for p in Path("/proc").glob("[0-9]*/cmdline")
                  if b"\0record\0" in _read(p) and str(tmp_path).encode() in _read(p)]
     assert len(recorders) == 1

@@ -15,7 +15,6 @@ filter's mode 2 are all running.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import statistics
@@ -34,7 +33,7 @@ from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
 from recorder.reader import read_columns
-from sisa.commands.bench import DRAIN_S, stop_after_hold
+from sisa.commands.bench import DRAIN_S, stop_after_hold, wait_for_endpoints
 
 SUMMARY = re.compile(
     r"INS (\d+), GPS sentences (\d+), frame headers (\d+), PPS (\d+), ppf (\d+); (\d+) decode "
@@ -96,9 +95,7 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
                             str(scenario), "--no-images", "--out", str(run), "--start",
                             str(start_s - 3), "--duration", str(seconds + 3), "--endpoints",
                             str(ep), "--hold"], stdout=subprocess.PIPE, text=True)
-    while not (ep.exists() and ep.stat().st_size):
-        time.sleep(0.05)
-    e = json.loads(ep.read_text())
+    e = wait_for_endpoints(ep, emu)
     rec = subprocess.Popen([sys.executable, "-m", "sisa.cli", "record", "--quiet", "--scenario",
                             str(scenario), "--gps", e["gps"], "--scanner", e["scanner"], "--ins",
                             e["ins"], "--pulses", e["pulses"], "--out", str(log)],

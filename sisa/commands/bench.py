@@ -49,7 +49,8 @@ def _scenario_args(args: argparse.Namespace) -> list[str]:
     return ["--preset", args.preset]
 
 
-def _wait_for_endpoints(path: Path, proc: subprocess.Popen[str]) -> dict[str, str]:
+def wait_for_endpoints(path: Path, proc: subprocess.Popen[str]) -> dict[str, str]:
+    """The endpoints `sisa emulate --endpoints PATH` announces, once the file is written."""
     deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
     while time.monotonic() < deadline:
         if path.exists() and path.stat().st_size:
@@ -93,7 +94,7 @@ def _run(args: argparse.Namespace) -> int:
         try:
             # the DEM and ground points, as `sisa simulate` writes them, while the emulator starts
             write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
-            ep = _wait_for_endpoints(endpoints_file, emu)
+            ep = wait_for_endpoints(endpoints_file, emu)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],

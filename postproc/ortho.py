@@ -823,9 +823,9 @@ Progress = Callable[[int], None]  # told a count of work just done (lines, grid 
 
 def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,
                  glt_stem: Path | None, *, tile_cells: int | None = None,
-                 compress: str = "deflate",
-                 workers: int = WORKERS, progress: Progress | None = None,
-                 on_total: Progress | None = None) -> OrthoResult:
+                 compress: str = "deflate", workers: int = WORKERS,
+                 progress: Progress | None = None, on_total: Progress | None = None
+                 ) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
     unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
     the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
@@ -894,8 +894,7 @@ def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: fl
 
 def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
                    tif: TiffWriter, glt: GltWriter | None, tile_cells: int | None,
-                   workers: int,
-                   progress: Progress | None, on_total: Progress | None
+                   workers: int, progress: Progress | None, on_total: Progress | None
                    ) -> tuple[int, int, float, float]:
     """Every window, `workers` at a time (the kernels release the GIL), handed to the
     GeoTIFF writer in order; (filled, infill, sum and max of the distances in metres)."""

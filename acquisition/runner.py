@@ -29,7 +29,7 @@ from acquisition.nmea import (
 )
 from acquisition.pulses import Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
-from acquisition.syncfilter import Forward, Log, SyncFilter, SyncFilterConfig
+from acquisition.syncfilter import Forward, Log, Mode, SyncFilter, SyncFilterConfig
 from recorder.messages import (
     CAN_EXTENDED_FLAG,
     FrameHeaderLog,
@@ -102,6 +102,21 @@ class AcquisitionConfig:
     read_interval_ns: int = 0  # real time: devices read on this clock (LiveSources), 0: at once
 
 
+def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
+    """Sentences a second the receiver should send: GGA + RMC per epoch, ZDA and PTT per
+    second, and a TTT for every pulse the sync unit sends to its event input, which depends
+    on the mode: 1 of n frame pulses in mode 2; in mode 1 the LFSR's one-bits (2^(b-1) of
+    every 2^b - 1 seconds), and only if mode-1 pulses go to the receiver at all."""
+    sync = config.sync
+    if mode is Mode.FRAMES:
+        events_hz = config.line_rate_hz / sync.one_of_n
+    elif sync.event_input_in_mode1:
+        events_hz = 2 ** (sync.lfsr_bits - 1) / (2 ** sync.lfsr_bits - 1)
+    else:
+        events_hz = 0.0
+    return config.nmea_rate_hz * 2 + 2 + events_hz
+
+
 class Acquisition:
     """Decoders + sync filter + recorder, fed one event at a time."""
 
@@ -119,8 +134,7 @@ class Acquisition:
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
         self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
         self.streams = {
-            # GGA + RMC per epoch, ZDA and PTT per second, up to one TTT per second
-            "gps": StreamCounters(config.nmea_rate_hz * 2 + 3),
+            "gps": StreamCounters(gps_sentences_hz(config, Mode.PPS)),
             "ins": StreamCounters(config.ins_rate_hz),
             "scanner": StreamCounters(config.line_rate_hz),
             "pps": StreamCounters(1.0),
@@ -343,6 +357,7 @@ class Acquisition:
         if self._next_health_ns is None or t_host_ns < self._next_health_ns:
             return
         window_s = self.config.health_interval_ns / NS_PER_S
+        self.streams["gps"].expected_hz = gps_sentences_hz(self.config, self.filter.mode)
         for name, c in self.streams.items():
             s = c.stats
             c.rate_hz = c.window_messages / window_s

@@ -221,8 +221,8 @@ class StreamHealth(LoggedMessage):
     t_host_ns: int
     stream: str
     messages: int
-    rate_hz: float
-    expected_hz: float
+    rate_hz: float  # messages in the last report's window, per second
+    expected_hz: float  # what the device sends at its settings (gps: follows the sync mode)
     gaps: int
     checksum_errors: int
     framing_errors: int

@@ -9,6 +9,7 @@ from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
 from recorder.messages import SyncForward, SyncModeSwitch, SyncPps, SyncSession, Topic
 from recorder.reader import read_columns, read_messages
+from sisa.acqconfig import acquisition_config
 from sisa.simulation import simulate
 from sisa.timescale import NS_PER_S
 
@@ -67,3 +68,19 @@ def test_mode_switches_only_at_scanner_on_and_off(run):
     frames = read_truth_csv(out / "truth" / "frames.csv")
     headers = read_columns(out / "flight.mcap", Topic.SCANNER_HEADER)
     assert len(headers["frame_counter"]) == int((frames["dropped"] == 0).sum())
+
+
+def test_gps_health_expects_the_sentences_each_sync_mode_brings(run):
+    """A TTT comes for every pulse on the receiver's event input: 1 of n frame pulses in mode 2,
+    none in mode 1 (by default), so the expected sentence rate follows the mode."""
+    scn, out = run
+    config = acquisition_config(scn)
+    mode1_hz = 2 * scn.gps.nmea_rate_hz + 2  # GGA + RMC per epoch, ZDA and PTT per second
+    mode2_hz = mode1_hz + config.line_rate_hz / config.sync.one_of_n
+    health = read_columns(out / "flight.mcap", Topic.HEALTH)
+    gps = (health["stream"] == "gps") & (health["event"] == "")
+    rate, expected = health["rate_hz"][gps][1:], health["expected_hz"][gps][1:]  # 1st: partial
+    assert set(np.round(expected, 9)) == {round(mode1_hz, 9), round(mode2_hz, 9)}
+    assert abs(rate.sum() - expected.sum()) < 0.02 * expected.sum()
+    for mode_hz in (mode1_hz, mode2_hz):
+        assert abs(rate[np.isclose(expected, mode_hz)].mean() - mode_hz) < 0.1

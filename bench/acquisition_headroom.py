@@ -29,6 +29,7 @@ from typing import Any
 import numpy.typing as npt
 import tomli_w
 
+from acquisition.slcan_bulk import parse_frame_line
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
@@ -141,6 +142,32 @@ def run_level(k: float, seconds: float, start_s: float, folder: Path) -> dict[st
             "emulator_late_ms": late_ms}
 
 
+def wake_penalty_us(tasks: int = 400, sleep_s: float = 0.005) -> tuple[float, float]:
+    """Median microseconds for one small piece of the recorder's own work (parsing 20 SLCAN frame
+    lines) run back to back, and run right after a `sleep_s` sleep as the recorder runs it on
+    its read clock. On a shared VM the second is often several times the first (caches and
+    the core given to others while we slept): that factor, not the work, moves the CPU figure
+    from hour to hour, so it is printed beside it."""
+    lines = [b"t1%02X8%s" % (i, bytes(range(i, i + 8)).hex().upper().encode()) for i in range(20)]
+
+    def task() -> None:
+        for line in lines:
+            parse_frame_line(line)
+
+    def median_us(pause: bool) -> float:
+        times = []
+        for _ in range(tasks):
+            if pause:
+                time.sleep(sleep_s)
+            t0 = time.perf_counter()
+            task()
+            times.append(time.perf_counter() - t0)
+        return 1e6 * statistics.median(times)
+
+    median_us(False)  # warm-up
+    return median_us(False), median_us(True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--seconds", type=float, default=20.0)
@@ -181,6 +208,10 @@ def main() -> None:
         print(f"recorder CPU at nominal rates: median {statistics.median(nominal_cpu):.1f}% of "
               f"one core over {len(nominal_cpu)} run(s), range {min(nominal_cpu):.1f}–"
               f"{max(nominal_cpu):.1f}% (target < 5%)")
+    hot_us, woken_us = wake_penalty_us()
+    print(f"this host now: a small task of the recorder's takes {hot_us:.0f} us back to back, "
+          f"{woken_us:.0f} us right after a 5 ms sleep ({woken_us / hot_us:.1f}x): the recorder "
+          "works in such short wakes, so its CPU figure moves with this factor")
     print("tied: forwarded frame pulses (mode 2, after the first health report) whose frame "
           "counter the sync filter logged, i.e. whose scan lines post-processing can time")
     print("note: the emulated INS bus is 500 kbit/s; one record is 7 frames (777 bits), so above "

@@ -93,7 +93,7 @@ def _install_stop_handlers() -> list[bool]:
     return stop
 
 
-class _EdgeClock:
+class EdgeClock:
     """The edge timeline's 'now', extrapolated from the last edge by the host clock."""
 
     def __init__(self) -> None:
@@ -115,7 +115,7 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
     from acquisition.live import LinkEvent
 
     status = _Status(acq, args.out, quiet=args.quiet)
-    edge_clock = _EdgeClock()
+    edge_clock = EdgeClock()
     started = time.monotonic()
     next_tick = next_status = started
     down: set[Source] = set()
@@ -128,7 +128,7 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
                 _link_event(acq, item.t_host_ns, item.source, item.payload, down)
             else:
                 last_arrival = now
-                _dispatch(acq, item, edge_clock)
+                dispatch(acq, item, edge_clock)
         if now >= next_tick:
             t_host = wall_clock_ns()
             t_edge = edge_clock.now(t_host)
@@ -164,7 +164,7 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
               flush=True)
 
 
-def _dispatch(acq: Acquisition, item: Arrival, edge_clock: _EdgeClock) -> None:
+def dispatch(acq: Acquisition, item: Arrival, edge_clock: EdgeClock) -> None:
     """One arrival to the acquisition, by its source (Source values: no import per call)."""
     payload, source = item.payload, item.source
     if source == "pulses":

@@ -98,7 +98,8 @@ def _run(args: argparse.Namespace) -> int:
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
-                                    "--out", str(run / "flight.mcap")],
+                                    "--out", str(run / "flight.mcap"),
+                                    "--shown-as", str(args.out / "flight.mcap")],
                                    stdout=subprocess.PIPE, text=True)
             try:
                 rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)

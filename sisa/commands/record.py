@@ -49,6 +49,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="start a new file every N MB")
     parser.add_argument("--duration", type=float, default=None, help="stop after N seconds")
     parser.add_argument("--quiet", action="store_true", help="no live status, summary only")
+    # sisa bench records into a scratch folder renamed at the end: the status names the final one
+    parser.add_argument("--shown-as", type=Path, default=None, help=argparse.SUPPRESS)
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
@@ -114,7 +116,7 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
     from acquisition.clocks import wall_clock_ns
     from acquisition.live import LinkEvent
 
-    status = _Status(acq, args.out, quiet=args.quiet)
+    status = _Status(acq, args.out, args.shown_as or args.out, quiet=args.quiet)
     edge_clock = EdgeClock()
     started = time.monotonic()
     next_tick = next_status = started
@@ -186,12 +188,12 @@ class _Status:
     """Live status (rich): per-stream rate vs expected, errors, drops, sync mode, last PPS,
     free disk space."""
 
-    def __init__(self, acq: Acquisition, out: Path, quiet: bool) -> None:
+    def __init__(self, acq: Acquisition, out: Path, shown_as: Path, quiet: bool) -> None:
         from rich.console import Console
         from rich.live import Live
 
         self.acq = acq
-        self.out = out
+        self.out, self.shown_as = out, shown_as
         self.console = Console(stderr=True)
         self.live: Live | None = None
         if not quiet and self.console.is_terminal:
@@ -201,7 +203,7 @@ class _Status:
     def _table(self) -> Table:
         from rich.table import Table
 
-        table = Table(title=f"sisa record → {self.out}", expand=False)
+        table = Table(title=f"sisa record → {self.shown_as}", expand=False)
         from acquisition.runner import STREAM_SOURCE
 
         for col in ("stream", "messages", "rate Hz", "expected Hz", "gaps", "errors", "drops",

@@ -210,3 +210,32 @@ def test_progress_bar_draws_on_a_terminal_stderr_and_never_on_stdout(monkeypatch
     assert b"lines" in drawn
     assert b"10/10" in drawn
     assert capsys.readouterr().out == ""
+
+
+def test_record_status_names_the_file_as_shown_and_counts_disk_where_it_is(monkeypatch, tmp_path):
+    """`sisa bench` records into a scratch folder renamed at the end; its status named the
+    scratch path. The disk-free figure must still come from where the file is being written
+    (the final folder does not exist yet)."""
+    import os
+    import pty
+
+    from acquisition.runner import Acquisition
+    from emulators.scenario import load_scenario
+    from sisa.acqconfig import acquisition_config
+    from sisa.commands.record import _Status
+
+    acq = Acquisition(acquisition_config(load_scenario("bench")), lambda _m, _t: None,
+                      lambda _e: None)
+    (tmp_path / ".scratch").mkdir()
+    master, slave = pty.openpty()
+    with os.fdopen(slave, "w") as tty:
+        monkeypatch.setattr(sys, "stderr", tty)
+        status = _Status(acq, tmp_path / ".scratch" / "flight.mcap",
+                         tmp_path / "run" / "flight.mcap", quiet=False)
+        status.show()
+        status.close()
+    drawn = os.read(master, 65536).decode(errors="replace")
+    os.close(master)
+    assert str(tmp_path / "run" / "flight.mcap") in drawn.replace("\r\n", "").replace("\n", "")
+    assert ".scratch" not in drawn
+    assert "disk free" in drawn

@@ -47,6 +47,10 @@ from sisa.timescale import NS_PER_S, gps_ns_from_unix_ns
 
 LogSink = Callable[[LoggedMessage, Topic | None], None]
 GATE_DELAY_NS = 1_000  # the box's input → output propagation
+# an edge this much earlier than the one before it: its source restarted on an earlier timeline
+# (edges on one link come in time order; a restart that goes back less holds forwards back
+# for less than this)
+TIMELINE_RESTART_NS = NS_PER_S
 
 
 @dataclass
@@ -149,6 +153,8 @@ class Acquisition:
         self.down_until_board_ns: int | None = None
         self._edge_offset_min_ns: int | None = None
         self._first_edge_host_ns: int | None = None
+        self._last_edge_board_ns: int | None = None
+        self.timeline_restarts = 0  # pulse sources that came back on an earlier timeline
         self._t_host_now_ns = 0
         self._can_batch = _CanBatch()
 
@@ -237,6 +243,11 @@ class Acquisition:
         self._start(t_host_ns)
         board_ns = self.board.counter_ns(edge.t_ns)
         self.log(PulseEdgeLog(t_host_ns, edge.line.name, board_ns, edge.seq), Topic.PULSE_IN)
+        last = self._last_edge_board_ns
+        went_back = last is not None and board_ns < last - TIMELINE_RESTART_NS
+        self._last_edge_board_ns = board_ns
+        if went_back:
+            self._timeline_restarted(board_ns, t_host_ns)
         self._last_in[edge.line] = (board_ns, edge.t_ns)
         self._check_deadline(t_host_ns, edge)
         if self.down_until_board_ns is not None:
@@ -249,6 +260,18 @@ class Acquisition:
         elif edge.line is PulseLine.PPF:
             self.streams["ppf"].seen(t_host_ns, NS_PER_S)
             self._apply(self.filter.on_ppf(board_ns, t_host_ns))
+
+    def _timeline_restarted(self, board_ns: int, t_host_ns: int) -> None:
+        """An edge seconds earlier than the one before it: the pulse source came back on an earlier
+        timeline (an emulator restarted from the start of its flight). Every state kept in
+        board time (the PPS train, the dead time, the last forward) now lies in the future and
+        would hold back every forward until the board caught up with it: a new sync session
+        starts from the initial state, and edge lateness is measured afresh."""
+        self.timeline_restarts += 1
+        self._edge_offset_min_ns = self._first_edge_host_ns = None
+        self._last_in.clear()
+        if self.down_until_board_ns is None:
+            self.restart_filter(board_ns, t_host_ns)
 
     def _check_deadline(self, t_host_ns: int, edge: Edge) -> None:
         """Edge lateness = arrival delay beyond the smallest delay seen so far on the link (the

@@ -143,7 +143,10 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
         if args.duration is not None and now - started >= args.duration:
             break
         if down >= sources.open_sources and now - last_arrival > ALL_GONE_STOP_S:
-            break  # every device has gone away and stayed away: the flight is over
+            # every device has gone away and stayed away: the flight is over
+            print(f"sisa record: every device away for {ALL_GONE_STOP_S:g} s: recording "
+                  "ended", file=sys.stderr, flush=True)
+            break
     acq.finish(wall_clock_ns())
     status.close()
 
@@ -241,6 +244,8 @@ def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
     late = sum(c.deadline_misses for c in s.values())
     lost = sum(link.disconnects for link in acq.links.values())
     back = sum(link.reconnects for link in acq.links.values())
+    restarts = (f" ({acq.timeline_restarts} begun by a pulse source that came back on an "
+                "earlier timeline)" if acq.timeline_restarts else "")
     per_link = ", ".join(f"{name} {link.disconnects}/{link.reconnects}"
                          for name, link in acq.links.items() if link.disconnects)
     print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
@@ -248,5 +253,6 @@ def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
           f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
           f"{lost} disconnects, {back} reconnects"
           f"{f' ({per_link} lost/back)' if per_link else ''}, "
-          f"{acq.session + 1} sync session(s); cpu {cpu_s:.2f} s in {wall_s:.1f} s "
+          f"{acq.session + 1} sync session(s)"
+          f"{restarts}; cpu {cpu_s:.2f} s in {wall_s:.1f} s "
           f"({100 * cpu_s / max(wall_s, 1e-9):.1f}% of a core)", flush=True)

@@ -271,3 +271,36 @@ def test_can_channel_and_pulse_link_reconnect_while_gps_keeps_arriving(tmp_path:
     gps_during = [a for a in outage if a.source is Source.GPS and isinstance(a.payload, bytes)]
     assert len(gps_during) >= 0.5 * OUTAGE_S / 0.05
     assert not any(isinstance(a.payload, LinkEvent) for a in everything if a.source is Source.GPS)
+
+
+def test_sisa_record_says_why_it_ends_when_every_device_stays_away(tmp_path: Path) -> None:
+    """Ending by itself (every device away for 10 s) looked like any other end: a summary and
+    exit 0, nothing saying why the recording stopped."""
+    gps = PlugPty(tmp_path / "ttyGPS")
+    out = tmp_path / "flight.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "record", "--quiet", "--gps", str(gps.link),
+         "--out", str(out), "--duration", "60"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 20
+        while not out.exists() and time.monotonic() < deadline:  # its ports are open by then
+            gps.write(_nmea_epoch())
+            time.sleep(0.1)
+        for _ in range(5):
+            gps.write(_nmea_epoch())
+            time.sleep(0.1)
+        gps.unplug()
+        started = time.monotonic()
+        stdout, stderr = proc.communicate(timeout=30)
+        ended_after_s = time.monotonic() - started
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        with contextlib.suppress(FileNotFoundError):
+            gps.unplug()
+    assert proc.returncode == 0, stderr
+    assert 9.5 < ended_after_s < 20, ended_after_s
+    assert "every device away for 10 s: recording ended" in stderr, stderr
+    assert "recorded " in stdout, stdout

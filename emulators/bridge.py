@@ -8,11 +8,9 @@ own timestamps.
 
 from __future__ import annotations
 
-import json
 import queue
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import can
 
@@ -112,9 +110,6 @@ class RealTimeBridge:
     def endpoints(self) -> dict[str, str]:
         return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": self.can.channel,
                 "pulses": self.pulses.address}
-
-    def write_endpoints(self, path: Path) -> None:
-        path.write_text(json.dumps(self.endpoints(), indent=2) + "\n", encoding="utf-8")
 
     def close(self) -> None:
         self.pulses.close()

@@ -153,6 +153,20 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     _case("emulate --can nosuch:chan --out {d}/emu", "nosuch:chan"),
     _case("georef {d}/flight.mcap --scanner {d}/folder --dem {d}/picture.png --out {d}/geo",
           "{d}/picture.png"),
+    # recorded nothing with exit 0, split after every message, or named an internal field
+    _case("record --gps {d}/notes.txt --duration 0 --out {d}/rec.mcap", "--duration 0"),
+    _case("record --gps {d}/notes.txt --duration -3 --out {d}/rec.mcap", "--duration -3"),
+    _case("record --gps {d}/notes.txt --split-minutes 0 --out {d}/rec.mcap", "--split-minutes 0"),
+    _case("record --gps {d}/notes.txt --split-minutes 1e-9 --out {d}/rec.mcap",
+          "--split-minutes 1e-09"),
+    _case("record --gps {d}/notes.txt --split-mb -1 --out {d}/rec.mcap", "--split-mb -1"),
+    _case("record --gps {d}/notes.txt --scanner {d}/notes.txt --out {d}/rec.mcap",
+          "--gps and --scanner", "same device"),
+    # a traceback after the ports were up (emulate), or ports opened before the error (replay)
+    _case("emulate --endpoints {d}/nodir/ep.json --out {d}/emu", "--endpoints", "{d}/nodir"),
+    _case("emulate --endpoints {d}/folder --out {d}/emu", "--endpoints", "is a folder"),
+    _case("replay {d}/flight.mcap --once --endpoints {d}/nodir/ep.json", "--endpoints",
+          "{d}/nodir"),
 ]
 
 

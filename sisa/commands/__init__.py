@@ -71,6 +71,31 @@ def check_port(port: int, option: str = "--pulses-port") -> None:
         raise InputError(f"{option} {port}: a TCP port is 0 to 65535 (0: any free port)")
 
 
+def check_endpoints_path(path: Path | None) -> None:
+    """--endpoints names a file in an existing folder: checked before any port opens, so a
+    wrong path costs nothing (no ports, no run folder)."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise InputError(f"--endpoints {path}: is a folder, not a file")
+    if not path.parent.is_dir():
+        raise InputError(f"--endpoints {path}: {path.parent} is not a folder")
+
+
+def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
+    """Written whole (a temporary file renamed), so a script polling for it never reads half."""
+    import json
+    import os
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(endpoints, indent=2) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,
                 example: str) -> argparse.ArgumentParser:
     """A subcommand parser whose --help ends with a worked example."""

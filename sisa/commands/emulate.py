@@ -16,8 +16,10 @@ from sisa.commands import (
     SubParsers,
     add_command,
     add_scenario_args,
+    check_endpoints_path,
     check_port,
     scenario_from_args,
+    write_endpoints,
 )
 from sisa.errors import InputError
 
@@ -81,6 +83,7 @@ def _run(args: argparse.Namespace) -> int:
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)
     check_port(args.pulses_port)
+    check_endpoints_path(args.endpoints)
     target = CanTarget.parse(args.can)
     if args.out.exists():
         raise InputError(f"{args.out} already exists: choose a new output folder")
@@ -93,6 +96,13 @@ def _run(args: argparse.Namespace) -> int:
     except BaseException:  # a bus or port that cannot be opened: leave nothing behind
         shutil.rmtree(args.out, ignore_errors=True)
         raise
+    if args.endpoints is not None:
+        try:
+            write_endpoints(args.endpoints, bridge.endpoints())
+        except InputError:
+            bridge.close()
+            shutil.rmtree(args.out, ignore_errors=True)
+            raise
     runner.sink = system.faulty(bridge)
     stop = threading.Event()
 
@@ -102,8 +112,6 @@ def _run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     _announce(bridge.endpoints(), scn.block.name, args)
-    if args.endpoints is not None:
-        bridge.write_endpoints(args.endpoints)
     start = system.traj.t_start_ns + int(args.start * 1e9)
     until = None
     if args.duration is not None:

@@ -4,6 +4,7 @@ stream, run the sync filter, record everything to MCAP, show live status."""
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import signal
 import sys
@@ -65,6 +66,7 @@ def _run(args: argparse.Namespace) -> int:
                          "--pulses")
     if args.out.exists():
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
+    _check_options(args)
     scn = scenario_from_args(args)
     config = acquisition_config(scn)
     sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
@@ -82,6 +84,29 @@ def _run(args: argparse.Namespace) -> int:
         sources.close()
     _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)
     return 0
+
+
+MIN_SPLIT_MINUTES = 0.1  # shorter parts are no flight log: a part for every few messages
+MIN_SPLIT_MB = 1.0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    if args.duration is not None and args.duration <= 0:
+        raise InputError(f"--duration {args.duration:g}: must be > 0 seconds")
+    if args.split_minutes is not None and args.split_minutes < MIN_SPLIT_MINUTES:
+        raise InputError(f"--split-minutes {args.split_minutes:g}: must be at least "
+                         f"{MIN_SPLIT_MINUTES:g}")
+    if args.split_mb is not None and args.split_mb < MIN_SPLIT_MB:
+        raise InputError(f"--split-mb {args.split_mb:g}: must be at least {MIN_SPLIT_MB:g}")
+    ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins")
+             if getattr(args, name)]
+    seen: dict[str, str] = {}
+    for name, spec in ports:
+        device = os.path.realpath(spec.split(":", 1)[1] if name == "ins" and ":" in spec
+                                  else spec)
+        if device in seen:
+            raise InputError(f"--{seen[device]} and --{name} name the same device {spec}")
+        seen[device] = name
 
 
 def _install_stop_handlers() -> list[bool]:

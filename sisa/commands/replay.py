@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import queue
 import select
@@ -23,7 +22,15 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, check_port, flight_parts
+from sisa.commands import (
+    FLIGHT_HELP,
+    SubParsers,
+    add_command,
+    check_endpoints_path,
+    check_port,
+    flight_parts,
+    write_endpoints,
+)
 from sisa.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
@@ -131,6 +138,7 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.replay import survey_log
 
     _check_numbers(args)
+    check_endpoints_path(args.endpoints)
     paths = flight_parts(args.files)
     target = CanTarget.parse(args.can)
     survey = survey_log(paths)
@@ -143,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         _announce(ports.endpoints(), paths, span, args)
         if args.endpoints is not None:
-            _write_endpoints(args.endpoints, ports.endpoints())
+            write_endpoints(args.endpoints, ports.endpoints())
         player = _Player(ports, survey, span, paths, args)
         with _Keyboard(enabled=not args.once) as keys:
             player.keys = keys
@@ -181,16 +189,6 @@ def _announce(endpoints: dict[str, str], paths: list[Path], span: _Span,
     keys = "" if args.once or not sys.stdin.isatty() else "; space pauses, q stops"
     print(f"Replaying {paths[0]}{parts}: {span.seconds:.1f} s at {args.rate:g}x real time"
           f"{', looped' if args.loop else ''}{keys}; Ctrl-C to stop.", flush=True)
-
-
-def _write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
-    """Written whole (a temporary file renamed), so a script polling for it never reads half."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(json.dumps(endpoints, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 # --- ports ----------------------------------------------------------------------------------------

@@ -162,6 +162,9 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     _case("record --gps {d}/notes.txt --split-mb -1 --out {d}/rec.mcap", "--split-mb -1"),
     _case("record --gps {d}/notes.txt --scanner {d}/notes.txt --out {d}/rec.mcap",
           "--gps and --scanner", "same device"),
+    # counted every message twice
+    _case("log info {d}/flight.mcap {d}/flight.mcap", "{d}/flight.mcap is given twice"),
+    _case("sync {d}/flight.mcap {d}/folder/../flight.mcap --out {d}/s", "is given twice"),
     # a traceback after the ports were up (emulate), or ports opened before the error (replay)
     _case("emulate --endpoints {d}/nodir/ep.json --out {d}/emu", "--endpoints", "{d}/nodir"),
     _case("emulate --endpoints {d}/folder --out {d}/emu", "--endpoints", "is a folder"),

@@ -54,6 +54,11 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
     from recorder.writer import split_parts
 
     if len(files) != 1:
+        seen: set[Path] = set()
+        for path in files:
+            if path.resolve() in seen:
+                raise InputError(f"{path} is given twice: each part of a flight is read once")
+            seen.add(path.resolve())
         return list(files)
     return split_parts(files[0]) or list(files)
 

@@ -215,6 +215,21 @@ class _Block:
     counters: I64
     dropped: npt.NDArray[np.bool_]
 
+    def part(self, lo: int, hi: int | None = None) -> _Block:
+        return _Block(self.segment, self.t_mid_ns[lo:hi], self.t_header_ns[lo:hi],
+                      self.counters[lo:hi], self.dropped[lo:hi])
+
+
+@dataclass
+class _Staged:
+    """Frames scheduled and rendered ahead of time, not yet exposed: they join the recording
+    and the truth only when their PPF goes out, so a run stopped early holds no frame it
+    never exposed."""
+
+    block: _Block
+    dn: U16 | None  # the kept frames' lines (rendering on)
+    ends_segment: bool
+
 
 class ScannerEmulator(Device):
     """The scanner on the emulation timeline: PPF edges, frame headers and (with out_dir) its
@@ -247,7 +262,8 @@ class ScannerEmulator(Device):
         self._seg_pos = 0
         self._next_tick = self._segments[0].first_tick if self._segments else 0
         self._counter = 0
-        self._lines_in_segment = 0
+        self._staged: list[_Staged] = []
+        self._lines_segment, self._lines_in_segment = -1, 0
         self._pending: list[tuple[int, int, Output]] = []
         self._order = 0
         self._last_header_ns = -1
@@ -274,9 +290,11 @@ class ScannerEmulator(Device):
         out = []
         while self._pending and self._pending[0][0] <= t_ns:
             out.append(heapq.heappop(self._pending)[2])
+        self._expose_until(t_ns)
         return out
 
     def finish(self) -> None:
+        self._staged.clear()  # scheduled, never exposed: the run stopped before them
         self._close_writer()
 
     # --- truth and statistics -----------------------------------------------------------------
@@ -313,7 +331,6 @@ class ScannerEmulator(Device):
         while (self._seg_pos < len(self._segments)
                and self._next_tick > self._segments[self._seg_pos].last_tick):
             self._seg_pos += 1
-            self._lines_in_segment = 0
             if self._seg_pos < len(self._segments):
                 self._next_tick = self._segments[self._seg_pos].first_tick
 
@@ -322,12 +339,33 @@ class ScannerEmulator(Device):
         stop = min(self._next_tick + self.block_lines, seg.last_tick + 1)
         block = self._draw_block(seg.number, np.arange(self._next_tick, stop, dtype=np.int64))
         self._next_tick = stop
-        line_index = self._record(block)
-        self._log_truth(block, line_index)
+        kept = ~block.dropped
+        dn = (self.renderer.render(self.traj.state(block.t_mid_ns[kept]))
+              if self.renderer is not None and kept.any() else None)
+        self._staged.append(_Staged(block, dn, ends_segment=stop > seg.last_tick))
         self._queue(block)
         if self._next_tick > seg.last_tick:
-            self._close_writer()
             self._skip_empty_segments()
+
+    def _expose_until(self, t_ns: int) -> None:
+        """Frames whose PPF has gone out by `t_ns` into the recording and the truth."""
+        while self._staged:
+            staged = self._staged[0]
+            n = int(np.searchsorted(staged.block.t_mid_ns, t_ns, side="right"))
+            if n == 0:
+                return
+            if n < staged.block.counters.size:
+                k = int((~staged.block.dropped[:n]).sum())
+                head, tail = staged.block.part(0, n), staged.block.part(n)
+                dn = staged.dn
+                self._record(head, None if dn is None else dn[:k])
+                self._staged[0] = _Staged(tail, None if dn is None else dn[k:],
+                                          staged.ends_segment)
+                return
+            self._staged.pop(0)
+            self._record(staged.block, staged.dn)
+            if staged.ends_segment:
+                self._close_writer()
 
     def _draw_block(self, segment: int, ticks: I64) -> _Block:
         sc, n = self.scn.scanner, ticks.size
@@ -343,16 +381,17 @@ class ScannerEmulator(Device):
         dropped = self._rng.random(n) < self.scn.faults.dropped_frame_fraction
         return _Block(segment, t_mid, t_hdr, counters, dropped)
 
-    def _record(self, block: _Block) -> I64:
-        """Render and write the recorded frames; their line indices (−1 for dropped)."""
+    def _record(self, block: _Block, dn: U16 | None) -> None:
+        """Write exposed frames (their rendered lines `dn`, if any) and their truth."""
+        if block.segment != self._lines_segment:
+            self._lines_segment, self._lines_in_segment = block.segment, 0
         kept = ~block.dropped
         line_index = np.full(block.counters.size, -1, dtype=np.int64)
         line_index[kept] = self._lines_in_segment + np.arange(int(kept.sum()))
         self._lines_in_segment += int(kept.sum())
-        if self.renderer is not None and kept.any():
-            dn = self.renderer.render(self.traj.state(block.t_mid_ns[kept]))
+        if dn is not None and len(dn):
             self._writer_for(block.segment).append(dn, block.counters[kept])
-        return line_index
+        self._log_truth(block, line_index)
 
     def _writer_for(self, segment: int) -> BilSegmentWriter:
         if self._writer is None:

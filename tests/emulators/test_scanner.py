@@ -245,6 +245,35 @@ def test_recording_is_written_as_it_goes_and_closed_cleanly(
         assert ds.height == hdr_lines
 
 
+def test_a_run_stopped_early_records_only_the_frames_it_exposed(
+        world: tuple[Scenario, TruthTrajectory, Terrain, Scene], tmp_path: Path) -> None:
+    """Frames are scheduled and rendered a block ahead; `sisa emulate --duration` (or Ctrl-C)
+    stopping inside a block left that block's later frames in the BIL and the truth, exposed
+    and not dropped, though their PPF never went out."""
+    scn, traj, terrain, scene = world
+    dev = ScannerEmulator(scn, traj, terrain, scene, np.random.default_rng(1), fault_table(),
+                          tmp_path, block_lines=64)
+    outputs: list[Output] = []
+
+    def sink(out: Output) -> list[Edge]:
+        outputs.append(out)
+        return []
+
+    until_ns = traj.strips[0].t_start_ns + 1_500_000_000 + 3_000_000  # inside a block
+    Runner([dev], sink).run(until_ns=until_ns)
+    ppf = [o.payload.t_ns for o in outputs if isinstance(o.payload, Edge)]
+    t_mid = dev.frames.column("t_mid_gps_ns")
+    assert len(t_mid) == len(ppf) > 64  # every frame whose PPF went out, and no other
+    assert np.array_equal(t_mid, ppf)
+    assert t_mid.max() <= until_ns
+    kept = int((dev.frames.column("dropped") == 0).sum())
+    line_bytes = scn.scanner.bands * scn.scanner.pixels * 2
+    assert (tmp_path / "segment_000.bil").stat().st_size == kept * line_bytes
+    assert int(read_envi_header(tmp_path / "segment_000.hdr")["lines"]) == kept
+    lines_csv = (tmp_path / "segment_000.lines.csv").read_text().splitlines()
+    assert len([ln for ln in lines_csv if ln[:1].isdigit()]) == kept
+
+
 def test_fast_mode_renders_nothing() -> None:
     run = run_scanner(bench_with())
     assert run.dev.renderer is None

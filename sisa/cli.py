@@ -9,8 +9,11 @@ from __future__ import annotations
 import argparse
 import gc
 import math
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from types import FrameType
 
 from sisa import __version__
 from sisa.errors import InputError, SisaError
@@ -95,9 +98,13 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         return 2
     if batch_gc and not getattr(args, "real_time_loop", False):
         gc.set_threshold(*BATCH_GC_THRESHOLDS)
+    on_term = _terminate_like_ctrl_c()
     try:
         _check_finite(args)
         return handler(args)
+    except Terminated:
+        print(f"sisa {args.command}: terminated", file=sys.stderr)
+        return 143
     except SisaError as exc:
         print(f"sisa {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -107,6 +114,26 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     except KeyboardInterrupt:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if on_term is not None:
+            signal.signal(signal.SIGTERM, on_term)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
+    command was writing is removed, not left half-written."""
+
+
+def _raise_terminated(_sig: int, _frame: FrameType | None) -> None:
+    raise Terminated
+
+
+def _terminate_like_ctrl_c() -> signal.Handlers | Callable[..., object] | int | None:
+    """SIGTERM raises Terminated until the command returns (the real-time commands install
+    their own handler: they stop at their next loop turn). Returns the handler to restore."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 def _check_finite(args: argparse.Namespace) -> None:

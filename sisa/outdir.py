@@ -25,7 +25,10 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
         raise InputError(f"cannot create {parent}: {exc.strerror}") from None
     scratch = parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(scratch, ignore_errors=True)
-    scratch.mkdir()
+    try:
+        scratch.mkdir()
+    except OSError as exc:  # a read-only or special folder (/sys, /proc)
+        raise InputError(f"cannot write in {parent}: {exc.strerror}") from None
     try:
         yield scratch
     except BaseException:

@@ -162,6 +162,8 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     _case("record --gps {d}/notes.txt --split-mb -1 --out {d}/rec.mcap", "--split-mb -1"),
     _case("record --gps {d}/notes.txt --scanner {d}/notes.txt --out {d}/rec.mcap",
           "--gps and --scanner", "same device"),
+    # a traceback from the scratch folder's mkdir
+    _case("sync {d}/flight.mcap --out /proc/sisa-out", "cannot write in /proc"),
     # counted every message twice
     _case("log info {d}/flight.mcap {d}/flight.mcap", "{d}/flight.mcap is given twice"),
     _case("sync {d}/flight.mcap {d}/folder/../flight.mcap --out {d}/s", "is given twice"),

@@ -239,3 +239,24 @@ def test_record_status_names_the_file_as_shown_and_counts_disk_where_it_is(monke
     assert str(tmp_path / "run" / "flight.mcap") in drawn.replace("\r\n", "").replace("\n", "")
     assert ".scratch" not in drawn
     assert "disk free" in drawn
+
+
+def test_sigterm_cleans_up_like_ctrl_c(tmp_path):
+    """`timeout`, batch schedulers and systemd stop a job with SIGTERM: it killed the process
+    where it stood and left the half-made run folder behind; Ctrl-C removed it."""
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "sisa.cli", "simulate", "--preset", "bench",
+                             "--no-images", "--out", str(tmp_path / "sim")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".sim.partial-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert list(tmp_path.glob(".sim.partial-*")), "the run never started"
+    time.sleep(1.0)  # well into the flight
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "sisa simulate: terminated", err
+    assert list(tmp_path.iterdir()) == []

@@ -7,7 +7,6 @@ The tables are written with numpy in blocks, so a million lines never become Pyt
 from __future__ import annotations
 
 import io
-import json
 import re
 from pathlib import Path
 from typing import Any, Final, TextIO
@@ -15,6 +14,7 @@ from typing import Any, Final, TextIO
 import numpy as np
 import numpy.typing as npt
 
+from postproc.jsonio import write_json
 from postproc.lines import LineTable
 from postproc.syncconfig import TimeStatus
 from sisa.errors import InputError
@@ -120,17 +120,5 @@ def write_line_times(path: Path, segment: I64, line: I64, frame_counter: I64, t_
         _write_table(fh, [segment, line, frame_counter, t_gps_ns, _status_names(status)])
 
 
-def _finite(value: Any) -> Any:
-    """JSON has no NaN: a figure that could not be computed is null."""
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    return value
-
-
 def write_report(path: Path, report: dict[str, Any]) -> None:
-    Path(path).write_text(json.dumps(_finite(report), indent=1, allow_nan=False) + "\n",
-                          encoding="utf-8")
+    write_json(path, report)

@@ -254,12 +254,17 @@ def read_ground_points(path: Path) -> dict[str, Any]:
 
 
 def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
-    if not points:
-        return {"points": 0}
-    e_m = np.array([p.err_m for p in points])
-    e_px = np.array([p.err_px for p in points])
-    out: dict[str, Any] = {"points": len(points),
-                           "distinct": len({p.id for p in points})}
+    """RMS of the check points on georeferenced lines; those seen on a line left without a
+    time or pose (no position: NaN) are counted apart, not averaged in."""
+    measured = [p for p in points if np.isfinite(p.err_m).all()]
+    missing = len(points) - len(measured)
+    if not measured:
+        return {"points": 0, "not_georeferenced": missing}
+    e_m = np.array([p.err_m for p in measured])
+    e_px = np.array([p.err_px for p in measured])
+    out: dict[str, Any] = {"points": len(measured),
+                           "distinct": len({p.id for p in measured}),
+                           "not_georeferenced": missing}
     for i, c in enumerate(COMPONENTS):
         out[c] = {"rms_m": float(np.sqrt(np.mean(e_m[:, i] ** 2))),
                   "mean_m": float(np.mean(e_m[:, i])),

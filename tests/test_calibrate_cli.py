@@ -237,3 +237,25 @@ def test_several_runs_refuse_disagreeing_dems(run: Path, capsys: pytest.CaptureF
     assert "DEM differs" in err
     assert "--no-dem" in err
     assert not out.exists()
+
+
+def test_a_dem_beside_the_flight_leaves_no_check_point_and_valid_json(
+        run: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """With a DEM that covers no check point the headline raised a TypeError (after the
+    output folder was complete) and calibration.json held bare NaN, which JSON readers
+    refuse."""
+    import rasterio
+
+    far = run.parent / "far-dem.tif"
+    with rasterio.open(run / "terrain" / "dem.tif") as src:
+        profile, heights = src.profile, src.read(1)
+        t = src.transform
+    profile["transform"] = rasterio.Affine(t.a, t.b, t.c + 200_000.0, t.d, t.e, t.f)
+    with rasterio.open(far, "w", **profile) as dst:
+        dst.write(heights, 1)
+    out = run.parent / "cal-far-dem"
+    assert main(["calibrate", str(run), "--out", str(out), "--dem", str(far)]) == 0
+    assert "check points: none could be measured" in capsys.readouterr().out
+    text = (out / "calibration.json").read_text()
+    assert "NaN" not in text
+    assert json.loads(text)["check_points"]["rms_along_m"] is None

@@ -26,7 +26,6 @@ OUT/
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -355,7 +354,10 @@ def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
     out.append(f"  look offsets (what the images fix): along δx0 − f'φ "
                f"{look['along_um']['value']:.2f} ± {look['along_um']['sigma']:.2f} µm, across "
                f"δy0 + f'ω {look['across_um']['value']:.2f} ± {look['across_um']['sigma']:.2f} µm")
-    if res.check:
+    if res.check and not res.check["observations"]:
+        out.append("  check points: none could be measured (none on a georeferenced line and "
+                   "the DEM)")
+    elif res.check:
         c = res.check
         out.append(f"  check points: {c['observations']} measurements of {c['points']} points, "
                    f"RMS along {c['rms_along_m']:.2f} m ({c['rms_along_px']:.2f} px), across "
@@ -378,6 +380,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.calib_data import write_ground_points, write_observations
     from postproc.calib_report import load_check, report_json, sensor_toml
     from postproc.calibrate import calibrate, sweep_delay
+    from postproc.jsonio import write_json
 
     started = time.perf_counter()
     opt = _options(args)
@@ -397,8 +400,7 @@ def _run(args: argparse.Namespace) -> int:
                                                 "dem": inp.dem is not None}, **info})
         if runs is not None:
             _mark_flights(report)
-        (out / "calibration.json").write_text(json.dumps(report, indent=1) + "\n",
-                                              encoding="utf-8")
+        write_json(out / "calibration.json", report)
         write_observations(out / "observations.csv", inp.obs)
         write_ground_points(out / "points.csv", inp.points)
     print(f"{args.out}: calibrated in {time.perf_counter() - started:.1f} s"

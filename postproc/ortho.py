@@ -69,6 +69,8 @@ TIFF_ZLEVEL: Final = 1
 TIFF_ZSTD_LEVEL: Final = 1  # GDAL's default (9) is several times slower for ~10 % smaller files
 TIFF_COMPRESSIONS: Final = ("deflate", "zstd", "lzw", "none")
 GLT_BAND_NAMES: Final = ("GLT Sample Lookup", "GLT Line Lookup")
+MAX_GRID_CELLS: Final = 2**32  # 65 536² cells: a 32 GB GLT; a finer grid or a wider one is
+# a mistyped --cell or --bounds (0.001 m cells made a 13 TB sparse GLT before anyone noticed)
 
 
 # -- the output grid -------------------------------------------------------------------------
@@ -91,6 +93,10 @@ class OrthoGrid:
             raise InputError(f"grid cell must be a positive number of metres, got {self.cell_m}")
         if self.width <= 0 or self.height <= 0:
             raise InputError(f"grid must have cells, got {self.width} x {self.height}")
+        if self.width * self.height > MAX_GRID_CELLS:
+            raise InputError(f"a grid of {self.width} x {self.height} cells of {self.cell_m:g} "
+                             f"m is too large (more than {MAX_GRID_CELLS:,} cells): check the "
+                             "cell size and the bounds")
         projected_crs(self.epsg)
 
     @classmethod
@@ -836,6 +842,12 @@ def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: 
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
     raw = EnviRaster.open(Path(image))
     check_pair(index, raw, grid.epsg)
+    w, s, e, n = index.bounds_m
+    gw, gs, ge, gn = grid.bounds_m
+    if not (w < ge and gw < e and s < gn and gs < n):
+        raise InputError(f"the grid ({gw:.0f}, {gs:.0f}, {ge:.0f}, {gn:.0f}) does not overlap "
+                         f"the image's ground ({w:.0f}, {s:.0f}, {e:.0f}, {n:.0f}): nothing "
+                         "to map")
     nodata = output_nodata(raw)
     out_tif = Path(out_tif)
     desc = (f"SISA ortho of {raw.path.name}: each cell holds the input pixel whose "

@@ -150,7 +150,11 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
         ((no_crs, image, "--out", tmp_path / "o.tif"), "give --crs"),
         ((image, image, "--out", tmp_path / "o.tif"), "not an IGM"),
         ((igm, image, "--out", tmp_path / "o.tif", "--cell", "1", "--bounds", "0", "0", "1e7",
-          "1e7"), "GDAL cannot create a 10000000 x 10000000 GeoTIFF"),
+          "1e7"), "10000000 x 10000000 cells of 1 m is too large"),
+        # a sparse GLT of terabytes before anyone noticed; an empty GeoTIFF with exit 0
+        ((igm, image, "--out", tmp_path / "o.tif", "--cell", "0.001"), "is too large"),
+        ((igm, image, "--out", tmp_path / "o.tif", "--bounds", "0", "0", "10", "10"),
+         "does not overlap the image's ground"),
     ]
     before = sorted(p.name for p in tmp_path.iterdir())
     for args, says in cases:

@@ -81,6 +81,11 @@ def read_scanner_lines(folder: Path) -> LineTable:
     if not files:
         raise InputError(f"{folder}: no {LINES_GLOB} files (the scanner's line → frame "
                          "counter records)")
+    for image in sorted(folder.glob("segment_*.bil")):
+        lines_csv = image.with_suffix(".lines.csv")
+        if not lines_csv.is_file():
+            raise InputError(f"{image}: no {lines_csv.name} beside it (the scanner's line → "
+                             "frame counter record): its lines could not be timed")
     tables = []
     for path in files:
         m = _SEGMENT_RE.search(path.name)

@@ -93,7 +93,8 @@ def split_points(obs: ImageObservations, points: GroundPoints, notes: Notes,
     notes.add(int(((points.kind == "tie") & (n_seg < 2)).sum()),
               "tie points seen in fewer than two segments: left out")
     if not ctl.any():
-        raise InputError("no control point is observed: calibration needs ground control")
+        why = f" ({'; '.join(notes.lines)})" if notes.lines else ""
+        raise InputError(f"no control point is observed: calibration needs ground control{why}")
     return points.select(ctl | tie | (chk & check_heights)), points.select(chk)
 
 

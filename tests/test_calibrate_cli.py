@@ -138,6 +138,11 @@ def test_bad_requests_are_one_line_errors(run: Path, capsys: pytest.CaptureFixtu
     assert "--seed -3: use a whole number" in capsys.readouterr().err  # was numpy's traceback
     assert main(["calibrate", str(run), "--out", str(out), "--prior-attitude-arcsec", "-20"]) == 2
     assert "--prior-attitude-arcsec must be ≥ 0" in capsys.readouterr().err  # was: no prior
+    # measurements of a segment the flight does not have: said only 'no control point'
+    (run.parent / "obs7.csv").write_text("id,segment,line,pixel,sigma_px\nC001,7,10.5,100.25,0.3\n")
+    assert main(["calibrate", str(run), "--out", str(out), "--obs",
+                 str(run.parent / "obs7.csv")]) == 2
+    assert "1 observations in a segment the recording does not have" in capsys.readouterr().err
     assert not out.exists()
 
 

@@ -3,23 +3,68 @@
 A scenario file may start from a preset (`base = "garrotxa"`) and override any table or field.
 Every field carries its unit in its name; every range is checked at load time, so a bad file fails
 with one line that names the field and its allowed range before anything runs.
+
+Ranges are physical (what a survey aircraft or UAV, its sensors and its block can be) and keep
+every derived quantity bounded: `Scenario` also checks what fields make together — the turn rate,
+the length of the flight, the size of the DEM and of the scene raster — so that no valid scenario
+can ask for a runaway allocation, a time past int64 nanoseconds or a date NMEA cannot write.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 import tomllib
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from sisa.errors import ConfigError
 from sisa.sensor import Mounting, ScannerGeometry, StrictModel, Vec3, first_non_finite
 from sisa.timescale import parse_gps_datetime
 
 PRESETS = ("bench", "garrotxa", "bellmunt")
+
+# --- limits that keep every derived time, duration and array bounded -----------------------------
+
+# GPS time is int64 ns from the GPS epoch (sisa.timescale), so nothing can start before it (and
+# int64 would end in 2262). The binding upper limit is NMEA: RMC dates carry a two-digit year read
+# as 1980..2079 (acquisition/nmea.py, DateDdMmYy). A flight lasts at most MAX_FLIGHT_H, and UTC
+# runs behind GPS time, so a start before the last day of 2079 keeps every sentence datable.
+START_GPS_MIN = "1980-01-06T00:00:00"
+START_GPS_MAX = "2079-12-31T00:00:00"  # exclusive
+MIN_GROUND_SPEED_KMH = 10.0  # 2.8 m/s: slower than any survey aircraft or fixed-wing UAV
+MAX_AIRFIELD_OFFSET_M = 200_000.0  # a ferry of up to ~1 h to the block
+# The flight (alignment, take-off, climb, transit, strips and turns) may last at most this: the
+# truth trajectory holds a spline node every 0.1 s (~45 MB per hour of flight while it is built).
+MAX_FLIGHT_H = 24.0
+# Coordinated turn rate g·tan(bank)/v. The trajectory smooths its path over ~1.5 s and plans arcs
+# wider and faster by 1/k to make up for it (emulators.trajectory._Cruise): at 30°/s k = 0.73,
+# beyond ~85°/s k reaches 0 and the planned turns cannot close. Survey turns are 3–15°/s.
+MAX_TURN_RATE_DEG_S = 30.0
+# The planning rules of emulators.trajectory that `flight_duration_bound_s` follows (that module
+# imports this one, and scipy: copied, and checked equal by tests/emulators/test_scenario_bounds).
+_PLAN_SMOOTHING_SIGMA_S = 1.5
+_PLAN_KERNEL_HALF_WIDTH_S = 4.5
+_PLAN_CLIMB_OUT_MIN_S = 30.0
+_PLAN_CLIMB_ACCELERATION_MPS2 = 1.0
+_PLAN_CLIMB_RAMP_S = 3.0
+# The synthetic DEM costs ~130 bytes per cell while it is made (FFT noise, ridges, river): 10
+# million cells (e.g. 1 m over 3 × 3 km, 5 m over 15 × 15 km) take `sisa truth` to ~1.4 GB. Its
+# extent is limited by the scanner emulator's ENU → UTM/height map, fitted to 1 mm up to ~1000 km.
+MAX_DEM_CELLS = 10_000_000
+MAX_DEM_SIDE_KM = 800.0
+# The scene raster holds 4 bytes per texture cell over the DEM's extent: 250 million cells, 1 GB
+# (`sisa truth` peaks at ~1.3 GB and takes ~2 min there).
+MAX_SCENE_CELLS = 250_000_000
+# Values per image line (pixels × bands): the scanner renders 128 lines at a time, ~10 bytes per
+# value in flight. A CASI-1500 line (1500 × 288 = 432 000) fits and 2048 × 256 simulates in under
+# 1 GB; a 65 536 × 288 line would need ~24 GB a block.
+MAX_LINE_SAMPLES = 2**19
+MAX_GROUND_POINTS = 10_000  # each of control and check points; Garrotxa has 111 and 96
 
 
 class GpsSolution(StrEnum):
@@ -37,8 +82,17 @@ class BlockSettings(StrictModel):
     strip_length_m: float = Field(3000.0, gt=0, le=500_000)
     side_overlap_pct: float = Field(50.0, ge=0, lt=100)
     flying_height_agl_m: float = Field(600.0, gt=10, le=20_000)
-    ground_speed_kmh: float = Field(216.0, gt=0, le=1500)
-    start_gps: str = Field("2026-06-15T09:00:00", description="GPS-scale ISO date-time")
+    ground_speed_kmh: float = Field(
+        216.0, gt=0, le=1000, json_schema_extra={"minimum": MIN_GROUND_SPEED_KMH},
+        description=f"at least {MIN_GROUND_SPEED_KMH:g} km/h (2.8 m/s): a survey aircraft or "
+        "fixed-wing UAV",
+    )
+    start_gps: str = Field(
+        "2026-06-15T09:00:00",
+        description=f"GPS-scale ISO date-time, from the GPS epoch {START_GPS_MIN} to before "
+        f"{START_GPS_MAX}: GPS time is counted from its epoch, and NMEA RMC dates carry a "
+        f"two-digit year read as 1980–2079 (a flight lasts at most {MAX_FLIGHT_H:g} h)",
+    )
     leap_seconds: int = Field(18, ge=0, le=60)
     centre_lat_deg: float = Field(41.6, ge=-85, le=85)
     centre_lon_deg: float = Field(2.0, ge=-180, le=180)
@@ -46,13 +100,24 @@ class BlockSettings(StrictModel):
         0.0, ge=0, lt=360, description="true heading of the first strip (0 = flown north)"
     )
 
-    @model_validator(mode="after")
-    def _start_parses(self) -> BlockSettings:
-        try:
-            parse_gps_datetime(self.start_gps)
-        except ValueError as exc:
-            raise ValueError(f"start_gps: {exc}") from None
-        return self
+    @field_validator("ground_speed_kmh")
+    @classmethod
+    def _speed_flies(cls, kmh: float) -> float:
+        if not kmh >= MIN_GROUND_SPEED_KMH:
+            raise ValueError(f"Input should be greater than or equal to {MIN_GROUND_SPEED_KMH:g}"
+                             " km/h (2.8 m/s), the slowest survey aircraft or fixed-wing UAV")
+        return kmh
+
+    @field_validator("start_gps")
+    @classmethod
+    def _start_in_range(cls, text: str) -> str:
+        t_ns = parse_gps_datetime(text)  # a ValueError names what is wrong with the text
+        if not parse_gps_datetime(START_GPS_MIN) <= t_ns < parse_gps_datetime(START_GPS_MAX):
+            raise ValueError(
+                f"must be from {START_GPS_MIN} (the GPS epoch: GPS time counts from it) to "
+                f"before {START_GPS_MAX} (NMEA dates carry a two-digit year read as 1980–2079, "
+                f"and a flight may last {MAX_FLIGHT_H:g} h)")
+        return text
 
     @property
     def t_start_gps_ns(self) -> int:
@@ -63,18 +128,28 @@ class BlockSettings(StrictModel):
         return self.ground_speed_kmh / 3.6
 
 
+_AirfieldOffsetM = Annotated[
+    float, Field(ge=-MAX_AIRFIELD_OFFSET_M, le=MAX_AIRFIELD_OFFSET_M)]
+
+
 class FlightSettings(StrictModel):
     """How the aircraft gets from the ground to the strips and between them."""
 
     static_alignment_s: float = Field(60.0, ge=0, le=7200, description="engines off on the ground")
-    takeoff_acceleration_mps2: float = Field(2.5, gt=0, le=10)
+    takeoff_acceleration_mps2: float = Field(2.5, ge=0.5, le=10, description="ground roll")
     rotation_speed_kmh: float = Field(150.0, gt=0, le=500)
-    climb_rate_mps: float = Field(8.0, gt=0, le=50)
-    turn_bank_deg: float = Field(30.0, gt=1, le=60)
+    climb_rate_mps: float = Field(8.0, ge=0.5, le=50)
+    turn_bank_deg: float = Field(
+        30.0, gt=1, le=60,
+        description=f"coordinated turns; the turn rate g·tan(bank)/speed may be at most "
+        f"{MAX_TURN_RATE_DEG_S:g}°/s",
+    )
     figure_eights: int = Field(1, ge=0, le=10, description="figure-eight manoeuvres after take-off")
     run_in_s: float = Field(10.0, ge=0, le=600, description="straight flight before/after a strip")
-    airfield_offset_m: tuple[float, float] = Field(
-        (-2000.0, -4000.0), description="runway start east, north of the block centre"
+    airfield_offset_m: tuple[_AirfieldOffsetM, _AirfieldOffsetM] = Field(
+        (-2000.0, -4000.0),
+        description=f"runway start east, north of the block centre (each within "
+        f"±{MAX_AIRFIELD_OFFSET_M / 1000:g} km)",
     )
     runway_heading_deg: float = Field(0.0, ge=0, lt=360)
     crab_deg: float = Field(1.5, ge=-30, le=30, description="constant wind crab while airborne")
@@ -87,17 +162,25 @@ class TerrainSettings(StrictModel):
 
     mean_height_m: float = Field(300.0, ge=-500, le=9000, description="ellipsoidal")
     relief_m: float = Field(80.0, ge=0, le=5000, description="peak-to-peak relief")
-    dem_spacing_m: float = Field(10.0, gt=0, le=1000)
+    dem_spacing_m: float = Field(
+        10.0, ge=0.1, le=1000,
+        description=f"DEM grid spacing; the DEM over the block and its margin may have at most "
+        f"{MAX_DEM_CELLS:,} cells and {MAX_DEM_SIDE_KM:g} km a side".replace(",", " "),
+    )
     margin_m: float = Field(1500.0, ge=0, le=50_000, description="DEM extent beyond the block")
-    texture_cell_m: float = Field(2.0, gt=0, le=1000, description="finest scene texture scale")
-    control_points: int = Field(10, ge=0, le=100_000)
-    check_points: int = Field(10, ge=0, le=100_000)
+    texture_cell_m: float = Field(
+        2.0, ge=0.01, le=1000,
+        description=f"finest scene texture scale; the scene raster over the DEM may have at most "
+        f"{MAX_SCENE_CELLS:,} cells".replace(",", " "),
+    )
+    control_points: int = Field(10, ge=0, le=MAX_GROUND_POINTS)
+    check_points: int = Field(10, ge=0, le=MAX_GROUND_POINTS)
 
 
 class ScannerSettings(ScannerGeometry):
     """The pushbroom scanner: geometry plus the timing of its frames."""
 
-    bands: int = Field(4, ge=1, le=288)
+    bands: int = Field(4, ge=1, le=288, description=f"pixels × bands ≤ {MAX_LINE_SAMPLES}")
     line_period_ms: float = Field(16.0, gt=0.1, le=10_000, description="time between lines")
     integration_time_ms: float = Field(12.0, gt=0, le=10_000)
     frame_counter_bits: int = Field(16, ge=8, le=32)
@@ -117,6 +200,11 @@ class ScannerSettings(ScannerGeometry):
         lo, hi = self.header_latency_ms
         if not 0 <= lo <= hi <= 10_000:
             raise ValueError(f"header_latency_ms = ({lo}, {hi}) needs 0 ≤ min ≤ max ≤ 10000")
+        if self.pixels * self.bands > MAX_LINE_SAMPLES:
+            raise ValueError(
+                f"pixels × bands = {self.pixels} × {self.bands} = {self.pixels * self.bands} "
+                f"values per line, more than {MAX_LINE_SAMPLES} (a CASI-1500 line is 1500 × 288):"
+                " fewer pixels or bands")
         return self
 
 
@@ -246,11 +334,155 @@ class Scenario(StrictModel):
     faults: FaultProfile = FaultProfile()
 
     @model_validator(mode="after")
-    def _all_finite(self) -> Scenario:
+    def _all_finite_and_bounded(self) -> Scenario:
         where = first_non_finite(self.model_dump())
         if where is not None:
             raise ValueError(f"{where}: must be a finite number (not NaN or infinity)")
+        _check_turn_rate(self)
+        _check_flight_duration(self)
+        _check_terrain_size(self)
         return self
+
+
+def turn_rate_deg_s(scn: Scenario) -> float:
+    """Rate of a coordinated turn at the block speed and the flight's bank: g·tan(bank)/v."""
+    from emulators.block import STANDARD_GRAVITY_MPS2  # emulators.block imports this module
+
+    bank = math.radians(scn.flight.turn_bank_deg)
+    return math.degrees(STANDARD_GRAVITY_MPS2 * math.tan(bank) / scn.block.ground_speed_mps)
+
+
+def _check_turn_rate(scn: Scenario) -> None:
+    from emulators.block import STANDARD_GRAVITY_MPS2
+
+    rate = turn_rate_deg_s(scn)
+    if rate <= MAX_TURN_RATE_DEG_S:
+        return
+    kmh = scn.block.ground_speed_kmh
+    max_bank = math.degrees(math.atan(math.radians(MAX_TURN_RATE_DEG_S)
+                                      * scn.block.ground_speed_mps / STANDARD_GRAVITY_MPS2))
+    raise ValueError(
+        f"flight.turn_bank_deg: a {scn.flight.turn_bank_deg:g}° bank at {kmh:g} km/h "
+        f"(block.ground_speed_kmh) turns at {rate:.3g}°/s, more than {MAX_TURN_RATE_DEG_S:g}°/s "
+        f"(the trajectory rolls turns in over ~1.5 s): bank at most {max_bank:.2f}° at this "
+        "speed, or fly faster")
+
+
+def flight_duration_bound_s(scn: Scenario) -> dict[str, float]:
+    """An upper bound on the flight's length, by part, from the planning rules of
+    emulators.trajectory (what `scenario show` reports as flight_duration_s never exceeds the
+    sum): take-off and climb, transit to the first strip, the strips with their run-in and
+    run-out, and the turns between them. A Dubins path between poses d apart with planned arc
+    radius R is no longer than the better of its turn–straight–turn words in one sense (right,
+    right or left, left): arcs of at most 3π in all, a straight of at most d + 2R. Arcs are
+    planned at R = r/k and flown at v/k, where k = Σ w·cos(ωτ) ≥ 1 − (ωσ)²/2 for the smoothing
+    kernel w of second moment σ²."""
+    from emulators.block import strip_lines  # emulators.block imports this module
+
+    f, v = scn.flight, scn.block.ground_speed_mps
+    omega = math.radians(turn_rate_deg_s(scn))
+    circle_s = 2.0 * math.pi / omega
+    k = 1.0 - 0.5005 * (omega * _PLAN_SMOOTHING_SIGMA_S) ** 2  # the discrete kernel: σ² + 6e-7
+    planned_radius_m = v / omega / k
+
+    def dubins_s(distance_m: float) -> float:
+        return (distance_m + (2.0 + 3.0 * math.pi) * planned_radius_m) / v
+
+    v_rot = f.rotation_speed_kmh / 3.6
+    t_motion = f.static_alignment_s + _PLAN_KERNEL_HALF_WIDTH_S
+    takeoff_s = v_rot / f.takeoff_acceleration_mps2
+    accel_s = abs(v - v_rot) / _PLAN_CLIMB_ACCELERATION_MPS2
+    cruise_s = max(_PLAN_CLIMB_OUT_MIN_S - accel_s, _PLAN_KERNEL_HALF_WIDTH_S)
+    climb_out_m = (v_rot**2 / (2.0 * f.takeoff_acceleration_mps2)
+                   + abs(v**2 - v_rot**2) / (2.0 * _PLAN_CLIMB_ACCELERATION_MPS2) + v * cruise_s)
+    steady_s = scn.block.flying_height_agl_m / f.climb_rate_mps
+    climb_end = (t_motion + takeoff_s + 2.0 * _PLAN_KERNEL_HALF_WIDTH_S + steady_s
+                 + min(_PLAN_CLIMB_RAMP_S, steady_s))
+    straight_m = v * max(f.run_in_s, _PLAN_KERNEL_HALF_WIDTH_S)
+
+    lines = strip_lines(scn)
+    ends = []  # (run-in start, run-out end) of every strip, local plane metres
+    for line in lines:
+        h = math.radians(line.heading_deg)
+        ue, un = math.sin(h), math.cos(h)
+        ends.append(((line.start_en_m[0] - ue * straight_m, line.start_en_m[1] - un * straight_m),
+                     (line.end_en_m[0] + ue * straight_m, line.end_en_m[1] + un * straight_m)))
+    transit_m = math.hypot(*f.airfield_offset_m) + climb_out_m + math.hypot(*ends[0][0])
+    before_survey = (t_motion + takeoff_s + accel_s + cruise_s
+                     + f.figure_eights * 2.0 * circle_s + dubins_s(transit_m))
+    first_run_in = max(before_survey, climb_end + circle_s)  # holding circles end the climb
+    return {
+        "take-off, climb and transit": first_run_in,
+        "strips": sum(line.length_m + 2.0 * straight_m for line in lines) / v,
+        "turns": sum(dubins_s(math.dist(a[1], b[0])) for a, b in itertools.pairwise(ends)),
+    }
+
+
+def _check_flight_duration(scn: Scenario) -> None:
+    parts = flight_duration_bound_s(scn)
+    total_h = sum(parts.values()) / 3600.0
+    if total_h <= MAX_FLIGHT_H:
+        return
+    shown = ", ".join(f"{name} {s / 3600.0:.3g} h" for name, s in parts.items())
+    raise ValueError(
+        f"block: the flight would last up to {total_h:.3g} h ({shown}), more than "
+        f"{MAX_FLIGHT_H:g} h: fewer or shorter block.strips / block.strip_length_m, a higher "
+        "block.ground_speed_kmh or flight.turn_bank_deg, or a nearer flight.airfield_offset_m")
+
+
+def dem_extent_m(scn: Scenario) -> tuple[float, float]:
+    """East–west and north–south extent of the DEM (a UTM box holding every strip's swath, plus
+    terrain.margin_m on each side), to within a per cent: the block's extent in its local plane,
+    turned by the UTM grid convergence at the block centre and scaled by at most 1.01."""
+    from emulators.block import block_extent_en_m  # emulators.block imports this module
+
+    e0, n0, e1, n1 = block_extent_en_m(scn)
+    lat, lon = scn.block.centre_lat_deg, scn.block.centre_lon_deg
+    central_meridian = 6.0 * ((lon + 180.0) // 6.0) - 177.0  # as LocalPlane.utm_epsg's zone
+    gamma = math.atan(math.tan(math.radians(lon - central_meridian))
+                      * math.sin(math.radians(lat)))
+    c, s = abs(math.cos(gamma)), abs(math.sin(gamma))
+    w, h = 1.01 * (e1 - e0), 1.01 * (n1 - n0)
+    margin = 2.0 * scn.terrain.margin_m
+    return w * c + h * s + margin, h * c + w * s + margin
+
+
+def _check_terrain_size(scn: Scenario) -> None:
+    width_m, height_m = dem_extent_m(scn)
+    if max(width_m, height_m) > MAX_DEM_SIDE_KM * 1000.0:
+        raise ValueError(
+            f"terrain: the DEM over the block and terrain.margin_m would span "
+            f"{width_m / 1000:.0f} × {height_m / 1000:.0f} km, more than {MAX_DEM_SIDE_KM:g} km "
+            "a side (the scanner emulator maps ground coordinates to 1 mm only that far): fewer "
+            "or shorter block.strips / block.strip_length_m, or a smaller terrain.margin_m")
+    ts = scn.terrain
+
+    def cells(cell_m: float) -> float:
+        return (math.ceil(width_m / cell_m) + 1) * (math.ceil(height_m / cell_m) + 1)
+
+    def finest_m(limit: int) -> float:
+        """The smallest cell, rounded up to two digits, with (w/c + 2)·(h/c + 2) ≤ limit."""
+        a, b = width_m * height_m, 2.0 * (width_m + height_m)
+        inverse = (-b + math.sqrt(b * b - 4.0 * a * (4.0 - limit))) / (2.0 * a)
+        step = 10.0 ** (math.floor(math.log10(1.0 / inverse)) - 1)
+        return math.ceil(1.0 / inverse / step) * step
+
+    def millions(count: float) -> str:
+        return f"{count / 1e6:,.0f}".replace(",", " ") if count >= 1e7 else f"{count / 1e6:.2g}"
+
+    size = f"{width_m / 1000:.3g} × {height_m / 1000:.3g} km"
+    if (dem := cells(ts.dem_spacing_m)) > MAX_DEM_CELLS:
+        raise ValueError(
+            f"terrain.dem_spacing_m: a {ts.dem_spacing_m:g} m DEM over the block and "
+            f"terrain.margin_m ({size}) would have about {millions(dem)} million cells, more than "
+            f"{MAX_DEM_CELLS / 1e6:g} million: a spacing of at least "
+            f"{finest_m(MAX_DEM_CELLS):.3g} m, or a smaller block or margin")
+    if (scene := cells(ts.texture_cell_m)) > MAX_SCENE_CELLS:
+        raise ValueError(
+            f"terrain.texture_cell_m: a {ts.texture_cell_m:g} m scene raster over the DEM ({size})"
+            f" would have about {millions(scene)} million cells, more than "
+            f"{MAX_SCENE_CELLS / 1e6:g} million: a cell of at least "
+            f"{finest_m(MAX_SCENE_CELLS):.3g} m, or a smaller block or margin")
 
 
 def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:

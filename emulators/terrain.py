@@ -995,6 +995,11 @@ class _Placer:
         self.band_m = 0.3 * fig.swath_width_m
         self.half_u = fig.block_length_m / 2.0 - self.inset_m
         self.half_v = fig.block_width_m / 2.0 - self.inset_m
+        if self.half_u <= 0 or self.half_v <= 0:
+            raise ConfigError(f"terrain: ground points need {2 * self.inset_m:.0f} m of margin "
+                              f"(their targets, {target_m:.0f} m, and the swath's edge) but the "
+                              f"block is {fig.block_length_m:.0f} x {fig.block_width_m:.0f} m: "
+                              "use a finer terrain.texture_cell_m or a larger block")
         self.spacing = _Spacing(3.0 * target_m)
         self.overlap = 2 if len(strip_lines(scn)) > 1 else 1
 

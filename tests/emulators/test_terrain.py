@@ -405,3 +405,15 @@ def test_scene_geotiff_is_the_band_mean(scene: Scene, tmp_path: Path) -> None:
     x, y = _xy(scene.transform, c.ravel(), r.ravel())
     expected = scene.radiance(x, y, nearest=True).mean(axis=0).reshape(20, 30)
     np.testing.assert_allclose(window, expected, rtol=1e-5, atol=1e-7)
+
+
+def test_ground_targets_wider_than_the_block_are_a_config_error() -> None:
+    """Coarse texture cells make big ground targets; wider than the block, placing them was a
+    numpy 'high - low < 0' traceback from `sisa truth` and `sisa simulate`."""
+    from emulators.scenario import scenario_from_table
+    from emulators.terrain import Terrain, ground_points
+    from sisa.errors import ConfigError
+
+    scn = scenario_from_table({"base": "bench", "terrain": {"texture_cell_m": 100.0}})
+    with pytest.raises(ConfigError, match="ground points need"):
+        ground_points(scn, Terrain.from_scenario(scn))

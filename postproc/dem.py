@@ -8,6 +8,10 @@ Conventions (docs/conventions.md):
 - The surface is bilinear between centres and exists only inside the hull of the centres: the
   outer half cell and any cell touching a nodata sample carry no surface (NaN), nothing is
   extrapolated.
+- Voids (no data): the band's declared nodata value, NaN (always, declared or not) and any value
+  outside PLAUSIBLE_HEIGHTS_M, which no terrain has: the void markers of DEMs whose nodata
+  value is not declared (-9999, -32768, ±3.4e38). Undeclared ones are read as voids with a
+  DemVoidWarning naming how many; a DEM (or window) with no valid height is refused.
 - Heights are ellipsoidal. A DEM of orthometric heights H needs a geoid: h = H + N, with N a
   constant or a raster of undulations sampled bilinearly at every DEM cell centre.
 """
@@ -34,6 +38,19 @@ F64 = npt.NDArray[np.float64]
 
 DEFAULT_MARGIN_M: Final = 500.0  # beyond bounds_m: room for oblique rays over relief
 GEOID_COORD_STEP_CELLS: Final = 16  # geoid coordinates computed exactly every 16 DEM cells
+# Heights (m) any terrain can have, orthometric or ellipsoidal (Dead Sea shore -430, Everest
+# 8849, geoid -106..+85): a value outside is a void marker, declared or not.
+PLAUSIBLE_HEIGHTS_M: Final = (-1000.0, 9000.0)
+# ...and the ellipsoidal heights a DEM read within them can have once a geoid (|N| < 110 m) is
+# added: what the ray caster accepts.
+SURFACE_HEIGHTS_M: Final = (PLAUSIBLE_HEIGHTS_M[0] - 200.0, PLAUSIBLE_HEIGHTS_M[1] + 200.0)
+OVERVIEW_FACTOR: Final = 16  # `height_range` reads a 1/16 overview
+SCAN_ROWS: Final = 1024  # rows read at a time when a whole DEM is scanned for a valid height
+SAMPLE_CELLS: Final = 64  # `dem_extent` samples 64 x 64 heights (a whole scan if none is valid)
+
+
+class DemVoidWarning(UserWarning):
+    """Cells were read as voids although the raster's nodata value does not declare them."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +75,8 @@ class Dem:
                              f"{h.shape}")
         if not (self.cell_e_m > 0.0 and self.cell_n_m > 0.0):
             raise ValueError("cell sizes must be > 0")
+        if np.isinf(h).any():
+            raise ValueError("heights_m must be finite or NaN (no data), not infinite")
 
     @property
     def rows(self) -> int:
@@ -86,15 +105,21 @@ class Dem:
              margin_m: float = DEFAULT_MARGIN_M, geoid: float | str | Path | None = None) -> Dem:
         """Read a single-band GeoTIFF (or any GDAL raster), only the window that covers
         bounds_m = (west, south, east, north) in the DEM's CRS grown by margin_m, so a flight
-        segment never loads a whole national DEM. Nodata becomes NaN. `geoid` turns
-        orthometric heights into ellipsoidal ones: a constant undulation N (m) or a raster of N
-        in any CRS."""
+        segment never loads a whole national DEM. Voids (module docstring) become NaN, the
+        undeclared ones with a DemVoidWarning; InputError if the window has no valid height.
+        `geoid` turns orthometric heights into ellipsoidal ones: a constant undulation N (m)
+        or a raster of N in any CRS."""
         path = Path(path)
         with _open(path, "DEM") as ds:
             epsg = _projected_epsg(ds, path)
             first_e, first_n, cell_e, cell_n = _grid_of(ds, path)
             win = _window(ds, path, first_e, first_n, cell_e, cell_n, bounds_m, margin_m)
-            heights = _read_band(ds, win)
+            heights = _read_band(ds, win, path, "DEM")
+            if not np.isfinite(heights).any():
+                if bounds_m is not None and _has_valid_height(ds):
+                    raise InputError(f"{path}: the DEM has no valid height in the window "
+                                     f"{bounds_m} (+{margin_m:g} m)")
+                raise _no_valid_height(path)
         dem = cls(heights, first_e + win.col_off * cell_e, first_n - win.row_off * cell_n,
                   cell_e, cell_n, epsg)
         if geoid is None:
@@ -143,13 +168,18 @@ def bilinear_centres(grid: npt.NDArray[Any], x: F64, y: F64) -> F64:
 
 def dem_extent(path: str | Path) -> tuple[int, tuple[float, float, float, float]]:
     """(EPSG, bounds of the cell centres) of a DEM file, checked as `Dem.read` checks it but
-    without reading heights: what a job needs before it knows which window to read."""
+    without reading its heights (a sparse sample of them, so that a DEM with no valid height
+    is refused at once): what a job needs before it knows which window to read."""
     path = Path(path)
     with _open(path, "DEM") as ds:
         epsg = _projected_epsg(ds, path)
         first_e, first_n, cell_e, cell_n = _grid_of(ds, path)
         last_e = first_e + (ds.width - 1) * cell_e
         last_n = first_n - (ds.height - 1) * cell_n
+        shape = (min(ds.height, SAMPLE_CELLS), min(ds.width, SAMPLE_CELLS))
+        sample = _voids_to_nan(ds.read(1, out_shape=shape, masked=True))[0]
+        if not np.isfinite(sample).any() and not _has_valid_height(ds):
+            raise _no_valid_height(path)
     return epsg, (first_e, last_n, last_e, first_n)
 
 
@@ -199,11 +229,29 @@ def _grid_of(ds: Any, path: Path) -> tuple[float, float, float, float]:
     return float(t.c + 0.5 * t.a), float(t.f + 0.5 * t.e), float(t.a), float(-t.e)
 
 
+def height_range(path: str | Path, overview: int = OVERVIEW_FACTOR) -> tuple[float, float] | None:
+    """(lowest, highest) valid height of a DEM file from a 1/`overview` overview (voids as in
+    `Dem.read`, without the warning); None if no overview sample is valid. What a job needs to
+    place a swath on the DEM before it reads a window."""
+    path = Path(path)
+    with _open(path, "DEM") as ds:
+        shape = (max(ds.height // overview, 1), max(ds.width // overview, 1))
+        data = _voids_to_nan(ds.read(1, out_shape=shape, masked=True))[0]
+    if not np.isfinite(data).any():
+        return None
+    return float(np.nanmin(data)), float(np.nanmax(data))
+
+
 def _window(ds: Any, path: Path, first_e: float, first_n: float, cell_e: float, cell_n: float,
             bounds_m: tuple[float, float, float, float] | None, margin_m: float) -> Window:
     """Cells whose centres' hull covers bounds_m + margin (clipped to the raster)."""
     if bounds_m is None:
         return Window(0, 0, ds.width, ds.height)
+    if not all(math.isfinite(v) for v in bounds_m):
+        if not _has_valid_height(ds):
+            raise _no_valid_height(path)
+        raise InputError(f"{path}: DEM window bounds {bounds_m} are not finite (derived from "
+                         "NaN heights?)")
     west, south, east, north = bounds_m
     if not (west <= east and south <= north) or margin_m < 0.0:
         raise InputError(f"{path}: bad bounds {bounds_m} / margin {margin_m}")
@@ -216,12 +264,53 @@ def _window(ds: Any, path: Path, first_e: float, first_n: float, cell_e: float, 
     return Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1)
 
 
-def _read_band(ds: Any, win: Window) -> F32:
-    """Band 1 in the window as float32, nodata and masked cells NaN."""
-    data = ds.read(1, window=win, masked=True)
-    out = np.ma.filled(data.astype(np.float32), np.nan)
-    out[~np.isfinite(out)] = np.nan
-    return np.ascontiguousarray(out, dtype=np.float32)
+def _read_band(ds: Any, win: Window, path: Path, what: str) -> F32:
+    """Band 1 in the window as float32, voids NaN: masked (declared nodata) cells, NaN and
+    values outside PLAUSIBLE_HEIGHTS_M. Undeclared voids other than NaN get a
+    DemVoidWarning."""
+    out, marked = _voids_to_nan(ds.read(1, window=win, masked=True))
+    if marked.size:
+        values, counts = np.unique(marked, return_counts=True)
+        top = values[np.argsort(counts)[::-1][:3]]
+        warnings.warn(f"{path}: {marked.size} {what} cell{'s' if marked.size > 1 else ''} hold "
+                      f"{', '.join(f'{v:g}' for v in top)}{' ...' if values.size > 3 else ''}, "
+                      f"outside {_plausible_text()}, and no nodata value declares them: read as "
+                      "voids (no surface there)", DemVoidWarning, stacklevel=3)
+    return out
+
+
+def _voids_to_nan(data: np.ma.MaskedArray[Any, Any]) -> tuple[F32, F64]:
+    """float32 copy of a masked band with every void NaN, and the values of the implausible
+    cells its mask (the raster's nodata value) leaves in (float64, for the note)."""
+    mask = np.ma.getmaskarray(data)
+    raw = np.ma.getdata(data)
+    with np.errstate(over="ignore"):  # float64 beyond float32's range: inf, implausible
+        out = np.ascontiguousarray(raw, dtype=np.float32)
+    low, high = PLAUSIBLE_HEIGHTS_M
+    implausible = ~mask & ((out < low) | (out > high))  # NaN compares False: a void anyway
+    marked = np.asarray(raw[implausible], dtype=np.float64)
+    out[mask | implausible] = np.nan
+    return out, marked
+
+
+def _has_valid_height(ds: Any) -> bool:
+    """Whether any cell of the whole raster is a valid height (read SCAN_ROWS rows at a time:
+    only on the way to an error)."""
+    for r0 in range(0, ds.height, SCAN_ROWS):
+        win = Window(0, r0, ds.width, min(SCAN_ROWS, ds.height - r0))
+        if np.isfinite(_voids_to_nan(ds.read(1, window=win, masked=True))[0]).any():
+            return True
+    return False
+
+
+def _plausible_text() -> str:
+    low, high = PLAUSIBLE_HEIGHTS_M
+    return f"{low:g}..{high:g} m"
+
+
+def _no_valid_height(path: Path) -> InputError:
+    return InputError(f"{path}: the DEM has no valid height (every cell is nodata, NaN or "
+                      f"outside {_plausible_text()})")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -247,7 +336,7 @@ def _undulation_at_centres(path: Path, dem: Dem) -> F32:
         r1 = min(math.ceil(float(row[ok].max())) + 2, ds.height - 1)
         if c1 - c0 < 1 or r1 - r0 < 1:
             raise InputError(f"{path}: geoid raster does not cover the DEM")
-        grid = _read_band(ds, Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1))
+        grid = _read_band(ds, Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1), path, "geoid")
     n = bilinear_centres(grid, col - c0, row - r0)
     missing = int((np.isnan(n) & np.isfinite(dem.heights_m)).sum())
     if missing:

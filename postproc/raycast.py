@@ -25,13 +25,20 @@ height range, solving the (quadratic-in-s) gap exactly inside each cell, so a ra
 ridge or occluded by a cliff finds its first crossing.
 
 Misses (hit False, NaN): rays that never come down to the DEM's highest sample, that pass off
-the DEM or over a nodata cell while within the DEM's height range (nothing is invented about
-unknown terrain), and cameras below the surface. The few rays whose path leaves the box a
-block's map was fitted to are solved by the reference method.
+the DEM or over a nodata cell (one with ANY nodata corner) while within the DEM's height range
+(nothing is invented about unknown terrain), and cameras below the surface. The few rays whose
+path leaves the box a block's map was fitted to are solved by the reference method.
+
+The DEM must hold terrain: NaN for no data, heights within SURFACE_HEIGHTS_M (InputError
+otherwise: a void marker such as -9999 left in the heights would make a 10 km pit, which no
+block map fits, and send every ray to the reference method). Every loop is bounded: the cell
+walk to 10 million cells (then the reference method), root refinement to 100 steps, the
+reference march to REFERENCE_MAX_STEPS per ray (a ray still marching then is a miss, counted
+in CastStats.unresolved).
 
 `reference_intersect` is the slow oracle sharing no code with the fast path: pyproj at every
-point, DEM heights from `Dem.height_at`, steps no longer than gap / (1 + max slope) so no
-crossing can be skipped, then bisection to 1e-7 m.
+point, DEM heights from `Dem.height_at`, steps no longer than gap / (1 + steepest slope within
+reach) so no crossing can be skipped, then bisection to 1e-7 m.
 """
 
 from __future__ import annotations
@@ -54,7 +61,8 @@ from numba.core import types as _types
 from numba.extending import intrinsic
 from pyproj import Transformer
 
-from postproc.dem import Dem
+from postproc.dem import SURFACE_HEIGHTS_M, Dem
+from sisa.errors import InputError
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -79,6 +87,7 @@ BOX_MARGIN_FRACTION: Final = 0.1  # ...plus this fraction of its size
 BAND_PAD_M: Final = 10.0  # map box reaches this far above / below the DEM's heights
 SAFE_SEGMENT_M: Final = 4.0  # longest stretch of ray solved as one quadratic in the safe path
 REFERENCE_MIN_STEP_M: Final = 1e-4
+REFERENCE_MAX_STEPS: Final = 100_000  # march steps per ray; a ray still marching then: missed
 REFERENCE_TOLERANCE_M: Final = 1e-7
 
 _LITTLE_ENDIAN: Final = sys.byteorder == "little"
@@ -133,6 +142,7 @@ class CastStats:
     safe_hit: int = 0  # cell walk, hit
     safe_miss: int = 0  # cell walk, miss
     exact: int = 0  # outside the fitted maps: reference method
+    unresolved: int = 0  # of those, still marching after REFERENCE_MAX_STEPS steps: missed
     blocks: int = 0
     map_error_m: float = 0.0  # worst fitted-map error at the check points
 
@@ -168,11 +178,11 @@ def intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64, look_camera
     _cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef,
                  _look_products(unit), maps.starts, blk, consts, out.easting_m, out.northing_m,
                  out.height_m, out.hit.view(np.uint8), line_flag, counts, *_scratch(p))
-    exact = _resolve_exact(dem, out, line_flag, centre, rot, unit)
+    exact, unresolved = _resolve_exact(dem, out, line_flag, centre, rot, unit)
     if stats is not None:
         total = counts.sum(axis=0)
         stats.fast, stats.safe_hit, stats.safe_miss = int(total[0]), int(total[1]), int(total[2])
-        stats.exact = exact
+        stats.exact, stats.unresolved = exact, unresolved
         stats.blocks = int(maps.starts.size - 1)
         stats.map_error_m = float(maps.error_m.max())
     return out
@@ -191,7 +201,7 @@ def reference_intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64,
     d = np.einsum("nij,jp->npi", rot, look).reshape(-1, 3)
     c = np.repeat(centre, p, axis=0)
     c[~posed], d[~posed] = [0.0, 0.0, 1e7], [0.0, 0.0, 1.0]  # unposed: far up, looking up
-    e, nn, h = _reference_rays(dem, c, d)
+    e, nn, h, _ = _reference_rays(dem, c, d)
     for a in (e, nn, h):
         a[~posed] = np.nan
     return GroundPoints(e.reshape(n, p), nn.reshape(n, p), h.reshape(n, p),
@@ -284,12 +294,16 @@ class _Surface:
     def build(cls, dem: Dem) -> _Surface:
         h = dem.heights_m
         if not np.isfinite(h).any():
-            raise ValueError("the DEM has no valid height")
+            raise InputError("the DEM has no valid height (every sample is NaN)")
+        low, high = float(np.nanmin(h)), float(np.nanmax(h))
+        if not SURFACE_HEIGHTS_M[0] <= low <= high <= SURFACE_HEIGHTS_M[1]:
+            raise InputError(f"the DEM has heights from {low:g} to {high:g} m, outside any "
+                             f"terrain ({SURFACE_HEIGHTS_M[0]:g}..{SURFACE_HEIGHTS_M[1]:g} m): "
+                             "void markers (-9999, -32768, ...) must be NaN")
         slope = cell_slopes(dem)
         table = _sparse_table(_tile_max(slope, TILE_CELLS))
         log2 = np.zeros(table.shape[2] + 1, np.int64)
         log2[2:] = np.floor(np.log2(np.arange(2, table.shape[2] + 1))).astype(np.int64)
-        low, high = float(np.nanmin(h)), float(np.nanmax(h))
         coarse = _fit_maps(np.array([dem.bounds_m], dtype=np.float64), low, high, dem.epsg)
         return cls(dem, np.ascontiguousarray(h).ravel(), dem.rows, dem.cols, low, high, table,
                    log2, coarse)
@@ -1128,9 +1142,10 @@ def _safe_ray(dem: Any, cols: int, ae: float, be: float, ce: float, an: float, b
         k = np.int64(cy + oy) * cols + np.int64(cx + ox)
         z00, z01 = np.float64(dem[k]) - h0, np.float64(dem[k + 1]) - h0
         z10, z11 = np.float64(dem[k + cols]) - h0, np.float64(dem[k + cols + 1]) - h0
-        zmax = max(max(z00, z01), max(z10, z11))
-        if zmax != zmax:
+        zsum = z00 + z01 + z10 + z11  # NaN if ANY corner is (max() drops a NaN)
+        if zsum != zsum:
             return _MISS, np.nan
+        zmax = max(max(z00, z01), max(z10, z11))
         s_next = min(s + SAFE_SEGMENT_M, s_end)
         if xd > 0.0:
             s_next = min(s_next, s + (cx + 1.0 - x) / xd)
@@ -1258,30 +1273,49 @@ def _cast_blocks(dem: Any, dem_safe: Any, cols: int, table: Any, log2: Any, coef
 
 
 def _resolve_exact(dem: Dem, out: GroundPoints, line_flag: U8, centre: F64, rot: F64,
-                   unit: F64) -> int:
-    """Rays the kernel left outside every fitted map (+inf height): reference method."""
+                   unit: F64) -> tuple[int, int]:
+    """Rays the kernel left outside every fitted map (+inf height): reference method.
+    Returns (rays, rays left unresolved by its step budget: missed)."""
     lines = np.flatnonzero(line_flag)
     if lines.size == 0:
-        return 0
+        return 0, 0
     li, pj = np.nonzero(np.isposinf(out.height_m[lines]))
     li = lines[li]
     d = np.einsum("nij,jn->ni", rot[li], unit[:, pj])
-    e, n, h = _reference_rays(dem, centre[li], d)
+    e, n, h, unresolved = _reference_rays(dem, centre[li], d)
     out.easting_m[li, pj], out.northing_m[li, pj], out.height_m[li, pj] = e, n, h
     out.hit[li, pj] = np.isfinite(e)
-    return int(li.size)
+    return int(li.size), unresolved
 
 
-def _reference_rays(dem: Dem, centre: F64, direction: F64) -> tuple[F64, F64, F64]:
+def _local_rates(dem: Dem) -> F64:
+    """Per DEM cell (rows-1, cols-1): 1.02 · (1 + the steepest slope of the 3 x 3 cells around
+    it), a bound of |d gap / ds| over any step of at most half a cell from a point in that
+    cell (it stays among those cells: the map scale is within 2 % of 1). Nodata cells count
+    0: the gap there is NaN, a miss."""
+    slopes = cell_slopes(dem).astype(np.float64)
+    slopes[~np.isfinite(slopes)] = 0.0
+    pad = np.pad(slopes, 1)
+    rows, cols = slopes.shape
+    near = slopes.copy()
+    for dr in range(3):
+        for dc in range(3):
+            np.maximum(near, pad[dr:dr + rows, dc:dc + cols], out=near)
+    return np.asarray(1.02 * (1.0 + near))
+
+
+def _reference_rays(dem: Dem, centre: F64, direction: F64
+                    ) -> tuple[F64, F64, F64, int]:
     """(E, N, h) where each ray first meets the DEM, NaN for misses, by the rules of the module
-    docstring. Above the DEM's highest sample a step is the height above it (|dh/ds| ≤ 1);
-    within the height range it is gap / rate (rate bounds |d gap / ds| over the whole DEM), at
-    most half a cell (so no nodata cell is stepped over)."""
+    docstring, and the number of rays left unresolved. Above the DEM's highest sample a step
+    is the height above it (|dh/ds| ≤ 1); within the height range it is gap / rate (rate
+    bounds |d gap / ds| over the cells within reach, `_local_rates`), at most half a cell (so
+    no nodata cell is stepped over). A ray still marching after REFERENCE_MAX_STEPS steps is
+    left missed (NaN) and counted as unresolved: every call ends."""
     to_geo, to_map, _, _ = _transformers(dem.epsg)
     d = direction / np.linalg.norm(direction, axis=1, keepdims=True)
     high = float(np.nanmax(dem.heights_m))
-    slopes = cell_slopes(dem)
-    rate = 1.02 * (1.0 + float(slopes[np.isfinite(slopes)].max(initial=0.0)))
+    rates = _local_rates(dem)
     cap = 0.5 * min(dem.cell_e_m, dem.cell_n_m)
 
     def sample(s: F64, idx: I64) -> tuple[F64, F64, F64, F64, F64]:
@@ -1294,21 +1328,29 @@ def _reference_rays(dem: Dem, centre: F64, direction: F64) -> tuple[F64, F64, F6
         rising = np.einsum("ni,ni->n", d[idx], up) >= 0.0
         return e, n, h, h - dem.height_at(e, n), rising.astype(np.float64)
 
+    def rate_at(e: F64, n: F64) -> F64:
+        with np.errstate(invalid="ignore"):
+            x = np.nan_to_num((e - dem.first_easting_m) / dem.cell_e_m)
+            y = np.nan_to_num((dem.first_northing_m - n) / dem.cell_n_m)
+        c = np.clip(np.floor(x), 0, dem.cols - 2).astype(np.intp)
+        r = np.clip(np.floor(y), 0, dem.rows - 2).astype(np.intp)
+        return np.asarray(rates[r, c])
+
     m = centre.shape[0]
     s = np.zeros(m)
     lo = np.full(m, np.nan)
     hi = np.full(m, np.nan)
     active = np.ones(m, bool)
-    for _ in range(2_000_000):
+    for _ in range(REFERENCE_MAX_STEPS):
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
-        _, _, h, gap, rising = sample(s[idx], idx)
+        e, n, h, gap, rising = sample(s[idx], idx)
         above = h > high
         with np.errstate(invalid="ignore"):
             crossed = ~above & (gap <= 0.0)
             step = np.where(above, np.maximum(h - high, REFERENCE_MIN_STEP_M),
-                            np.clip(gap / rate, REFERENCE_MIN_STEP_M, cap))
+                            np.clip(gap / rate_at(e, n), REFERENCE_MIN_STEP_M, cap))
         miss = (above & (rising > 0.0)) | (~above & np.isnan(gap)) | (crossed & (s[idx] == 0.0))
         found = crossed & ~miss
         hi[idx[found]] = s[idx[found]]
@@ -1316,8 +1358,7 @@ def _reference_rays(dem: Dem, centre: F64, direction: F64) -> tuple[F64, F64, F6
         go = ~(miss | found)
         lo[idx[go]] = s[idx[go]]
         s[idx[go]] += step[go]
-    else:
-        raise RuntimeError("reference ray march did not finish")
+    unresolved = int(active.sum())
     ok = np.flatnonzero(np.isfinite(hi))
     a, b = lo[ok], hi[ok]
     while ok.size and float((b - a).max()) > REFERENCE_TOLERANCE_M:
@@ -1333,4 +1374,4 @@ def _reference_rays(dem: Dem, centre: F64, direction: F64) -> tuple[F64, F64, F6
         ee, nn, hh, gap, _ = sample(b, ok)
         good = np.isfinite(gap)
         e[ok[good]], n[ok[good]], h[ok[good]] = ee[good], nn[good], hh[good]
-    return e, n, h
+    return e, n, h, unresolved

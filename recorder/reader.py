@@ -6,9 +6,16 @@ Why it is built this way:
   half-written tail ends the file instead of becoming garbage; each record is parsed (by mcap)
   from its own bytes only, so a damaged inner length is skipped with its record and cannot eat
   the records after it. Each chunk is checked (length, CRC) before any of its messages is used;
-  a bad chunk is skipped and counted, a length beyond `record_size_limit` stops the file (a
-  corrupt length must not allocate gigabytes; nor may a compressed chunk inflate past its
-  declared size), unknown records are skipped.
+  a bad chunk is skipped and counted, unknown records are skipped. A length beyond
+  `record_size_limit` is never allocated (nor may a compressed chunk inflate past its declared
+  size).
+- Damage does not end the file. After a record that cannot be framed (a length beyond the limit
+  or the file: its header is damaged) or parsed, the reader resynchronises on the next record
+  it can trust: in a complete file, the next chunk, metadata record or summary that the summary
+  indexes (its CRC checked); without one (a file cut short), the next chunk whose framing is
+  consistent (its length, compression name and records length agree), or the footer. What lies
+  between is skipped and counted (`chunks_skipped`, `bytes_skipped`). When there is nothing to
+  resynchronise on, the file was cut short there: the end of what was written.
 - Channels are declared once, inside the chunk of their first message. When that chunk is
   damaged, the declarations come from the summary of a complete file (read when a message's
   channel is missing, CRC-checked),
@@ -24,6 +31,7 @@ Why it is built this way:
 from __future__ import annotations
 
 import base64
+import bisect
 import contextlib
 import dataclasses
 import io
@@ -40,9 +48,20 @@ import lz4.frame  # type: ignore[import-untyped]  # no stubs; mcap depends on it
 import numpy as np
 import numpy.typing as npt
 import zstandard
-from mcap.exceptions import McapError, RecordLengthLimitExceeded
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Footer, Header, McapRecord, Message, Metadata, Schema
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    Footer,
+    Header,
+    McapRecord,
+    Message,
+    Metadata,
+    MetadataIndex,
+    Schema,
+)
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from recorder.messages import LoggedMessage, Topic
@@ -73,6 +92,13 @@ _JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, Recursion
 _RECORD_HEAD: Final = 9  # opcode u8, length u64
 _FOOTER_BODY: Final = 20  # summary_start u64, summary_offset_start u64, summary_crc u32
 _KNOWN_OPCODES: Final = frozenset(int(op) for op in Opcode)
+# a Chunk's fixed fields: start and end time, uncompressed size u64; CRC u32; compression name
+# length u32; records length u64
+_CHUNK_FIXED: Final = 40
+_COMPRESSIONS: Final = frozenset({b"", b"lz4", b"zstd"})
+_CHUNK_PEEK: Final = _RECORD_HEAD + _CHUNK_FIXED + 4  # enough of a chunk to judge its framing
+_SCAN_BLOCK: Final = 2**20
+_DECLARATION_MAX: Final = 2**16  # the longest Schema or Channel record salvaged from damage
 
 PathArg = Path | str
 Paths = PathArg | Sequence[PathArg]
@@ -135,8 +161,9 @@ class FileStats:
     complete: bool = False  # the footer and the closing magic were read
     has_summary: bool = False
     chunks_read: int = 0
-    chunks_skipped: int = 0
+    chunks_skipped: int = 0  # damaged: a bad CRC, or unreadable and skipped over
     bytes_readable: int = 0  # up to the end of the last complete record
+    bytes_skipped: int = 0  # in damaged records and unreadable stretches the reader read past
     problems: list[str] = field(default_factory=list)
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
 
@@ -184,7 +211,7 @@ class LogStats:
 
 
 class _OverLimitError(ValueError):
-    """A length field beyond the record size limit: the file cannot be read past it."""
+    """A length field beyond the record size limit: refused before anything is allocated."""
 
 
 class _WholeRecords:
@@ -209,10 +236,14 @@ class _WholeRecords:
         self.position += n
         return data
 
+    def seek(self, position: int) -> None:
+        self._fh.seek(position)
+        self.position = position
+
 
 class _RecordBytes(io.BytesIO):
-    """One record's bytes. A field claiming more than the size limit stops the file as it does
-    in the file itself; a smaller one that overruns the record only damages the record."""
+    """One record's bytes. A field claiming more than the size limit is refused before it is
+    allocated; either it or a smaller one that overruns the record only damages the record."""
 
     def __init__(self, data: bytes, limit: int) -> None:
         super().__init__(data)
@@ -376,7 +407,9 @@ class _FileScan:
         self.limit = record_size_limit
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, ChannelInfo] = {}
-        self._summary_read = False  # its declarations, looked up once a channel is missing
+        self._summary: _Summary | None = None
+        self._summary_read = False  # looked up once: on damage, or once a channel is missing
+        self._summary_declared = False
 
     def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
         fs = self.fstats
@@ -384,51 +417,156 @@ class _FileScan:
             source = _WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
             fs.bytes_readable = source.position
             try:
-                for record in self._records(source):
-                    batch = self._on_record(record, source.position)
+                for start, record in self._records(fh, source):
+                    batch = self._on_record(record, start, source.position)
                     fs.bytes_readable = source.position
                     yield from batch
-            except _PARSE_ERRORS as exc:  # a length beyond the size limit: no way to go on
+            except _PARSE_ERRORS as exc:  # not expected: the records are parsed one by one
                 self._problem(f"unreadable record after byte {fs.bytes_readable}: {exc}")
             if fs.complete:
                 fs.bytes_readable = source.position
 
-    def _records(self, source: _WholeRecords) -> Iterator[object]:
-        """Top-level records, each parsed from its own bytes only, so damage inside a record (an
-        inner length gone wrong) is skipped with it instead of running on into the records
-        after it. Ends where the data does, or after the footer and the closing magic."""
+    def _records(self, fh: BinaryIO, source: _WholeRecords) -> Iterator[tuple[int, object]]:
+        """Top-level records with their offsets, each parsed from its own bytes only, so damage
+        inside a record (an inner length gone wrong) is skipped with it instead of running on
+        into the records after it. After a record that cannot be framed or parsed, reading goes
+        on at the next record the reader can trust (_resume_at), or at one the record before it
+        ran over (_overrun). Ends where the data does, or after the footer and the closing
+        magic."""
+        size = self.fstats.size_bytes
+        previous: int | None = None  # where the last record that framed began
         while True:
+            start = source.position
             head = source.read(_RECORD_HEAD)
             if not head:
                 return  # the end of what was written
             length = int.from_bytes(head[1:], "little")
-            if length > self.limit:
-                raise RecordLengthLimitExceeded(head[0], length, self.limit)
+            framed = length <= self.limit and length <= size - source.position
+            if previous is not None and not framed:
+                back = self._overrun(fh, previous, start)
+                if back is not None:
+                    source.seek(back)
+                    previous = None
+                    continue
+            if not framed:
+                resume = self._resume_at(fh, start, None)
+                if resume is None:  # nothing readable after it: the file was cut short here
+                    if length > self.limit:
+                        self._problem(f"unreadable record after byte {start}: "
+                                      f"{_length_problem(head[0], length, self.limit)}")
+                    return
+                self._skip(fh, start, resume, None, head[0],
+                           f"unreadable record at byte {start}: "
+                           f"{_length_problem(head[0], length, self.limit, size - start)}")
+                source.seek(resume)
+                previous = None
+                continue
             body = source.read(length)
             if len(body) != length:
-                return  # cut short inside the record
-            if head[0] not in _KNOWN_OPCODES:
-                continue  # a record type from a later MCAP version: skipped, as the spec says
+                return  # the file shrank as it was read
+            if head[0] not in _KNOWN_OPCODES:  # a record type from a later MCAP version:
+                previous = start  # skipped, as the spec says; unless the summary knows better
+                if self._indexes_chunk(start):
+                    self.fstats.chunks_skipped += 1
+                    self.fstats.bytes_skipped += source.position - start
+                    self._problem(f"chunk at byte {start} skipped: its opcode is damaged "
+                                  f"({head[0]:#04x})")
+                continue
             try:
                 record = next(_records(head + body, self.limit, emit_chunks=True))
-            except _OverLimitError:
-                raise
-            except _PARSE_ERRORS as exc:
-                if head[0] == Opcode.CHUNK:
-                    self.fstats.chunks_skipped += 1
-                self._problem(f"damaged record (opcode {head[0]:#04x}) ending at byte "
-                              f"{source.position} skipped: {exc}")
+            except (*_PARSE_ERRORS, _OverLimitError) as exc:
+                end = source.position
+                back = None if previous is None else self._overrun(fh, previous, start)
+                if back is not None:
+                    source.seek(back)
+                    previous = None
+                    continue
+                resume = self._resume_at(fh, start, end) or end  # at the latest, its end
+                self._skip(fh, start, resume, end, head[0],
+                           f"damaged record (opcode {head[0]:#04x}) ending at byte {end} "
+                           f"skipped: {exc}")
+                source.seek(resume)  # the search for it may have moved the file position
+                previous = None
                 continue
-            yield record
+            previous = start
+            yield start, record
             if isinstance(record, Footer):
                 self.fstats.complete = source.read(len(MCAP_MAGIC)) == MCAP_MAGIC
                 if not self.fstats.complete:
                     self._problem("no closing magic after the footer")
                 return
 
-    def _on_record(self, record: object, end: int) -> list[tuple[ChannelInfo, Message]]:
+    def _resume_at(self, fh: BinaryIO, start: int, end: int | None) -> int | None:
+        """Where to read on after the unreadable record at `start`. `end`: where it ends if its
+        length can be believed (it parsed no further). A complete file's summary (CRC-checked)
+        says where every chunk, metadata record and the summary begin; without one, the next
+        chunk whose framing is consistent, else the footer of a file that ends in one. None:
+        nothing readable after it."""
+        size = self.fstats.size_bytes
+        summary = self._summary_info()
+        if summary is not None:
+            i = bisect.bisect_right(summary.resume_points, start)
+            known = summary.resume_points[i] if i < len(summary.resume_points) else None
+            found = None
+        else:
+            known = next((p for p in _footer_points(fh, size) if p > start), None)
+            bound = known if known is not None else size
+            found = _find_chunk(fh, start + 1, min(bound, end or size), bound, self.limit)
+        points = [p for p in (found, known, end) if p is not None]
+        return min(points) if points else None
+
+    def _indexes_chunk(self, start: int) -> bool:
+        """Whether the summary of a complete file says a chunk begins at `start`."""
+        summary = self._summary_info()
+        if summary is None:
+            return False
+        i = bisect.bisect_left(summary.chunk_starts, start)
+        return i < len(summary.chunk_starts) and summary.chunk_starts[i] == start
+
+    def _overrun(self, fh: BinaryIO, previous: int, start: int) -> int | None:
+        """A record the reader can trust that begins inside the one read before the unreadable
+        record at `start` (from `previous`): that one's length was damaged to a larger value
+        that still framed, and it ran over the records after it. Read on there (what it ran
+        over was never read as records, so nothing is read twice); None if there is none."""
+        summary = self._summary_info()
+        if summary is not None:
+            i = bisect.bisect_right(summary.resume_points, previous)
+            back = summary.resume_points[i] if i < len(summary.resume_points) else None
+            back = back if back is not None and back < start else None
+        else:
+            known = next((p for p in _footer_points(fh, self.fstats.size_bytes)
+                          if p > previous), None)
+            bound = known if known is not None else self.fstats.size_bytes
+            back = _find_chunk(fh, previous + 1, min(start, bound), bound, self.limit)
+        if back is not None:
+            self._problem(f"the record at byte {previous} ran over the one at byte {back} (a "
+                          f"damaged length); read on there")
+        return back
+
+    def _skip(self, fh: BinaryIO, start: int, resume: int, end: int | None, opcode: int,
+              why: str) -> None:
+        """Count what lies between `start` and `resume` (`end`: where the record at `start`
+        ends, if its length could be believed): the chunks the summary indexes there; without
+        one, the record at `start` if it framed as a chunk, or a stretch whose first record
+        could not be framed (its header is damaged) as one chunk: nearly all of a flight log's
+        bytes are chunks."""
+        fs = self.fstats
+        fs.bytes_skipped += resume - start
+        if self._summary is not None:
+            starts = self._summary.chunk_starts
+            fs.chunks_skipped += bisect.bisect_left(starts, resume) - \
+                bisect.bisect_left(starts, start)
+        elif opcode == Opcode.CHUNK or end is None:
+            fs.chunks_skipped += 1
+        self._problem(why if resume == end else
+                      f"{why}; {resume - start} bytes skipped, read on at byte {resume}")
+        if self._summary is None:  # nothing else declares what it may have declared
+            self._salvage_stretch(fh, start, resume)
+
+    def _on_record(self, record: object, start: int, end: int
+                   ) -> list[tuple[ChannelInfo, Message]]:
         if isinstance(record, Chunk):
-            return self._chunk(record, end)
+            return self._chunk(record, start, end)
         if isinstance(record, Message):
             return self._message(record)
         self._declare(record)
@@ -450,12 +588,13 @@ class _FileScan:
                 schema.name if schema else "", schema.encoding if schema else "",
                 schema.data if schema else b"")
 
-    def _chunk(self, chunk: Chunk, end: int) -> list[tuple[ChannelInfo, Message]]:
+    def _chunk(self, chunk: Chunk, start: int, end: int) -> list[tuple[ChannelInfo, Message]]:
         """All the chunk's messages, or none if the chunk is damaged."""
         try:
             records = breakup_chunk(_uncompressed(chunk, self.limit), validate_crc=True)
         except _PARSE_ERRORS as exc:
             self.fstats.chunks_skipped += 1
+            self.fstats.bytes_skipped += end - start
             self._problem(f"chunk ending at byte {end} skipped: {exc}")
             self._salvage_declarations(chunk)
             return []
@@ -476,62 +615,174 @@ class _FileScan:
         try:
             data = _uncompressed(chunk, self.limit).data
             for record in _records(data, self.limit):
-                if isinstance(record, Schema) and _is_ours(record):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel) and record.id not in self.channels:
-                    schema = schemas.get(record.schema_id) or self.schemas.get(record.schema_id)
-                    if schema is not None and record.message_encoding == MESSAGE_ENCODING \
-                            and TOPIC_SCHEMAS.get(record.topic) == schema.name:
-                        self.schemas.setdefault(schema.id, schema)
-                        self._declare(record)
+                self._salvage(record, schemas)
         except (*_PARSE_ERRORS, _OverLimitError):
             return  # the damage itself: what came before it is kept
 
+    def _salvage_stretch(self, fh: BinaryIO, start: int, end: int) -> None:
+        """As _salvage_declarations, for a stretch of the file skipped as unreadable (a chunk
+        whose header is damaged): every whole Schema and Channel record found in it (SISA's
+        are far shorter than _DECLARATION_MAX), read a block at a time."""
+        schemas: dict[int, Schema] = {}
+        pos = start
+        while pos < end:
+            span = min(_SCAN_BLOCK, end - pos)
+            fh.seek(pos)
+            data = fh.read(min(span + _DECLARATION_MAX, end - pos))
+            for opcode in (Opcode.SCHEMA, Opcode.CHANNEL):  # a channel names an earlier schema
+                marker = opcode.to_bytes(1, "little")
+                i = data.find(marker, 0, span)
+                while i >= 0:
+                    length = int.from_bytes(data[i + 1:i + _RECORD_HEAD], "little")
+                    if length <= len(data) - i - _RECORD_HEAD:
+                        with contextlib.suppress(*_PARSE_ERRORS, _OverLimitError):
+                            record = data[i:i + _RECORD_HEAD + length]
+                            self._salvage(next(_records(record, self.limit)), schemas)
+                    i = data.find(marker, i + 1, span)
+            pos += span
+
+    def _salvage(self, record: McapRecord, schemas: dict[int, Schema]) -> None:
+        """Keep a schema of damaged data if it is exactly one SISA writes; declare a channel
+        if it is exactly what SISA writes for its topic, with such a schema."""
+        if isinstance(record, Schema) and _is_ours(record):
+            schemas[record.id] = record
+        elif isinstance(record, Channel) and record.id not in self.channels:
+            schema = schemas.get(record.schema_id) or self.schemas.get(record.schema_id)
+            if schema is not None and record.message_encoding == MESSAGE_ENCODING \
+                    and TOPIC_SCHEMAS.get(record.topic) == schema.name:
+                self.schemas.setdefault(schema.id, schema)
+                self._declare(record)
+
     def _message(self, msg: Message) -> list[tuple[ChannelInfo, Message]]:
         channel = self.channels.get(msg.channel_id)
-        if channel is None and not self._summary_read:  # its declaration was in a bad chunk
-            self._summary_read = True
-            with open_log(self.path) as fh:
-                for declared in _summary_declarations(fh, self.fstats.size_bytes, self.limit):
-                    self._declare(declared)
+        if channel is None and not self._summary_declared:  # declared in a damaged chunk
+            self._summary_declared = True
+            summary = self._summary_info()
+            for declared in summary.declarations if summary is not None else ():
+                self._declare(declared)
             channel = self.channels.get(msg.channel_id)
         if channel is None:
             self._problem(f"message on undeclared channel {msg.channel_id} skipped")
             return []
         return [(channel, msg)]
 
+    def _summary_info(self) -> _Summary | None:
+        if not self._summary_read:
+            self._summary_read = True
+            with open_log(self.path) as fh:
+                self._summary = _read_summary(fh, self.fstats.size_bytes, self.limit)
+        return self._summary
+
     def _problem(self, text: str) -> None:
         if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:
             self.fstats.problems.append(text)
 
 
-def _summary_declarations(fh: BinaryIO, size: int, limit: int) -> list[Schema | Channel]:
-    """The Schema and Channel records of the summary section, when the file ends in a footer
-    whose summary CRC checks; none otherwise (a file cut short, a damaged summary)."""
+def _length_problem(opcode: int, length: int, limit: int, room: int | None = None) -> str:
+    what = f"a record (opcode {opcode:#04x}) of {length} bytes"
+    if length > limit:
+        return f"{what} exceeds limit {limit}"
+    return f"{what} runs past the end of the file ({room} bytes from its start)"
+
+
+@dataclass(frozen=True)
+class _Summary:
+    """The summary section of a complete file, read only when its CRC checks."""
+
+    declarations: list[Schema | Channel]
+    chunk_starts: list[int]  # sorted
+    resume_points: list[int]  # sorted: chunks, metadata records, the summary, the footer
+
+
+def _footer(fh: BinaryIO, size: int) -> tuple[int, bytes] | None:
+    """(offset, bytes) of the footer record of a file that ends in one and the closing magic."""
     footer_at = size - len(MCAP_MAGIC) - _RECORD_HEAD - _FOOTER_BODY
     if footer_at <= len(MCAP_MAGIC):
-        return []
+        return None
     fh.seek(footer_at)
     footer = fh.read(_RECORD_HEAD + _FOOTER_BODY + len(MCAP_MAGIC))
     if footer[0] != Opcode.FOOTER or footer[-len(MCAP_MAGIC):] != MCAP_MAGIC or \
             int.from_bytes(footer[1:_RECORD_HEAD], "little") != _FOOTER_BODY:
+        return None
+    return footer_at, footer
+
+
+def _footer_points(fh: BinaryIO, size: int) -> list[int]:
+    """Where the summary section (when the footer gives a plausible start) and the footer of a
+    file that ends in a footer begin: places to read on at when its summary cannot be used."""
+    found = _footer(fh, size)
+    if found is None:
         return []
+    footer_at, footer = found
+    (summary_start,) = struct.unpack_from("<Q", footer, _RECORD_HEAD)
+    return [summary_start, footer_at] if len(MCAP_MAGIC) < summary_start < footer_at \
+        else [footer_at]
+
+
+def _read_summary(fh: BinaryIO, size: int, limit: int) -> _Summary | None:
+    """The summary section, when the file ends in a footer whose summary CRC checks; None
+    otherwise (a file cut short, a damaged summary)."""
+    found = _footer(fh, size)
+    if found is None:
+        return None
+    footer_at, footer = found
     summary_start, _, summary_crc = struct.unpack_from("<QQI", footer, _RECORD_HEAD)
     if not len(MCAP_MAGIC) < summary_start < footer_at or footer_at - summary_start > limit \
             or summary_crc == 0:
-        return []
+        return None
     fh.seek(summary_start)
     summary = fh.read(footer_at - summary_start)
     checked = footer[:_RECORD_HEAD + _FOOTER_BODY - 4]  # the footer up to its CRC field
     if zlib.crc32(checked, zlib.crc32(summary)) != summary_crc:
-        return []
-    out: list[Schema | Channel] = []
+        return None
+    declarations: list[Schema | Channel] = []
+    chunks: set[int] = set()
+    points = {summary_start, footer_at}
+    in_data = range(len(MCAP_MAGIC), summary_start)
     # it ends in EndOfFile (no footer in these bytes); its CRC has checked what came before
     with contextlib.suppress(*_PARSE_ERRORS, _OverLimitError):
         for record in _records(summary, limit):
             if isinstance(record, Schema | Channel):
-                out.append(record)
-    return out
+                declarations.append(record)
+            elif isinstance(record, ChunkIndex) and record.chunk_start_offset in in_data:
+                chunks.add(record.chunk_start_offset)
+            elif isinstance(record, MetadataIndex) and record.offset in in_data:
+                points.add(record.offset)
+    return _Summary(declarations, sorted(chunks), sorted(points | chunks))
+
+
+def _find_chunk(fh: BinaryIO, first: int, last: int, bound: int, limit: int) -> int | None:
+    """The offset of the first Chunk record that starts in [first, last), ends by `bound` and
+    whose framing is consistent; None if there is none."""
+    pos = first
+    while pos < last:
+        span = min(_SCAN_BLOCK, last - pos)
+        fh.seek(pos)
+        buf = fh.read(span + _CHUNK_PEEK)
+        i = buf.find(Opcode.CHUNK.to_bytes(1, "little"), 0, span)
+        while i >= 0:
+            if _chunk_framing(buf, i, bound - pos - i, limit):
+                return pos + i
+            i = buf.find(Opcode.CHUNK.to_bytes(1, "little"), i + 1, span)
+        pos += span
+    return None
+
+
+def _chunk_framing(buf: bytes, i: int, room: int, limit: int) -> bool:
+    """Whether a Chunk record at buf[i] frames consistently: its length fits in `room` and the
+    limit, its compression is one MCAP names, and its records length is what is left of it.
+    Random bytes, or a message's bytes, pass with odds of about 2^-64."""
+    if len(buf) - i < _RECORD_HEAD + _CHUNK_FIXED - 8:
+        return False
+    length, _, _, uncompressed, _, name_len = struct.unpack_from("<QQQQII", buf, i + 1)
+    if not _CHUNK_FIXED <= length <= min(limit, room - _RECORD_HEAD) or uncompressed > limit \
+            or len(buf) - i < _RECORD_HEAD + _CHUNK_FIXED + name_len:
+        return False
+    at = i + _RECORD_HEAD + _CHUNK_FIXED - 8
+    if buf[at:at + name_len] not in _COMPRESSIONS:
+        return False
+    (records_len,) = struct.unpack_from("<Q", buf, at + name_len)
+    return bool(records_len == length - _CHUNK_FIXED - name_len)
 
 
 def _is_ours(schema: Schema) -> bool:

@@ -33,11 +33,14 @@ class RecoverReport:
     input_complete: bool
     bytes_unreadable: int  # bytes of the input after its last complete record
     problems: list[str] = field(default_factory=list)
+    bytes_skipped: int = 0  # bytes of damaged records and unreadable stretches read past
 
     def summary(self) -> str:
         """One line for the terminal."""
         state = "complete" if self.input_complete else "truncated (no summary)"
         skipped = f", {self.chunks_skipped} damaged chunks skipped" if self.chunks_skipped else ""
+        if self.bytes_skipped:
+            skipped += f", {self.bytes_skipped} damaged bytes skipped"
         tail = f", {self.bytes_unreadable} bytes unreadable" if self.bytes_unreadable else ""
         return (f"{self.out_path}: {self.messages} messages on {len(self.topics)} topics from "
                 f"{self.chunks_read} chunks of {self.in_path} ({state}{skipped}{tail})")
@@ -77,7 +80,8 @@ class _Copier:
         self.mcap.add_metadata("sisa.recovered", {
             "source": in_path.name, "source_complete": str(fs.complete).lower(),
             "chunks_read": str(fs.chunks_read), "chunks_skipped": str(fs.chunks_skipped),
-            "bytes_unreadable": str(fs.bytes_unreadable), "by": RECORDER_ID})
+            "bytes_unreadable": str(fs.bytes_unreadable),
+            "bytes_skipped": str(fs.bytes_skipped), "by": RECORDER_ID})
         self.mcap.finish()  # type: ignore[no-untyped-call]
 
 
@@ -111,4 +115,5 @@ def _report(src: Path, out: Path, stats: LogStats) -> RecoverReport:
     fs = stats.files[0]
     return RecoverReport(src, out, stats.messages,
                          {t: s.count for t, s in stats.topics.items()}, fs.chunks_read,
-                         fs.chunks_skipped, fs.complete, fs.bytes_unreadable, list(fs.problems))
+                         fs.chunks_skipped, fs.complete, fs.bytes_unreadable, list(fs.problems),
+                         fs.bytes_skipped)

@@ -116,16 +116,17 @@ def test_unknown_records_are_skipped(flight, tmp_path):
     assert scan_log(odd).messages == scan_log(flight).messages
 
 
-def test_a_huge_record_length_stops_the_file_without_allocating_it(flight, tmp_path):
+def test_a_huge_record_length_is_skipped_without_allocating_it(flight, tmp_path):
     data = bytearray(flight.read_bytes())
-    victim = _chunk_offsets(data)[3]
-    struct.pack_into("<Q", data, victim + 1, 2**62)
+    chunks = _chunk_offsets(data)
+    struct.pack_into("<Q", data, chunks[3] + 1, 2**62)
     bad = tmp_path / "huge.mcap"
     bad.write_bytes(bytes(data))
     fs = scan_log(bad).files[0]
-    assert fs.chunks_read == 3
+    assert fs.chunks_read == len(chunks) - 1  # read on at the next chunk (test_reader_damage)
+    assert fs.chunks_skipped == 1
     assert "exceeds limit" in fs.problems[0]
-    assert fs.truncated
+    assert fs.complete
 
 
 def test_a_huge_length_inside_a_chunk_header_is_refused_too(flight, tmp_path):
@@ -136,7 +137,8 @@ def test_a_huge_length_inside_a_chunk_header_is_refused_too(flight, tmp_path):
     bad = tmp_path / "huge2.mcap"
     bad.write_bytes(bytes(data))
     fs = scan_log(bad).files[0]
-    assert fs.chunks_read == 4
+    assert fs.chunks_read == len(_chunk_offsets(data)) - 1  # that chunk alone is lost
+    assert fs.chunks_skipped == 1
     assert "exceeds the limit" in fs.problems[0]
 
 

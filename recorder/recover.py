@@ -18,8 +18,14 @@ from mcap.records import Message
 from mcap.writer import CompressionType, Writer
 
 from recorder.reader import ChannelInfo, LogReader, LogStats
-from recorder.writer import DEFAULT_CHUNK_SIZE, RECORDER_ID, fsync_dir, link_new
-from sisa.errors import InputError, RecorderError
+from recorder.writer import (
+    DEFAULT_CHUNK_SIZE,
+    RECORDER_ID,
+    fsync_dir,
+    link_new,
+    refuse_existing,
+)
+from sisa.errors import RecorderError
 
 
 @dataclass(frozen=True)
@@ -88,10 +94,7 @@ class _Copier:
 def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
     """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`."""
     src, out = Path(in_path), Path(out_path)
-    if out.exists():
-        raise InputError(f"{out} already exists: recover never overwrites")
-    if not out.parent.is_dir():
-        raise InputError(f"{out.parent} is not a folder")
+    refuse_existing(out)
     reader = LogReader(src)  # InputError if missing or not MCAP
     tmp = out.with_name(f".{out.name}.partial-{os.getpid()}")
     try:

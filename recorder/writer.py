@@ -351,7 +351,7 @@ class FlightRecorder:
                  metadata: Mapping[str, object] | None = None) -> None:
         _check_settings(split_duration_s, split_size_bytes, flush_interval_s, chunk_size)
         self.path = Path(path)
-        _refuse_existing(self.path)
+        refuse_existing(self.path)
         self._split_ns = None if split_duration_s is None else round(split_duration_s * 1e9)
         self._split_bytes = split_size_bytes
         self._flush_interval_s = flush_interval_s
@@ -517,8 +517,9 @@ def _check_settings(split_duration_s: float | None, split_size_bytes: int | None
         raise ConfigError(f"chunk_size must be >= 1024 bytes (got {chunk_size})")
 
 
-def _refuse_existing(path: Path) -> None:
-    """A stale part beside a new recording would join it when the set is read back."""
+def refuse_existing(path: Path) -> None:
+    """A new log never replaces a file, and a stale part beside it would join it when the set
+    is read back (readers find a log's numbered parts beside its first)."""
     if path.exists():
         raise InputError(f"{path} already exists: recordings are never overwritten")
     stale = split_parts(path)

@@ -52,6 +52,7 @@ def inputs(tmp_path: Path, valid_log: Path) -> Path:
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "keep.txt").write_text("mine\n")
     (tmp_path / "flight.mcap").write_bytes(valid_log.read_bytes())
+    (tmp_path / "stale_001.mcap").write_bytes(b"")  # a part left from another recording
     return tmp_path
 
 
@@ -164,6 +165,8 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
           "--gps and --scanner", "same device"),
     # a traceback from the scratch folder's mkdir
     _case("sync {d}/flight.mcap --out /proc/sisa-out", "cannot write in /proc"),
+    # wrote a log beside a stale part that readers then joined to it
+    _case("log recover {d}/flight.mcap {d}/stale.mcap", "{d}/stale_001.mcap already exists"),
     # counted every message twice
     _case("log info {d}/flight.mcap {d}/flight.mcap", "{d}/flight.mcap is given twice"),
     _case("sync {d}/flight.mcap {d}/folder/../flight.mcap --out {d}/s", "is given twice"),

@@ -76,6 +76,8 @@ def _file_line(fs: FileStats) -> str:
             state += f", last {fs.bytes_unreadable} bytes unreadable"
     if fs.chunks_skipped:
         state += f"; {fs.chunks_skipped} damaged chunks skipped"
+    if fs.bytes_skipped:
+        state += f" ({fs.bytes_skipped} damaged bytes passed over)"
     meta = fs.metadata.get("sisa.recording", {})
     extra = ", ".join(f"{k}={v}" for k, v in meta.items() if k not in ("first_part",))
     lines = [f"{fs.path}: {size}, {state}"] + ([f"  {extra}"] if extra else [])

@@ -240,6 +240,7 @@ def test_log_info_and_recover_on_a_damaged_complete_log(log, tmp_path, capsys, w
     assert "complete (summary present)" in out
     assert "truncated" not in out
     assert f"; {len(lost)} damaged chunks skipped" in out
+    assert "damaged bytes passed over)" in out
     expected = log.expected(lost)
     assert f"{len(expected)} messages on 4 topics" in out
     saved = tmp_path / "recovered.mcap"

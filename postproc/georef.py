@@ -8,6 +8,11 @@ The log is read once (sync and navigation columns in one pass). Each segment is 
 blocks of `block_lines` lines, and each product is written block by block or tile by tile, so
 memory is bounded by the navigation arrays and one block, not by the length of the flight.
 Nothing here reads simulation truth.
+
+A trajectory that covers only part of the flight (an external file, a log cut short) georeferences
+what it covers: lines without a pose are NaN like lines without a time, a segment with no pose
+at all is skipped, each said in `result.warnings` and the summary's `skipped`; only when no
+segment has a pose does the job fail, naming the trajectory's and the lines' time spans.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import functools
 import json
 import math
 import warnings
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -31,7 +37,13 @@ from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import IgmWriter, write_geolocation_vrt
 from postproc.mosaic import mosaic
-from postproc.navigation import NAV_WANTED, Trajectory, nav_from_columns
+from postproc.navigation import (
+    NAV_WANTED,
+    NavConfig,
+    PiecewiseTrajectory,
+    Trajectory,
+    nav_from_columns,
+)
 from postproc.ortho import OrthoGrid, Progress, SwathIndex, nice_cell_m, orthorectify
 from postproc.quicklook import write_quicklook
 from postproc.raycast import intersect
@@ -42,15 +54,17 @@ from postproc.syncconfig import TimeStatus
 from postproc.syncio import read_scanner_lines, write_ins_times, write_line_times, write_report
 from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
-from postproc.trajfiles import read_trajectory_file
+from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
 from recorder.reader import Paths, read_topics
 from sisa.errors import InputError
+from sisa.timescale import NS_PER_DAY, NS_PER_S, datetime_from_gps_ns, gps_week_and_tow_ns
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 BLOCK_LINES: Final = 4096
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
+SPANS_IN_MESSAGE: Final = 3  # stretches of lines a warning names (the summary has them all)
 
 
 @dataclass(frozen=True)
@@ -63,6 +77,9 @@ class GeorefOptions:
     trajectory: Path | None = None  # RTKLIB .pos or Applanix SBET instead of the log's GPS
     block_lines: int = BLOCK_LINES
     products: bool = True  # ortho, GLT, mosaic, quicklooks (the IGM and EO are always made)
+    leap_seconds: int | None = None  # GPS − UTC for a .pos on UTC/JST; default: the log's
+    leap_seconds_fallback: int | None = None  # when neither is known (a run's scenario)
+    max_gap_s: float | None = None  # longest gap bridged: SBET records / GPS fixes (by the INS)
 
 
 @dataclass
@@ -82,6 +99,42 @@ class SegmentResult:
     files: dict[str, str] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class LineSpan:
+    """A stretch of a segment's lines (first to last, inclusive) and their GPS times."""
+
+    first_line: int
+    last_line: int
+    t_first_gps_ns: int
+    t_last_gps_ns: int
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"first_line": self.first_line, "last_line": self.last_line,
+                "t_first_gps_ns": self.t_first_gps_ns, "t_last_gps_ns": self.t_last_gps_ns,
+                "gps_time": gps_span_label(self.t_first_gps_ns, self.t_last_gps_ns)}
+
+
+@dataclass(frozen=True)
+class SegmentSkip:
+    """Lines of a segment that were not georeferenced for want of a time or a pose (a whole
+    segment: nothing made for it)."""
+
+    segment: int
+    lines: int
+    lines_timed: int
+    lines_skipped: int
+    whole_segment: bool
+    reason: str  # "no line time" | "no pose"
+    spans: tuple[LineSpan, ...]  # timed lines without a pose
+    message: str
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"segment": self.segment, "lines": self.lines, "lines_timed": self.lines_timed,
+                "lines_skipped": self.lines_skipped, "whole_segment": self.whole_segment,
+                "reason": self.reason, "spans": [sp.as_dict() for sp in self.spans],
+                "message": self.message}
+
+
 @dataclass
 class GeorefResult:
     sync: SyncResult
@@ -91,6 +144,27 @@ class GeorefResult:
     segments: list[SegmentResult]
     mosaic: Path | None
     summary: dict[str, Any]
+    skipped: list[SegmentSkip] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def gps_span_label(t0_ns: int, t1_ns: int) -> str:
+    """'2026-06-15T09:00:00 to 09:05:10 GPS (week 2423, 118800.0 to 119110.0 s)' (ASCII, as
+    every message)."""
+    a = datetime_from_gps_ns(t0_ns).isoformat(timespec="seconds")
+    b = datetime_from_gps_ns(t1_ns).isoformat(timespec="seconds")
+    (w0, s0), (w1, s1) = gps_week_and_tow_ns(t0_ns), gps_week_and_tow_ns(t1_ns)
+    when = f"{a} to {b[11:]}" if a[:10] == b[:10] else f"{a} to {b}"
+    week = (f"week {w0}, {s0 / NS_PER_S:.1f} to {s1 / NS_PER_S:.1f} s" if w0 == w1 else
+            f"week {w0} {s0 / NS_PER_S:.1f} s to week {w1} {s1 / NS_PER_S:.1f} s")
+    return f"{when} GPS ({week})"
+
+
+def _duration_label(ns: int) -> str:
+    s = abs(ns) / NS_PER_S
+    if s >= 86_400:
+        return f"{s / 86_400:.2f} days"
+    return f"{s / 3600:.2f} h" if s >= 3600 else f"{s:.1f} s"
 
 
 def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
@@ -128,29 +202,114 @@ class GeorefJob:
         self.out = Path(out_dir)
         self.opt = options
         self.dem_epsg, self.dem_bounds = dem_extent(options.dem)
-        self.epsg = options.epsg or self.dem_epsg
-        try:
-            crs = CRS.from_epsg(self.epsg)
-        except Exception:  # pyproj raises CRSError subclasses of several kinds
-            raise InputError(f"EPSG:{self.epsg}: unknown CRS") from None
-        if not crs.is_projected:
-            raise InputError(f"EPSG:{self.epsg}: products need a projected CRS (metres)")
+        self.epsg = self.dem_epsg if options.epsg is None else options.epsg
+        check_output_crs(self.epsg)
         self._to_out = (None if self.epsg == self.dem_epsg else
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
+        self.warnings: list[str] = []
+        self.trajectory_info: dict[str, Any] = {}
 
     # -- the steps ---------------------------------------------------------------------------
 
     def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
         lines = read_scanner_lines(self.scanner_dir)
-        cols = read_topics(self.flight, merged_wanted(SYNC_WANTED, NAV_WANTED))
+        wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
+        cols = read_topics(self.flight, merged_wanted(*wanted))
         result = synchronise(sync_input_from_columns(cols), lines)
         mounting = self.opt.sensor.mounting
+        info = self.trajectory_info
         if self.opt.trajectory is not None:
+            info["source"] = str(self.opt.trajectory)
             traj = read_trajectory_file(self.opt.trajectory, cols, result.ins,
-                                        antenna_offset_m=mounting.antenna_offset_m)
+                                        antenna_offset_m=mounting.antenna_offset_m,
+                                        leap_seconds=self.opt.leap_seconds,
+                                        fallback_leap_seconds=self.opt.leap_seconds_fallback,
+                                        max_gap_s=self.opt.max_gap_s, report=info)
+            self.warnings += info.pop("warnings", [])
         else:
-            traj = nav_from_columns(cols, result.ins, antenna_offset_m=mounting.antenna_offset_m)
+            info["source"] = "flight log"
+            config = None if self.opt.max_gap_s is None else NavConfig(
+                max_gps_gap_s=self.opt.max_gap_s)
+            traj = nav_from_columns(cols, result.ins, antenna_offset_m=mounting.antenna_offset_m,
+                                    config=config)
+        info["t_first_gps_ns"], info["t_last_gps_ns"] = (int(t) for t in traj.span_ns)
+        info["gps_time"] = gps_span_label(*traj.span_ns)
+        if isinstance(traj, PiecewiseTrajectory):
+            info["gaps"] = [{"t_first_gps_ns": a, "t_last_gps_ns": b}
+                            for a, b in traj.gaps_ns()]
         return result, traj
+
+    @property
+    def trajectory_name(self) -> str:
+        if self.opt.trajectory is not None:
+            return f"the trajectory {self.opt.trajectory}"
+        return "the flight log's navigation"
+
+    def trajectory_span_label(self, traj: Trajectory) -> str:
+        gaps = len(traj.gaps_ns()) if isinstance(traj, PiecewiseTrajectory) else 0
+        return gps_span_label(*traj.span_ns) + (f", {gaps} gaps inside" if gaps else "")
+
+    def coverage(self, result: SyncResult, traj: Trajectory, segment: int, eo: LineEo,
+                 t_gps_ns: I64) -> SegmentSkip | None:
+        """What of the segment cannot be georeferenced for want of a time or a pose; None if
+        every timed line has a pose (lines without a time alone are as before: NaN)."""
+        n = t_gps_ns.size
+        timed = t_gps_ns >= 0
+        if not timed.any():
+            sel = result.lines.segment == segment
+            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ")
+                          for v in result.lines.status[sel] if v != TimeStatus.OK)
+            if n > int(sel.sum()):
+                why["not in the lines file"] += n - int(sel.sum())
+            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
+            return SegmentSkip(segment, n, 0, n, True, "no line time", (),
+                               f"segment {segment}: skipped, none of its {n} lines has a GPS "
+                               f"time (sync: {said or 'no line'})")
+        rows = np.flatnonzero(timed)
+        missing = ~eo.valid[rows]
+        if not missing.any():
+            return None
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], missing.view(np.int8), [0]])))
+        spans = tuple(LineSpan(int(rows[a]), int(rows[b - 1]), int(t_gps_ns[rows[a]]),
+                               int(t_gps_ns[rows[b - 1]]))
+                      for a, b in zip(edges[::2], edges[1::2], strict=True))
+        said = "; ".join(f"lines {sp.first_line}-{sp.last_line}, "
+                         f"{gps_span_label(sp.t_first_gps_ns, sp.t_last_gps_ns)}"
+                         for sp in spans[:SPANS_IN_MESSAGE])
+        if len(spans) > SPANS_IN_MESSAGE:
+            said += f"; and {len(spans) - SPANS_IN_MESSAGE} more stretches"
+        whole = not eo.valid.any()
+        k = int(missing.sum())
+        head = (f"segment {segment}: skipped, none of its {k} timed lines has a pose" if whole
+                else f"segment {segment}: {k} of {n} lines not georeferenced, no pose")
+        return SegmentSkip(
+            segment, n, int(timed.sum()), n if whole else k, whole, "no pose", spans,
+            f"{head} ({said}): outside {self.trajectory_name} "
+            f"({self.trajectory_span_label(traj)})")
+
+    def no_overlap_error(self, result: SyncResult, traj: Trajectory) -> InputError:
+        """No segment has a line with a time and a pose: the one line that says why."""
+        ln = result.lines
+        t = ln.t_gps_ns[(ln.status == TimeStatus.OK) & (ln.t_gps_ns >= 0)]
+        if t.size == 0:
+            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ") for v in ln.status)
+            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
+            return InputError(f"no scan line could be put on GPS time (sync: "
+                              f"{said or 'no line in the lines files'}), against "
+                              f"{self.trajectory_name} ({self.trajectory_span_label(traj)}): "
+                              "nothing to georeference")
+        (a0, a1), b0, b1 = traj.span_ns, int(t.min()), int(t.max())
+        if a1 < b0:
+            where = f"it ends {_duration_label(b0 - a1)} before the first line"
+        elif a0 > b1:
+            where = f"it starts {_duration_label(a0 - b1)} after the last line"
+        else:
+            where = "no line falls inside its valid stretches"
+        days = round((a0 - b0) / NS_PER_DAY)
+        if days and abs(a0 - b0 - days * NS_PER_DAY) < 2 * 3600 * NS_PER_S:
+            where += f"; {abs(days)} days apart: a file of another day?"
+        return InputError(f"{self.trajectory_name} ({self.trajectory_span_label(traj)}) does "
+                          f"not cover the scan lines ({gps_span_label(b0, b1)}): {where}")
 
     def write_sync(self, result: SyncResult) -> None:
         sync_dir = self.out / "sync"
@@ -196,8 +355,8 @@ class GeorefJob:
         the DEM's lowest and highest heights, plus a margin."""
         look = self.opt.sensor.scanner.look_vectors_camera()
         pick = np.flatnonzero(eo.valid)[::64]
-        if pick.size == 0:
-            raise InputError("no line of the segment has a time and a pose")
+        if pick.size == 0:  # run() skips such segments
+            raise InputError("no line of the segment has a time and a pose: no DEM window")
         h_lo, h_hi = self.dem_height_range_m
         to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
         to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
@@ -301,9 +460,19 @@ class GeorefJob:
         if on_total is not None:
             on_total(sum(shapes[s][0] for s in segments))
         done: list[SegmentResult] = []
+        skipped: list[SegmentSkip] = []
         for s in segments:
             eo, t = self.segment_eo(result, traj, s, shapes[s][0])
+            if (skip := self.coverage(result, traj, s, eo, t)) is not None:
+                skipped.append(skip)
+                self.warnings.append(skip.message)
+            if not eo.valid.any():
+                if progress is not None:
+                    progress(shapes[s][0])
+                continue
             done.append(self.georeference_segment(s, eo, t, images[s], progress))
+        if not done:
+            raise self.no_overlap_error(result, traj)
         cell_m = self.opt.cell_m or nice_cell_m(
             float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
                             or [math.nan])))
@@ -327,9 +496,13 @@ class GeorefJob:
             write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
         summary = self._summary(result, done, cell_m)
         summary["strip_registration"] = self.registrations(done)
+        summary["trajectory"] = self.trajectory_info
+        summary["skipped"] = [skip.as_dict() for skip in skipped]
+        summary["warnings"] = list(self.warnings)
         (self.out / "georef_summary.json").write_text(json.dumps(summary, indent=1) + "\n",
                                                        encoding="utf-8")
-        return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary)
+        return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
+                            skipped, list(self.warnings))
 
     def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
         """Shift between every pair of overlapping segment orthos (cells and metres)."""
@@ -362,6 +535,24 @@ class GeorefJob:
             "ins_records_timed": int((result.ins.status == TimeStatus.OK).sum()),
             "ins_records": int(result.ins.status.size),
         }
+
+
+def check_output_crs(epsg: int) -> CRS:
+    """The output CRS of an EPSG code: projected, every axis in metres; else InputError."""
+    if epsg <= 0:
+        raise InputError(f"EPSG:{epsg}: not a valid EPSG code (a positive integer)")
+    try:
+        crs = CRS.from_epsg(epsg)
+    except Exception:  # pyproj raises CRSError subclasses of several kinds
+        raise InputError(f"EPSG:{epsg}: unknown CRS") from None
+    if not crs.is_projected:
+        raise InputError(f"EPSG:{epsg} ({crs.name}): products need a projected CRS (metres)")
+    units = {(a.unit_name, a.unit_conversion_factor) for a in crs.axis_info}
+    if not units or any(factor != 1.0 for _, factor in units):
+        said = ", ".join(sorted({name for name, _ in units})) or "none"
+        raise InputError(f"EPSG:{epsg} ({crs.name}): axes in {said}: products need a projected "
+                         "CRS in metres")
+    return crs
 
 
 def _median(parts: list[F64]) -> float:

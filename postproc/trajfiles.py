@@ -4,17 +4,20 @@
   fused with the log's INS attitude and velocities exactly as the log's NMEA fixes are
   (`postproc.navigation.fuse_ins_gps`). Read as RTKLIB writes it: `%` header lines, then one
   solution per line: time as `yyyy/mm/dd hh:mm:ss.sss` or `week tow`, on the scale the column
-  header names (GPST; UTC or JST converted with the leap-second count you give), position as
+  header names (GPST; UTC or JST converted with the leap-second count: given, or else told by
+  the flight log's receiver messages, `leap_seconds_from_log`), position as
   latitude/longitude (degrees, or `ddd mm ss.sssss`) and ellipsoidal height, or ECEF x/y/z; then
   Q, ns, three standard deviations and more columns (ignored). Files with geoid heights, the
-  Tokyo datum or e/n/u baselines are refused.
+  Tokyo datum or e/n/u baselines are refused. The file may be UTF-8 (with or without a BOM),
+  Latin-1 or UTF-16 with a BOM: only its `%` comments may hold other than ASCII.
 - **Applanix SBET** (`sbet_*.out`): little-endian records of 17 float64 — time (GPS seconds of
   week), latitude, longitude (rad), ellipsoidal height (m), x/y/z velocity (wander frame),
   roll, pitch, platform heading, wander angle (rad), x/y/z body acceleration, x/y/z body
   angular rate. True heading = platform heading − wander angle. An SBET is a full navigation
   solution of the INS centre (pass `reference_offset_m` if yours refers to another point);
   attitude goes through a rotation spline, position through a cubic spline of ECEF (so the SBET
-  must keep its native rate, ≥ 50 Hz, for millimetre positions; its velocities are not used).
+  must keep its native rate, ≥ 50 Hz, for millimetre positions; its velocities are not used;
+  records further apart than `max_gap_s`, default 0.25 s, are a gap, never interpolated).
   The GPS week is not in the file: each record gets the week that puts the first record within
   ±3.5 days of a reference GPS time (the flight log's first time), and a later drop of more
   than half a week is a week rollover.
@@ -24,6 +27,7 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from collections import Counter
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,7 +58,13 @@ from postproc.syncconfig import TimeStatus
 from recorder.messages import Topic
 from sisa.errors import InputError
 from sisa.frames import body_to_ned_matrix
-from sisa.timescale import NS_PER_S, NS_PER_WEEK, gps_ns_from_datetime, seconds_since
+from sisa.timescale import (
+    NS_PER_DAY,
+    NS_PER_S,
+    NS_PER_WEEK,
+    gps_ns_from_datetime,
+    seconds_since,
+)
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -68,6 +78,21 @@ SBET_FIELDS: Final = (
 SBET_DTYPE: Final = np.dtype([(name, "<f8") for name in SBET_FIELDS])
 SBET_RECORD_BYTES: Final = SBET_DTYPE.itemsize  # 136
 SBET_MAX_GAP_S: Final = 0.25
+LEAP_SECONDS_RANGE: Final = (0, 60)  # GPS − UTC: 0 in 1980, 18 since 2017
+LEAP_HINT: Final = "--leap-seconds N: GPS - UTC, 18 s since 2017"
+TIME_SCALES: Final = ("GPST", "UTC", "JST")
+# what `leap_seconds_from_log` reads: the receiver's PTT tags (GPS) and GGA/RMC/ZDA bytes (UTC)
+TRAJ_WANTED: Final[dict[str, tuple[str, ...]]] = {
+    Topic.GPS_RAW: ("t_host_ns", "data"), Topic.GPS_TIME_TAG: ("t_host_ns", "kind", "t_gps_ns")}
+_NMEA_UTC: Final = re.compile(  # the UTC time of a GGA/RMC/ZDA: $, body (checksummed), *hh
+    rb"\$((?:GP|GN|GL|GA|GB|BD)(?:GGA|RMC|ZDA),(\d{2})(\d{2})(\d{2})(?:\.(\d+))?,[^*$]*)"
+    rb"\*([0-9A-Fa-f]{2})")
+_NMEA_MAX_BYTES: Final = 256  # an unfinished sentence kept between reads (NMEA: 82)
+_UTF8_BOM: Final = b"\xef\xbb\xbf"
+_UTF16_BOMS: Final = (b"\xff\xfe", b"\xfe\xff")
+_TEXT_PROBE_BYTES: Final = 4096
+# bytes a text file never holds: C0 controls other than tab, LF, VT, FF, CR, and DEL
+_NOT_TEXT: Final = bytes(b for b in range(32) if b not in b"\t\n\x0b\x0c\r") + b"\x7f"
 _LAYOUTS: Final = (("latitude(d'\")", "dms"), ("latitude(deg)", "deg"), ("x-ecef(m)", "xyz"))
 _DATE: Final = re.compile(r"(\d{2,4})/(\d{1,2})/(\d{1,2})")
 _CLOCK: Final = re.compile(r"(\d{1,2}):(\d{1,2}):(\d{1,2})(?:\.(\d{0,9}))?")
@@ -135,14 +160,50 @@ def _header(fmt: _PosFormat, text: str, where: str, leap_seconds: int | None) ->
         fmt.layout = layout
         after = text[at + len(label):at + len(label) + 1]
         fmt.sep = after if after and not after.isspace() else " "
-        scale = text[1:].split()[0] if text[1:].split() else ""
-        if scale not in ("GPST", "UTC", "JST"):
+        scale = _scale_of(text)
+        if scale not in TIME_SCALES:
             raise InputError(f"{where}: unknown time scale {scale!r} (GPST, UTC or JST)")
         if scale != "GPST" and leap_seconds is None:
-            raise InputError(f"{where}: times are {scale}: give the leap-second count")
+            raise InputError(f"{where}: times are {scale}: give the leap-second count "
+                             f"({LEAP_HINT})")
         leap_ns = (leap_seconds or 0) * NS_PER_S
         fmt.offset_ns = {"GPST": 0, "UTC": leap_ns, "JST": leap_ns - JST_OFFSET_NS}[scale]
         return
+
+
+def _scale_of(column_header: str) -> str:
+    words = column_header[1:].split()
+    return words[0] if words else ""
+
+
+def _decode_text(raw: bytes) -> str:
+    """The text of a `.pos` file: UTF-8 (a BOM dropped), UTF-16 with a BOM, else Latin-1 (a
+    Windows path in a comment line); RTKLIB's own lines are ASCII in all of them."""
+    if raw.startswith(_UTF16_BOMS):
+        return raw.decode("utf-16")
+    body = raw.removeprefix(_UTF8_BOM)
+    try:
+        return body.decode("utf-8")
+    except UnicodeDecodeError:
+        return body.decode("latin-1")
+
+
+def pos_time_scale(path: Path | str) -> str | None:
+    """The time scale a `.pos` file's column header names (GPST, UTC, JST), None without one."""
+    path = Path(path)
+    try:
+        text = _decode_text(path.read_bytes())
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable text file: {exc}") from None
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line.startswith("%"):
+            if line:
+                break
+            continue
+        if any(label in line for label, _ in _LAYOUTS):
+            return _scale_of(line)
+    return None
 
 
 def _dms_deg(d: str, m: str, s: str) -> float:
@@ -178,7 +239,7 @@ def read_rtklib_pos(path: Path | str, *, leap_seconds: int | None = None) -> Rtk
     """Every solution of an RTKLIB `.pos` file; InputError (file:line: problem) if malformed."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = _decode_text(path.read_bytes())
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a readable text file: {exc}") from None
     fmt = _PosFormat()
@@ -311,9 +372,17 @@ def sbet_trajectory(path: Path | str, reference_gps_ns: int, *,
                     _SplinePosition(make_interp_spline(t_s[lo:hi], ins[lo:hi] - origin, k=3)))
               for lo, hi in runs(sb.t_gps_ns, max_gap_s) if hi - lo >= MIN_RECORDS]
     if not pieces:
-        raise InputError(f"{path}: no {MIN_RECORDS} records without a gap over {max_gap_s} s: "
-                         "is it decimated? (give a larger max gap)")
+        rate = _median_rate_hz(sb.t_gps_ns)
+        raise InputError(f"{path}: no {MIN_RECORDS} records without a gap over {max_gap_s:g} s "
+                         f"(records at {rate:.3g} Hz): is it decimated? An SBET should keep its "
+                         "native rate (>= 50 Hz); --max-gap-s S bridges longer gaps, less "
+                         "accurately")
     return PiecewiseTrajectory(epoch, origin, pieces)
+
+
+def _median_rate_hz(t_ns: I64) -> float:
+    step = np.diff(t_ns)
+    return NS_PER_S / float(np.median(step)) if step.size else 0.0
 
 
 # --- either, for the pipeline -----------------------------------------------------------------
@@ -330,27 +399,150 @@ def _reference_gps_ns(columns: dict[str, Columns], ins_times: InsTimes) -> int:
 
 
 def _is_text(path: Path) -> bool:
+    """Text (a `.pos`) or binary (an SBET: 136-byte records of float64, whose bytes hold
+    every value, control bytes among them). Text: a BOM (UTF-8 or UTF-16), or else no control
+    byte other than tab/CR/LF/FF/VT and lines (a line end in the first 4 KB, unless the file is
+    shorter). Bytes over 127 are allowed: UTF-8 or Latin-1 comments."""
     try:
         with path.open("rb") as fh:
-            head = fh.read(512)
+            head = fh.read(_TEXT_PROBE_BYTES + 1)
     except OSError as exc:
         raise InputError(f"{path}: unreadable: {exc}") from None
-    return bool(head) and all(b in b"\t\r\n" or 32 <= b < 127 for b in head)
+    if head.startswith((_UTF8_BOM, *_UTF16_BOMS)):
+        return True
+    if not head or any(b in _NOT_TEXT for b in head):
+        return False
+    return b"\n" in head or b"\r" in head or len(head) <= _TEXT_PROBE_BYTES
+
+
+def leap_seconds_from_log(columns: dict[str, Columns], *, enough: int = 300) -> int | None:
+    """GPS − UTC in whole seconds, as the receiver states it in the flight log: each PTT time
+    tag (the PPS, in GPS time) against the nearest whole-second GGA/RMC/ZDA of its raw bytes
+    (UTC), their host receive times taking out which epochs they are; None unless at least 3
+    pairs agree, 90 % of them on one count in 0–60. The first `enough` tags decide if they
+    agree, else all of them (`TRAJ_WANTED` holds the columns it reads)."""
+    tags = columns.get(Topic.GPS_TIME_TAG, {})
+    is_ptt = np.asarray(tags.get("kind", np.zeros(0, str))) == "PTT"
+    tag_host = np.asarray(tags.get("t_host_ns", np.zeros(0, np.int64)), np.int64)[is_ptt]
+    tag_gps = np.asarray(tags.get("t_gps_ns", np.zeros(0, np.int64)), np.int64)[is_ptt]
+    keep = tag_gps >= 0
+    second = (tag_gps[keep] + NS_PER_S // 2) // NS_PER_S * NS_PER_S
+    ptt = list(zip(tag_host[keep].tolist(), (second % NS_PER_DAY).tolist(), strict=True))
+    utc = _utc_epochs(columns.get(Topic.GPS_RAW, {}))
+    if len(ptt) > enough and (verdict := _leap_vote(ptt[:enough], utc)) is not None:
+        return verdict
+    return _leap_vote(ptt, utc)
+
+
+def _nmea_checksum_ok(sentence: bytes, checksum: bytes) -> bool:
+    total = 0
+    for b in sentence:
+        total ^= b
+    return total == int(checksum, 16)
+
+
+def _utc_epochs(raw: Columns) -> list[tuple[int, int]]:
+    """(host ns, UTC ns of day) of every whole-second GGA/RMC/ZDA in the raw GPS bytes, with a
+    good checksum; a sentence's host time is that of the read that completed it."""
+    hosts: npt.NDArray[Any] = raw.get("t_host_ns", np.zeros(0, np.int64))
+    chunks: npt.NDArray[Any] = raw.get("data", np.zeros(0, object))
+    out: list[tuple[int, int]] = []
+    pending = b""
+    for t_host, data in zip(hosts, chunks, strict=True):
+        *lines, pending = (pending + bytes(data)).split(b"\n")
+        pending = pending[-_NMEA_MAX_BYTES:]
+        for line in lines:
+            m = _NMEA_UTC.search(line)
+            if m is None or not _nmea_checksum_ok(m.group(1), m.group(6)):
+                continue
+            hh, mm, ss = int(m.group(2)), int(m.group(3)), int(m.group(4))
+            if hh < 24 and mm < 60 and ss < 60 and not (m.group(5) or b"0").strip(b"0"):
+                out.append((int(t_host), (hh * 3600 + mm * 60 + ss) * NS_PER_S))
+    return out
+
+
+def _leap_vote(ptt: list[tuple[int, int]], utc: list[tuple[int, int]]) -> int | None:
+    if len(ptt) < 3 or not utc:
+        return None
+    u_host = np.array([h for h, _ in utc], np.int64)
+    u_tod = np.array([t for _, t in utc], np.int64)
+    order = np.argsort(u_host, kind="stable")
+    u_host, u_tod = u_host[order], u_tod[order]
+    votes: list[int] = []
+    for h, s in ptt:
+        k = int(np.searchsorted(u_host, h))
+        j = min((i for i in (k - 1, k) if 0 <= i < u_host.size),
+                key=lambda i: abs(int(u_host[i]) - h))
+        dh = h - int(u_host[j])
+        if abs(dh) > 2 * NS_PER_S:
+            continue
+        d = (s - int(u_tod[j]) - dh + NS_PER_DAY // 2) % NS_PER_DAY - NS_PER_DAY // 2
+        leap = round(d / NS_PER_S)
+        if abs(d - leap * NS_PER_S) < 0.3 * NS_PER_S:
+            votes.append(leap)
+    if len(votes) < 3:
+        return None
+    leap, count = Counter(votes).most_common(1)[0]
+    lo, hi = LEAP_SECONDS_RANGE
+    return leap if count >= 0.9 * len(votes) and lo <= leap <= hi else None
+
+
+def _leap_for(path: Path, columns: dict[str, Columns], leap_seconds: int | None,
+              fallback_leap_seconds: int | None, report: dict[str, Any]) -> int | None:
+    """The leap-second count a `.pos` on UTC or JST needs: given, else the log's, else the
+    fallback (a scenario's); None for GPST (or when none is known: the reader then says so)."""
+    scale = pos_time_scale(path)
+    report["time_scale"] = scale
+    if scale in (None, "GPST"):
+        return leap_seconds
+    from_log = leap_seconds_from_log(columns)
+    if leap_seconds is not None:
+        report.update(leap_seconds=leap_seconds, leap_seconds_from="--leap-seconds")
+        if from_log is not None and from_log != leap_seconds:
+            report.setdefault("warnings", []).append(
+                f"{path}: times are {scale}: using {leap_seconds} leap seconds as given, but "
+                f"the flight log's receiver messages say {from_log}")
+        return leap_seconds
+    if from_log is not None:
+        report.update(leap_seconds=from_log,
+                      leap_seconds_from="flight log (receiver PTT against GGA/RMC/ZDA)")
+        return from_log
+    if fallback_leap_seconds is not None:
+        report.update(leap_seconds=fallback_leap_seconds, leap_seconds_from="scenario")
+        return fallback_leap_seconds
+    return None
 
 
 def read_trajectory_file(path: Path | str, columns: dict[str, Columns], ins_times: InsTimes, *,
                          antenna_offset_m: npt.ArrayLike, leap_seconds: int | None = None,
                          sbet_offset_m: npt.ArrayLike = (0.0, 0.0, 0.0),
-                         config: NavConfig | None = None) -> Trajectory:
-    """An RTKLIB `.pos` (text) or an SBET (binary), told apart by their content."""
+                         config: NavConfig | None = None, max_gap_s: float | None = None,
+                         fallback_leap_seconds: int | None = None,
+                         report: dict[str, Any] | None = None) -> Trajectory:
+    """An RTKLIB `.pos` (text) or an SBET (binary), told apart by their content.
+
+    `max_gap_s`: the longest gap bridged, between SBET records or (for a `.pos`, by the INS)
+    between GPS solutions. A `.pos` on UTC or JST takes `leap_seconds` if given, else the count
+    the log's receiver messages state (`columns` with `TRAJ_WANTED`), else
+    `fallback_leap_seconds`. `report`, if given, is filled with what was read and how (format,
+    time scale, leap seconds and where they came from, `warnings`)."""
     path = Path(path)
+    info: dict[str, Any] = report if report is not None else {}
     if _is_text(path):
+        info["format"] = "RTKLIB .pos"
+        leap = _leap_for(path, columns, leap_seconds, fallback_leap_seconds, info)
+        if max_gap_s is not None:
+            config = NavConfig(max_gps_gap_s=max_gap_s,
+                               max_ins_gap_s=(config or NavConfig()).max_ins_gap_s)
         return rtklib_trajectory(path, columns, ins_times, antenna_offset_m=antenna_offset_m,
-                                 leap_seconds=leap_seconds, config=config)
+                                 leap_seconds=leap, config=config)
+    info["format"] = "Applanix SBET"
     return sbet_trajectory(path, _reference_gps_ns(columns, ins_times),
-                           reference_offset_m=sbet_offset_m)
+                           reference_offset_m=sbet_offset_m,
+                           max_gap_s=SBET_MAX_GAP_S if max_gap_s is None else max_gap_s)
 
 
-__all__ = ["RTK_Q_ALL", "SBET_DTYPE", "SBET_FIELDS", "RtkPos", "Sbet", "read_rtklib_pos",
+__all__ = ["LEAP_SECONDS_RANGE", "RTK_Q_ALL", "SBET_DTYPE", "SBET_FIELDS", "TRAJ_WANTED",
+           "RtkPos", "Sbet", "leap_seconds_from_log", "pos_time_scale", "read_rtklib_pos",
            "read_sbet", "read_trajectory_file", "rtklib_trajectory", "sbet_times_ns",
            "sbet_trajectory"]

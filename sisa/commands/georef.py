@@ -13,12 +13,18 @@ OUT/
   segment_NNN_quicklook.png
   mosaic.tif, mosaic_quicklook.png   all segments, each cell from the strip nearest nadir
   footprints.geojson         swath outline of every segment (WGS 84 lon/lat)
-  georef_summary.json        CRS, cell size, per-segment counts and pixel spacing
+  georef_summary.json        CRS, cell size, per-segment counts and pixel spacing, the
+                             trajectory's span, what was skipped and why
+
+A trajectory that covers only part of the flight georeferences the segments (and lines) it
+covers; each segment or stretch of lines skipped is one warning line on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,11 +57,18 @@ def add_georef_args(parser: argparse.ArgumentParser) -> None:
                         help="sensor/calibration file (scanner geometry, mounting, time delay); "
                              "default: a nominal CASI-501 with zero offsets")
     parser.add_argument("--crs", type=int, default=None, metavar="EPSG",
-                        help="output CRS (default: the DEM's)")
+                        help="output CRS, projected in metres (default: the DEM's)")
     parser.add_argument("--cell", type=float, default=None, metavar="M",
                         help="ortho cell size in metres (default: the pixel spacing)")
     parser.add_argument("--trajectory", type=Path, default=None, metavar="FILE",
                         help="RTKLIB .pos or Applanix SBET instead of the log's GPS fixes")
+    parser.add_argument("--leap-seconds", type=int, default=None, metavar="N",
+                        help="GPS - UTC in seconds for a --trajectory .pos on UTC or JST "
+                             "(default: as the flight log's receiver messages state it)")
+    parser.add_argument("--max-gap-s", type=float, default=None, metavar="S",
+                        help="longest gap the navigation bridges: between SBET records "
+                             "(default 0.25), between GPS fixes or .pos solutions, by the INS "
+                             "(default 30)")
     geoid = parser.add_mutually_exclusive_group()
     geoid.add_argument("--geoid", type=Path, default=None, metavar="TIF",
                        help="geoid undulation raster: the DEM holds orthometric heights")
@@ -69,6 +82,7 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
                       ) -> GeorefOptions:
     from postproc.georef import GeorefOptions
     from postproc.sensorfile import SensorModel
+    from postproc.trajfiles import LEAP_SECONDS_RANGE
 
     if args.sensor is not None:
         sensor = SensorModel.load(args.sensor)
@@ -78,28 +92,45 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
         sensor = SensorModel()
     if args.cell is not None and not 0 < args.cell <= 10_000:
         raise InputError(f"--cell {args.cell}: must be a positive size in metres")
+    if args.crs is not None and args.crs <= 0:
+        raise InputError(f"--crs {args.crs}: not a valid EPSG code (a positive integer)")
+    lo, hi = LEAP_SECONDS_RANGE
+    if args.leap_seconds is not None and not lo <= args.leap_seconds <= hi:
+        raise InputError(f"--leap-seconds {args.leap_seconds}: must be {lo} to {hi} (GPS - UTC: "
+                         "18 since 2017)")
+    if args.max_gap_s is not None and not (math.isfinite(args.max_gap_s) and args.max_gap_s > 0):
+        raise InputError(f"--max-gap-s {args.max_gap_s}: must be a positive number of seconds")
     geoid = args.geoid if args.geoid is not None else args.geoid_m
     return GeorefOptions(sensor=sensor, dem=args.dem, geoid=geoid, epsg=args.crs,
                          cell_m=args.cell, trajectory=args.trajectory,
-                         products=not args.no_products)
+                         products=not args.no_products, leap_seconds=args.leap_seconds,
+                         max_gap_s=args.max_gap_s)
 
 
-def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions
-               ) -> GeorefResult:
-    """The job with a progress bar over scan lines (on a terminal)."""
+def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions,
+               command: str = "georef") -> GeorefResult:
+    """The job with a progress bar over scan lines (on a terminal); its warnings (segments or
+    lines skipped, and why) one line each on stderr."""
     from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
     with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):
-        return job.run(progress=progress, on_total=on_total)
+        result = job.run(progress=progress, on_total=on_total)
+    for warning in result.warnings:
+        print(f"sisa {command}: warning: {warning}", file=sys.stderr, flush=True)
+    return result
 
 
 def headline(result: GeorefResult) -> str:
-    lines = sum(s.lines for s in result.segments)
+    whole = [s for s in result.skipped if s.whole_segment]
+    lines = sum(s.lines for s in result.segments) + sum(s.lines for s in whole)
     geo = sum(s.lines_georeferenced for s in result.segments)
     rays = sum(s.rays for s in result.segments)
     hit = sum(s.rays_hit for s in result.segments)
-    return (f"{len(result.segments)} segments, {geo}/{lines} lines georeferenced, "
+    segments = (f"{len(result.segments)} segments" if not whole else
+                f"{len(result.segments)} of {len(result.segments) + len(whole)} segments "
+                f"({len(whole)} skipped)")
+    return (f"{segments}, {geo}/{lines} lines georeferenced, "
             f"{hit / max(rays, 1):.2%} of pixels on the DEM, EPSG:{result.epsg}, "
             f"cell {result.cell_m:g} m")
 

@@ -11,6 +11,7 @@ RUN/process/ (or --out)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -87,10 +88,12 @@ def _run(args: argparse.Namespace) -> int:
                          "flight.mcap)")
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
-    options = options_from_args(args, sensor_of(scn, nominal=args.nominal))
+    options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
+                                  leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
     with staged_output_dir(out) as tmp:
-        result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options)
+        result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
+                            command="process")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}

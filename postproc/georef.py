@@ -18,7 +18,6 @@ segment has a pose does the job fail, naming the trajectory's and the lines' tim
 from __future__ import annotations
 
 import functools
-import json
 import math
 import warnings
 from collections import Counter
@@ -32,10 +31,11 @@ import rasterio
 from pyproj import CRS, Transformer
 from rasterio.errors import NotGeoreferencedWarning
 
-from postproc.dem import Dem, dem_extent
+from postproc.dem import Dem, dem_extent, height_range
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import IgmWriter, write_geolocation_vrt
+from postproc.jsonio import write_json
 from postproc.mosaic import mosaic
 from postproc.navigation import (
     NAV_WANTED,
@@ -342,13 +342,10 @@ class GeorefJob:
 
     @functools.cached_property
     def dem_height_range_m(self) -> tuple[float, float]:
-        """Lowest and highest DEM heights (from a 1/16 overview, ±50 m), read once per job."""
-        with rasterio.open(self.opt.dem) as ds:
-            coarse = ds.read(1, out_shape=(max(ds.height // 16, 1), max(ds.width // 16, 1)),
-                             masked=True)
-        if not coarse.count():
-            return 0.0, 0.0
-        return float(coarse.min()) - 50.0, float(coarse.max()) + 50.0
+        """Lowest and highest DEM heights (from a 1/16 overview, voids left out, ±50 m), read
+        once per job."""
+        found = height_range(self.opt.dem)
+        return (0.0, 0.0) if found is None else (found[0] - 50.0, found[1] + 50.0)
 
     def dem_window(self, eo: LineEo) -> Dem:
         """The DEM under the segment's swath: edge and centre rays of every 64th line met with
@@ -499,8 +496,7 @@ class GeorefJob:
         summary["trajectory"] = self.trajectory_info
         summary["skipped"] = [skip.as_dict() for skip in skipped]
         summary["warnings"] = list(self.warnings)
-        (self.out / "georef_summary.json").write_text(json.dumps(summary, indent=1) + "\n",
-                                                       encoding="utf-8")
+        write_json(self.out / "georef_summary.json", summary)
         return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
                             skipped, list(self.warnings))
 

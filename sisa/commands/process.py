@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -72,12 +71,15 @@ def _headline(result: Any, acc: dict[str, Any] | None) -> list[tuple[str, str]]:
             rows.append(("check points, RMS along / across / height",
                          f"{c['along']['rms_px']:.3f} / {c['across']['rms_px']:.3f} / "
                          f"{c['height']['rms_px']:.3f} px ({c['points']} observations, "
-                         f"{c['distinct']} points)"))
+                         f"{c['distinct']} points"
+                         + (f"; {c['not_georeferenced']} on lines not georeferenced, left out"
+                            if c.get("not_georeferenced") else "") + ")"))
     return rows
 
 
 def _run(args: argparse.Namespace) -> int:
     from emulators.scenario import load_scenario
+    from postproc.jsonio import write_json
     from postproc.report import write_report
     from sisa.accuracy import run_accuracy
 
@@ -97,8 +99,7 @@ def _run(args: argparse.Namespace) -> int:
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
-            (tmp / "accuracy.json").write_text(json.dumps(public, indent=1) + "\n",
-                                               encoding="utf-8")
+            write_json(tmp / "accuracy.json", public)
         rows = _headline(result, acc)
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,

@@ -20,12 +20,12 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum, IntEnum, StrEnum
-from functools import cached_property, reduce
-from operator import xor
+from functools import cached_property
 from typing import Any, ClassVar, Generic, TypeVar
 
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
 from sisa.errors import DecodeError, EncodeError
+from sisa.nmea import checksum
 from sisa.timescale import GPS_EPOCH, NS_PER_DAY, NS_PER_S, NS_PER_WEEK
 
 T = TypeVar("T")
@@ -690,11 +690,6 @@ def message_kind(message: NmeaMessage) -> SentenceKind:
 
 # ---------------------------------------------------------------------------------------------
 # Sentences: checksum, encode, decode.
-
-
-def checksum(body: bytes) -> int:
-    """NMEA checksum: XOR of every byte between `$` and `*`."""
-    return reduce(xor, body, 0)
 
 
 def _tokens_of(message: NmeaMessage) -> list[str]:

@@ -58,6 +58,7 @@ from postproc.syncconfig import TimeStatus
 from recorder.messages import Topic
 from sisa.errors import InputError
 from sisa.frames import body_to_ned_matrix
+from sisa.nmea import checksum
 from sisa.timescale import (
     NS_PER_DAY,
     NS_PER_S,
@@ -434,13 +435,6 @@ def leap_seconds_from_log(columns: dict[str, Columns], *, enough: int = 300) -> 
     return _leap_vote(ptt, utc)
 
 
-def _nmea_checksum_ok(sentence: bytes, checksum: bytes) -> bool:
-    total = 0
-    for b in sentence:
-        total ^= b
-    return total == int(checksum, 16)
-
-
 def _utc_epochs(raw: Columns) -> list[tuple[int, int]]:
     """(host ns, UTC ns of day) of every whole-second GGA/RMC/ZDA in the raw GPS bytes, with a
     good checksum; a sentence's host time is that of the read that completed it."""
@@ -453,7 +447,7 @@ def _utc_epochs(raw: Columns) -> list[tuple[int, int]]:
         pending = pending[-_NMEA_MAX_BYTES:]
         for line in lines:
             m = _NMEA_UTC.search(line)
-            if m is None or not _nmea_checksum_ok(m.group(1), m.group(6)):
+            if m is None or checksum(m.group(1)) != int(m.group(6), 16):
                 continue
             hh, mm, ss = int(m.group(2)), int(m.group(3)), int(m.group(4))
             if hh < 24 and mm < 60 and ss < 60 and not (m.group(5) or b"0").strip(b"0"):

@@ -471,18 +471,16 @@ def _check_terrain_size(scn: Scenario) -> None:
         return f"{count / 1e6:,.0f}".replace(",", " ") if count >= 1e7 else f"{count / 1e6:.2g}"
 
     size = f"{width_m / 1000:.3g} × {height_m / 1000:.3g} km"
-    if (dem := cells(ts.dem_spacing_m)) > MAX_DEM_CELLS:
-        raise ValueError(
-            f"terrain.dem_spacing_m: a {ts.dem_spacing_m:g} m DEM over the block and "
-            f"terrain.margin_m ({size}) would have about {millions(dem)} million cells, more than "
-            f"{MAX_DEM_CELLS / 1e6:g} million: a spacing of at least "
-            f"{finest_m(MAX_DEM_CELLS):.3g} m, or a smaller block or margin")
-    if (scene := cells(ts.texture_cell_m)) > MAX_SCENE_CELLS:
-        raise ValueError(
-            f"terrain.texture_cell_m: a {ts.texture_cell_m:g} m scene raster over the DEM ({size})"
-            f" would have about {millions(scene)} million cells, more than "
-            f"{MAX_SCENE_CELLS / 1e6:g} million: a cell of at least "
-            f"{finest_m(MAX_SCENE_CELLS):.3g} m, or a smaller block or margin")
+    for name, cell_m, raster, limit, remedy in (
+            ("dem_spacing_m", ts.dem_spacing_m, "DEM over the block and terrain.margin_m",
+             MAX_DEM_CELLS, "spacing"),
+            ("texture_cell_m", ts.texture_cell_m, "scene raster over the DEM", MAX_SCENE_CELLS,
+             "cell")):
+        if (count := cells(cell_m)) > limit:
+            raise ValueError(
+                f"terrain.{name}: a {cell_m:g} m {raster} ({size}) would have about "
+                f"{millions(count)} million cells, more than {limit / 1e6:g} million: a {remedy} "
+                f"of at least {finest_m(limit):.3g} m, or a smaller block or margin")
 
 
 def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:

@@ -57,7 +57,11 @@ from postproc.synclog import sync_input_from_columns
 from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
 from recorder.reader import Paths, read_topics
 from sisa.errors import InputError
-from sisa.timescale import NS_PER_DAY, NS_PER_S, datetime_from_gps_ns, gps_week_and_tow_ns
+from sisa.timescale import (
+    NS_PER_DAY,
+    NS_PER_S,
+    gps_span_label,
+)
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -146,18 +150,6 @@ class GeorefResult:
     summary: dict[str, Any]
     skipped: list[SegmentSkip] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
-
-
-def gps_span_label(t0_ns: int, t1_ns: int) -> str:
-    """'2026-06-15T09:00:00 to 09:05:10 GPS (week 2423, 118800.0 to 119110.0 s)' (ASCII, as
-    every message)."""
-    a = datetime_from_gps_ns(t0_ns).isoformat(timespec="seconds")
-    b = datetime_from_gps_ns(t1_ns).isoformat(timespec="seconds")
-    (w0, s0), (w1, s1) = gps_week_and_tow_ns(t0_ns), gps_week_and_tow_ns(t1_ns)
-    when = f"{a} to {b[11:]}" if a[:10] == b[:10] else f"{a} to {b}"
-    week = (f"week {w0}, {s0 / NS_PER_S:.1f} to {s1 / NS_PER_S:.1f} s" if w0 == w1 else
-            f"week {w0} {s0 / NS_PER_S:.1f} s to week {w1} {s1 / NS_PER_S:.1f} s")
-    return f"{when} GPS ({week})"
 
 
 def _duration_label(ns: int) -> str:

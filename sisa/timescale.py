@@ -52,6 +52,18 @@ def gps_time_label(t_gps_ns: int) -> str:
     return f"{when} GPS (week {week}, {tow_ns // NS_PER_S:_} s)".replace("_", " ")
 
 
+def gps_span_label(t0_ns: int, t1_ns: int) -> str:
+    """'2026-06-15T09:00:00 to 09:05:10 GPS (week 2423, 118800.0 to 119110.0 s)' (ASCII, as
+    every message)."""
+    a = datetime_from_gps_ns(t0_ns).isoformat(timespec="seconds")
+    b = datetime_from_gps_ns(t1_ns).isoformat(timespec="seconds")
+    (w0, s0), (w1, s1) = gps_week_and_tow_ns(t0_ns), gps_week_and_tow_ns(t1_ns)
+    when = f"{a} to {b[11:]}" if a[:10] == b[:10] else f"{a} to {b}"
+    week = (f"week {w0}, {s0 / NS_PER_S:.1f} to {s1 / NS_PER_S:.1f} s" if w0 == w1 else
+            f"week {w0} {s0 / NS_PER_S:.1f} s to week {w1} {s1 / NS_PER_S:.1f} s")
+    return f"{when} GPS ({week})"
+
+
 def day_of_week(t_ns: int) -> int:
     """Ashtech day of week, 1..7 with Sunday = 1 (the GPS epoch was a Sunday)."""
     return int((t_ns % NS_PER_WEEK) // NS_PER_DAY) + 1

@@ -45,10 +45,10 @@ MAX_FLIGHT_H = 24.0
 # wider and faster by 1/k to make up for it (emulators.trajectory._Cruise): at 30°/s k = 0.73,
 # beyond ~85°/s k reaches 0 and the planned turns cannot close. Survey turns are 3–15°/s.
 MAX_TURN_RATE_DEG_S = 30.0
-# The planning rules of emulators.trajectory that `flight_duration_bound_s` follows (that module
-# imports this one, and scipy: copied, and checked equal by tests/emulators/test_scenario_bounds).
+# The planning rules of emulators.trajectory, which `flight_duration_bound_s` follows: defined
+# here and taken by that module (which imports scipy: this one must load without it).
 _PLAN_SMOOTHING_SIGMA_S = 1.5
-_PLAN_KERNEL_HALF_WIDTH_S = 4.5
+_PLAN_KERNEL_HALF_WIDTH_S = 3.0 * _PLAN_SMOOTHING_SIGMA_S  # triweight: σ = half-width / 3
 _PLAN_CLIMB_OUT_MIN_S = 30.0
 _PLAN_CLIMB_ACCELERATION_MPS2 = 1.0
 _PLAN_CLIMB_RAMP_S = 3.0

@@ -33,7 +33,14 @@ from scipy.interpolate import BSpline, PPoly, make_interp_spline
 
 from emulators.block import STANDARD_GRAVITY_MPS2, StripKind, StripLine, strip_lines
 from emulators.localplane import LocalPlane
-from emulators.scenario import Scenario
+from emulators.scenario import (
+    _PLAN_CLIMB_ACCELERATION_MPS2,
+    _PLAN_CLIMB_OUT_MIN_S,
+    _PLAN_CLIMB_RAMP_S,
+    _PLAN_KERNEL_HALF_WIDTH_S,
+    _PLAN_SMOOTHING_SIGMA_S,
+    Scenario,
+)
 from sisa.frames import body_rates_from_euler_rates, ned_to_ecef_matrix
 from sisa.timescale import NS_PER_S, ns_from_seconds_since, seconds_since
 
@@ -41,11 +48,13 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 NODE_STEP_S = 0.1  # spline node spacing; the smoothed path has no content faster than ~1 s
-SMOOTHING_SIGMA_S = 1.5  # roll-in time scale of turns, climbs and accelerations
-KERNEL_HALF_WIDTH_S = 3.0 * SMOOTHING_SIGMA_S  # triweight kernel: σ = half-width / 3
-CLIMB_OUT_MIN_S = 30.0  # straight flight after rotation before the first turn
-CLIMB_ACCELERATION_MPS2 = 1.0  # from rotation speed to block speed
-CLIMB_RAMP_S = 3.0  # vertical speed ramps in and out over this time
+# The planning rules, defined beside the scenario's flight-length bound that follows them
+# (emulators.scenario may not import this module: it would bring scipy into every load).
+SMOOTHING_SIGMA_S = _PLAN_SMOOTHING_SIGMA_S  # roll-in time scale of turns, climbs, accelerations
+KERNEL_HALF_WIDTH_S = _PLAN_KERNEL_HALF_WIDTH_S  # triweight kernel: σ = half-width / 3
+CLIMB_OUT_MIN_S = _PLAN_CLIMB_OUT_MIN_S  # straight flight after rotation before the first turn
+CLIMB_ACCELERATION_MPS2 = _PLAN_CLIMB_ACCELERATION_MPS2  # from rotation speed to block speed
+CLIMB_RAMP_S = _PLAN_CLIMB_RAMP_S  # vertical speed ramps in and out over this time
 ANGLE_OF_ATTACK_DEG = 2.0
 GROUND_PITCH_DEG = 1.0
 AIRBORNE_RAMP_S = 10.0  # crab, angle of attack and turbulence fade in after lift-off

@@ -8,13 +8,16 @@ the exact nearest pixel even where turbulence shears the lines. Cells whose cent
 covers are nodata. Work goes by output windows (full-width strips of rows, or square tiles on
 wide grids) sized by WINDOW_BYTES, each reading only the IGM and image lines that reach it, so
 memory does not grow with the length of the flight. Windows are made WORKERS at a time on
-threads (the numba kernels release the GIL) while a background thread compresses the GeoTIFF
-of the previous one; the products do not depend on the number of threads.
+threads (the C kernels, postproc/_orthokernels.c, run without the GIL) while a background
+thread compresses the GeoTIFF of the previous one; the products do not depend on the number
+of threads.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import importlib
 import math
 import os
 from collections import deque
@@ -25,7 +28,6 @@ from pathlib import Path
 from queue import SimpleQueue
 from typing import Any, Final
 
-import numba
 import numpy as np
 import numpy.typing as npt
 import rasterio
@@ -71,6 +73,52 @@ TIFF_COMPRESSIONS: Final = ("deflate", "zstd", "lzw", "none")
 GLT_BAND_NAMES: Final = ("GLT Sample Lookup", "GLT Line Lookup")
 MAX_GRID_CELLS: Final = 2**32  # 65 536² cells: a 32 GB GLT; a finer grid or a wider one is
 # a mistyped --cell or --bounds (0.001 m cells made a 13 TB sparse GLT before anyone noticed)
+
+
+# -- the C kernels ---------------------------------------------------------------------------
+
+def _load_kernels() -> ctypes.CDLL:
+    """postproc/_orthokernels.c, built when SISA is installed. Called through ctypes, which
+    releases the GIL for the call (why C: see the file's head)."""
+    try:
+        kernels = importlib.import_module("postproc._orthokernels")
+    except ImportError as exc:
+        raise ImportError("postproc._orthokernels (the ortho's C kernels) is not built: "
+                          "install SISA with `pip install -e .` (`make setup`)") from exc
+    lib = ctypes.CDLL(kernels.__file__)
+    p, i, d = ctypes.c_void_p, ctypes.c_int64, ctypes.c_double
+    signatures = {
+        "line_extents": [p, i, i, i, p],
+        "to_cells": [p, i, i, i, d, d, d, p, p, p],
+        "gaps": [p, p, i, i, i, i, p],
+        "rasterise": [p, p, p, p, i, i, i, i, i, i, i, i, i, d, p, p, p, p],
+        "line_range": [p, p, i, p, p],
+        "chunk_spans": [p, p, i, i, i, p],
+        "copy_pixels": [p, i, i, i, i, i, p, p, p, i, p, i],
+        "glt_values": [p, p, p, p, i, i, p, p],
+        "row_spans": [p, i, i, p, p],
+    }
+    for name, args in signatures.items():
+        fn = getattr(lib, name)
+        fn.argtypes, fn.restype = args, None
+    return lib
+
+
+_C = _load_kernels()
+
+
+def _check_in(*arrays: npt.NDArray[Any], dtype: npt.DTypeLike) -> None:
+    """The kernels read C-contiguous arrays of one type, of one shape when given together."""
+    for a in arrays:
+        if a.dtype != np.dtype(dtype) or not a.flags.c_contiguous or a.shape != arrays[0].shape:
+            raise ValueError(f"kernel input: need C-contiguous {np.dtype(dtype)} arrays of one "
+                             f"shape, got {a.dtype} {a.shape}")
+
+
+def _check_out(a: npt.NDArray[Any], dtype: npt.DTypeLike, shape: tuple[int, ...]) -> None:
+    _check_in(a, dtype=dtype)
+    if a.shape != shape or not a.flags.writeable:
+        raise ValueError(f"kernel output: need a writable {shape} array, got {a.shape}")
 
 
 # -- the output grid -------------------------------------------------------------------------
@@ -247,21 +295,12 @@ class SwathIndex:
         return runs
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def _line_extents(blk: F64, out: F64) -> None:
+def _line_extents(blk: npt.NDArray[Any], out: F64) -> None:
     """out (lines, 4): west, south, east, north of each line of an IGM block (lines, 3,
     pixels) over its pixels with a finite position (NaN where none), in one pass."""
-    for i in range(blk.shape[0]):
-        west = south = np.inf
-        east = north = -np.inf
-        for j in range(blk.shape[2]):
-            x, y = blk[i, 0, j], blk[i, 1, j]
-            if math.isfinite(x) and math.isfinite(y):
-                west, east = min(west, x), max(east, x)
-                south, north = min(south, y), max(north, y)
-        if west > east:
-            west = south = east = north = np.nan
-        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = west, south, east, north
+    b = np.ascontiguousarray(blk, np.float64)
+    _check_out(out, np.float64, (b.shape[0], 4))
+    _C.line_extents(b.ctypes.data, *b.shape, out.ctypes.data)
 
 
 # -- the nearest pixel of every cell of a tile -----------------------------------------------
@@ -356,190 +395,102 @@ def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, row
     return TileChoice(line, pixel, d2, inside)
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def _to_cells(blk: F64, x0: float, y0: float, cell: float, u: F64, v: F64, box: F64) -> None:
+def _to_cells(blk: npt.NDArray[Any], x0: float, y0: float, cell: float, u: F64, v: F64,
+              box: F64) -> None:
     """u, v (lines, pixels): positions of the IGM block (lines, 3, pixels) in cell units
-    (column and row of the window's cell centres), in one pass without temporaries; box:
-    each line's u/v extent over its finite positions (+inf, -inf where it has none)."""
-    for i in range(blk.shape[0]):
-        umin = vmin = np.inf
-        umax = vmax = -np.inf
-        for j in range(blk.shape[2]):
-            x = (blk[i, 0, j] - x0) / cell
-            y = (y0 - blk[i, 1, j]) / cell
-            u[i, j] = x
-            v[i, j] = y
-            if x == x:
-                umin, umax = min(umin, x), max(umax, x)
-            if y == y:
-                vmin, vmax = min(vmin, y), max(vmax, y)
-        box[i, 0], box[i, 1], box[i, 2], box[i, 3] = umin, umax, vmin, vmax
+    (column and row of the window's cell centres: (x - x0) / cell, (y0 - y) / cell), in one
+    pass without temporaries; box: each line's umin, umax, vmin, vmax over its non-NaN values
+    (+inf, -inf where it has none)."""
+    b = np.ascontiguousarray(blk, np.float64)
+    lines, _, pixels = b.shape
+    for a in (u, v):
+        _check_out(a, np.float64, (lines, pixels))
+    _check_out(box, np.float64, (lines, 4))
+    _C.to_cells(b.ctypes.data, *b.shape, x0, y0, cell, u.ctypes.data, v.ctypes.data,
+                box.ctypes.data)
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _gaps(u: F64, v: F64, gap: F64) -> None:
     """gap[i, j]: squared distance from pixel (i, j) to the nearest other pixel of its descent
     neighbourhood (±DESCENT_LINES, ±DESCENT_PIXELS); inf where there is none. By the triangle
     inequality, no neighbour is nearer than pixel (i, j) to a point within sqrt(gap) / 2 of
-    it: the descent from there can be skipped (one vectorised pass, each pair once, instead
-    of a search per cell)."""
-    nl, npx = u.shape
-    gap[:] = np.inf
-    for i in range(nl):
-        gi, ui, vi = gap[i], u[i], v[i]
-        for a in range(i, min(i + DESCENT_LINES + 1, nl)):
-            ga, ua, va = gap[a], u[a], v[a]
-            for db in range(-DESCENT_PIXELS, DESCENT_PIXELS + 1):
-                if a == i and db <= 0:
-                    continue
-                for j in range(max(-db, 0), min(npx - db, npx)):
-                    x, y = ua[j + db] - ui[j], va[j + db] - vi[j]
-                    t = x * x + y * y  # NaN compares False: never a neighbour
-                    gi[j] = t if t < gi[j] else gi[j]
-                    ga[j + db] = t if t < ga[j + db] else ga[j + db]
+    it: the descent from there can be skipped (one pass, each pair once, instead of a search
+    per cell)."""
+    _check_in(u, v, dtype=np.float64)
+    _check_out(gap, np.float64, u.shape)
+    _C.gaps(u.ctypes.data, v.ctypes.data, *u.shape, DESCENT_LINES, DESCENT_PIXELS,
+            gap.ctypes.data)
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _in_triangle(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, px: float,
-                 py: float) -> bool:
-    area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    if area == 0.0:
-        return False
-    e0 = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
-    e1 = (cx - bx) * (py - by) - (cy - by) * (px - bx)
-    e2 = (ax - cx) * (py - cy) - (ay - cy) * (px - cx)
-    tol = 1e-9 * abs(area)  # points on a shared edge belong to both triangles: no cracks
-    if area > 0.0:
-        return e0 >= -tol and e1 >= -tol and e2 >= -tol
-    return e0 <= tol and e1 <= tol and e2 <= tol
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _descend(u: F64, v: F64, li: int, pj: int, d: float, px: float, py: float
-             ) -> tuple[int, int, float]:
-    """Move to the nearest pixel within ±DESCENT_LINES lines and ±DESCENT_PIXELS pixels
-    while that gets closer (turbulence can make lines cross, so look beyond the next one)."""
-    nl, npx = u.shape
-    for _ in range(64):
-        bi, bj, bd = li, pj, d
-        for a in range(max(li - DESCENT_LINES, 0), min(li + DESCENT_LINES + 1, nl)):
-            for b in range(max(pj - DESCENT_PIXELS, 0), min(pj + DESCENT_PIXELS + 1, npx)):
-                x, y = u[a, b], v[a, b]
-                t = (x - px) * (x - px) + (y - py) * (y - py)
-                if t < bd:  # False for NaN
-                    bi, bj, bd = a, b, t
-        if bi == li and bj == pj:
-            break
-        li, pj, d = bi, bj, bd
-    return li, pj, d
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _dist2(x: float, y: float, px: float, py: float) -> float:
-    t = (x - px) * (x - px) + (y - py) * (y - py)
-    return t if t == t else np.inf
-
-
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _rasterise(u: F64, v: F64, box: F64, gap: F64, q0: int, q1: int, line_base: int,
                d2: F64, line: I32, pixel: I32, inside: B) -> None:
     """Rasterise quads with first line q0..q1-1 of the block (u, v: positions in cell units,
     column and row of the window's cell centres; box: each line's u/v extent) and keep each
     cell's nearest pixel. Corners in ring order a (i, j), b (i, j+1), c (i+1, j+1),
-    d (i+1, j): all valid, triangles abc + acd; one missing, the triangle of the other three."""
-    nl, npx = u.shape
-    rows, cols = d2.shape
-    for i in range(q0, min(q1, nl - 1)):
-        if (min(box[i, 0], box[i + 1, 0]) > cols - 1 or max(box[i, 1], box[i + 1, 1]) < 0
-                or min(box[i, 2], box[i + 1, 2]) > rows - 1
-                or max(box[i, 3], box[i + 1, 3]) < 0):
-            continue  # the pair of lines misses the window
-        for j in range(npx - 1):
-            ax, ay, bx, by = u[i, j], v[i, j], u[i, j + 1], v[i, j + 1]
-            cx, cy, dx, dy = u[i + 1, j + 1], v[i + 1, j + 1], u[i + 1, j], v[i + 1, j]
-            oka, okb = ax == ax and ay == ay, bx == bx and by == by
-            okc, okd = cx == cx and cy == cy, dx == dx and dy == dy
-            n_ok = int(oka) + int(okb) + int(okc) + int(okd)
-            if n_ok < 3:
-                continue
-            # triangles (p, q, r) and (p, r, s); with a corner missing both are the same one
-            px, py, qx, qy, rx, ry, sx, sy = ax, ay, bx, by, cx, cy, dx, dy
-            if n_ok == 3:
-                if not oka:
-                    px, py, qx, qy, rx, ry = bx, by, cx, cy, dx, dy
-                elif not okb:
-                    qx, qy, rx, ry = cx, cy, dx, dy
-                elif not okc:
-                    rx, ry = dx, dy
-                sx, sy = rx, ry
-            umin, umax = min(px, qx, rx, sx), max(px, qx, rx, sx)
-            vmin, vmax = min(py, qy, ry, sy), max(py, qy, ry, sy)
-            if umax < 0 or vmax < 0 or umin > cols - 1 or vmin > rows - 1:
-                continue
-            c_lo, c_hi = max(math.ceil(umin), 0), min(math.floor(umax), cols - 1)
-            r_lo, r_hi = max(math.ceil(vmin), 0), min(math.floor(vmax), rows - 1)
-            for r in range(r_lo, r_hi + 1):
-                fr = float(r)
-                for c in range(c_lo, c_hi + 1):
-                    fc = float(c)
-                    if not (_in_triangle(px, py, qx, qy, rx, ry, fc, fr)
-                            or _in_triangle(px, py, rx, ry, sx, sy, fc, fr)):
-                        continue
-                    best, li, pj = _dist2(ax, ay, fc, fr), i, j
-                    t = _dist2(bx, by, fc, fr)
-                    if t < best:
-                        best, li, pj = t, i, j + 1
-                    t = _dist2(cx, cy, fc, fr)
-                    if t < best:
-                        best, li, pj = t, i + 1, j + 1
-                    t = _dist2(dx, dy, fc, fr)
-                    if t < best:
-                        best, li, pj = t, i + 1, j
-                    if gap[li, pj] <= GAP_FACTOR * best:  # else no neighbour is nearer
-                        li, pj, best = _descend(u, v, li, pj, best, fc, fr)
-                    if best < d2[r, c]:
-                        d2[r, c] = best
-                        line[r, c] = line_base + li
-                        pixel[r, c] = pj
-                        inside[r, c] = abs(u[li, pj] - fc) <= 0.5 and abs(v[li, pj] - fr) <= 0.5
+    d (i+1, j): all valid, triangles abc + acd; one missing, the triangle of the other three.
+    A cell centre on a shared edge (within 1e-9 of the doubled area) is in both triangles, so
+    there are no cracks. The cell takes the nearest of the quad's corners (squared distance,
+    NaN as inf); where a neighbour could be nearer (gap <= GAP_FACTOR · d²), a descent moves
+    to the nearest pixel within ±DESCENT_LINES lines and ±DESCENT_PIXELS pixels while that
+    gets closer (turbulence can make lines cross, so it looks beyond the next one; at most
+    64 steps). A cell keeps the first strictly nearest pixel found, `inside` when its centre
+    is within half a cell of the pixel in u and v."""
+    _check_in(u, v, gap, dtype=np.float64)
+    _check_in(box, dtype=np.float64)
+    if box.shape != (u.shape[0], 4) or gap.shape != u.shape:
+        raise ValueError("box (lines, 4) and gap (lines, pixels) must match u")
+    _check_out(d2, np.float64, d2.shape)
+    _check_out(line, np.int32, d2.shape)
+    _check_out(pixel, np.int32, d2.shape)
+    _check_out(inside, np.bool_, d2.shape)
+    _C.rasterise(u.ctypes.data, v.ctypes.data, box.ctypes.data, gap.ctypes.data, *u.shape,
+                 q0, q1, line_base, *d2.shape, DESCENT_LINES, DESCENT_PIXELS, GAP_FACTOR,
+                 d2.ctypes.data, line.ctypes.data, pixel.ctypes.data, inside.ctypes.data)
 
 
 # -- reading the chosen pixels of the image --------------------------------------------------
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _chunk_spans(line: npt.NDArray[np.integer[Any]], valid: B, chunk_lines: int) -> I64:
     """(chunks, 2): the first and last line needed by the valid cells in each chunk of
     `chunk_lines` image lines, from the chunk of the first such line to that of the last
     (first > last where a chunk has none); (0, 2) without a valid cell."""
-    first, last = np.iinfo(np.int64).max, -1
-    for c in range(line.size):
-        if valid[c]:
-            first, last = min(first, line[c]), max(last, line[c])
-    if last < 0:
+    lines = np.ascontiguousarray(line, np.int32)
+    ok = np.ascontiguousarray(valid, np.bool_)
+    if ok.shape != lines.shape:
+        raise ValueError("line and valid must have one shape")
+    first, last = ctypes.c_int64(), ctypes.c_int64()
+    _C.line_range(lines.ctypes.data, ok.ctypes.data, lines.size, ctypes.byref(first),
+                  ctypes.byref(last))
+    if last.value < 0:
         return np.empty((0, 2), np.int64)
-    k0 = first // chunk_lines
-    spans = np.empty((last // chunk_lines - k0 + 1, 2), np.int64)
-    spans[:, 0], spans[:, 1] = last + 1, -1
-    for c in range(line.size):
-        if valid[c]:
-            k = line[c] // chunk_lines - k0
-            spans[k, 0], spans[k, 1] = min(spans[k, 0], line[c]), max(spans[k, 1], line[c])
+    k0 = first.value // chunk_lines
+    spans = np.empty((last.value // chunk_lines - k0 + 1, 2), np.int64)
+    spans[:, 0], spans[:, 1] = last.value + 1, -1
+    _C.chunk_spans(lines.ctypes.data, ok.ctypes.data, lines.size, chunk_lines, k0,
+                   spans.ctypes.data)
     return spans
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _copy_pixels(block: npt.NDArray[Any], lo: int, line: npt.NDArray[np.integer[Any]],
                  pixel: npt.NDArray[np.integer[Any]], valid: B, out: npt.NDArray[Any]) -> None:
     """out[b, c] = block[line[c] - lo, b, pixel[c]] for the valid cells c whose line is in the
-    block (cell by cell, every band; out's bands should not lie a multiple of 4 KB apart,
-    see Scratch.planes)."""
-    hi = lo + block.shape[0]
-    for c in range(line.size):
-        li = line[c]
-        if valid[c] and lo <= li < hi:
-            pj = pixel[c]
-            for b in range(block.shape[1]):
-                out[b, c] = block[li - lo, b, pj]
+    block (lines, bands, pixels), cell by cell, every band; out (bands, cells) may have its
+    bands apart (see Scratch.planes: they should not lie a multiple of 4 KB apart)."""
+    item = out.dtype.itemsize
+    if (out.ndim != 2 or not out.flags.writeable or out.strides[1] != item
+            or out.strides[0] % item or not out.dtype.isnative):
+        raise ValueError("out must be a writable (bands, cells) array of native values, "
+                         "cells contiguous")
+    src = np.ascontiguousarray(block, out.dtype)  # the image's byte order to the machine's
+    lines, bands, pixels = src.shape
+    cell_line, cell_pixel = (np.ascontiguousarray(a, np.int32) for a in (line, pixel))
+    ok = np.ascontiguousarray(valid, np.bool_)
+    if bands != out.shape[0] or not cell_line.size == cell_pixel.size == ok.size \
+            == out.shape[1]:
+        raise ValueError("block, cells and out do not match")
+    _C.copy_pixels(src.ctypes.data, lo, lines, bands, pixels, item, cell_line.ctypes.data,
+                   cell_pixel.ctypes.data, ok.ctypes.data, ok.size, out.ctypes.data,
+                   out.strides[0] // item)
 
 
 def gather_pixels(raw: EnviRaster, line: npt.NDArray[np.integer[Any]],
@@ -782,46 +733,29 @@ def window_cells(raw: EnviRaster) -> int:
     return max(WINDOW_BYTES // per_cell, TIFF_BLOCK * TIFF_BLOCK)
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def _glt_values(line: I32, pixel: I32, inside: B, d2: F64, out: I32) -> tuple[int, int, float,
-                                                                            float]:
+def _glt_values(line: I32, pixel: I32, inside: B, d2: F64, out: I32
+                ) -> tuple[int, int, float, float]:
     """Fill out (rows, 2, cols) with the signed 1-based GLT; return (filled, infill,
     sum of distances, max distance) in cell units."""
+    _check_in(line, pixel, dtype=np.int32)
+    _check_in(inside, dtype=np.bool_)
+    _check_in(d2, dtype=np.float64)
     rows, cols = line.shape
-    filled = infill = 0
-    total = top = 0.0
-    for r in range(rows):
-        for c in range(cols):
-            if line[r, c] < 0:
-                out[r, 0, c] = 0
-                out[r, 1, c] = 0
-                continue
-            sign = 1 if inside[r, c] else -1
-            out[r, 0, c] = sign * (pixel[r, c] + 1)
-            out[r, 1, c] = sign * (line[r, c] + 1)
-            filled += 1
-            infill += 1 - inside[r, c]
-            d = math.sqrt(d2[r, c])
-            total += d
-            top = max(top, d)
-    return filled, infill, total, top
+    _check_out(out, np.int32, (rows, 2, cols))
+    figures = np.empty(4)
+    _C.glt_values(line.ctypes.data, pixel.ctypes.data, inside.ctypes.data, d2.ctypes.data,
+                  rows, cols, out.ctypes.data, figures.ctypes.data)
+    return int(figures[0]), int(figures[1]), float(figures[2]), float(figures[3])
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _row_spans(values: I32, first: I64, end: I64) -> None:
     """[first[r], end[r]): the columns from the first to the last non-zero sample of row r
     of a GLT window (rows, 2, cols); first = end = 0 where the row is all zeros."""
-    for r in range(values.shape[0]):
-        a, b = 0, 0
-        for c in range(values.shape[2]):
-            if values[r, 0, c] != 0:
-                a, b = c, c + 1
-                break
-        for c in range(values.shape[2] - 1, a, -1):
-            if values[r, 0, c] != 0:
-                b = c + 1
-                break
-        first[r], end[r] = a, b
+    _check_in(values, dtype=np.int32)
+    rows, _, cols = values.shape
+    _check_out(first, np.int64, (rows,))
+    _check_out(end, np.int64, (rows,))
+    _C.row_spans(values.ctypes.data, rows, cols, first.ctypes.data, end.ctypes.data)
 
 
 Progress = Callable[[int], None]  # told a count of work just done (lines, grid cells)

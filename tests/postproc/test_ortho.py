@@ -331,6 +331,56 @@ def test_line_extents_skip_pixels_without_a_position() -> None:
     assert np.isnan(got[3]).all()
 
 
+@pytest.mark.parametrize("dtype", ["u1", "<i2", "<f4", "<f8", ">u2"])
+def test_gather_copies_every_band_of_any_type(dtype: str) -> None:
+    """The C copy moves values of 1, 2, 4 or 8 bytes as they are, into bands kept apart as
+    Scratch.planes keeps them; a big-endian block arrives in the machine's order."""
+    rng = np.random.default_rng(11)
+    block = (rng.random((40, 5, 30)) * 200).astype(dtype)
+    line = rng.integers(-1, 40, size=(6, 7)).astype(np.int32)
+    pixel = rng.integers(0, 30, size=(6, 7)).astype(np.int32)
+    valid = line >= 10  # lines 0..9 are before the block: left as they were
+    out = ortho.Scratch().planes("p", (5, 6, 7), block.dtype.newbyteorder("="), fill=7)
+    flat = out.reshape(5, 42)
+    assert not flat.flags.c_contiguous  # the bands lie apart
+    ortho._copy_pixels(block[10:], 10, line.ravel(), pixel.ravel(), valid.ravel(), flat)
+    want = np.full((5, 6, 7), 7, dtype=out.dtype)
+    r, c = np.nonzero(valid)
+    want[:, r, c] = block[line[r, c], :, pixel[r, c]].T
+    np.testing.assert_array_equal(out, want)
+
+
+def test_kernels_refuse_arrays_they_cannot_read() -> None:
+    """The C kernels take raw pointers: a view with gaps, another type or a read-only output
+    is refused before the call, not read as something else."""
+    u = np.zeros((8, 6))
+    gap = np.empty_like(u)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        ortho._gaps(u[:, ::2], u[:, ::2], gap[:, :3])
+    with pytest.raises(ValueError, match="C-contiguous"):
+        ortho._gaps(u, u, gap.astype(np.float32))
+    frozen = np.empty_like(u)
+    frozen.flags.writeable = False
+    with pytest.raises(ValueError, match="writable"):
+        ortho._gaps(u, u, frozen)
+    with pytest.raises(ValueError, match="writable"):
+        ortho._line_extents(np.zeros((4, 3, 5)), np.empty((3, 4)))  # one line short
+    with pytest.raises(ValueError, match="native"):
+        ortho._copy_pixels(np.zeros((2, 1, 3)), 0, np.zeros(4, np.int32),
+                           np.zeros(4, np.int32), np.ones(4, bool), np.zeros((1, 4), ">f8"))
+
+
+def test_the_ortho_starts_without_numba() -> None:
+    """`sisa ortho` runs as a process of its own; numba would cost it 1.5-2 s of start-up."""
+    import subprocess
+    import sys
+
+    got = subprocess.run([sys.executable, "-c", "import sys, postproc.ortho; "
+                          "print(sorted(m for m in sys.modules if m.split('.')[0] == 'numba'))"],
+                         capture_output=True, text=True, check=True)
+    assert got.stdout.strip() == "[]"
+
+
 def test_reads_into_reused_arrays_match_read_lines(tmp_path: Path) -> None:
     img = write_raw(tmp_path / "a.bil", 50, 9)
     raw = EnviRaster.open(tmp_path / "a.bil")

@@ -23,9 +23,10 @@ SKIP_NOSOURCE=YES, one warping thread, GDAL's default block cache of 5 % of RAM)
 --config GDAL_CACHEMAX 1024); on this 2-core machine shared with other work the threaded run
 is often the slower. Ours is the `sisa ortho` command on gdalwarp's grid (--cell, --bounds),
 as a user runs it, with orthorectify()'s defaults (windows made two at a time on threads by
-numba kernels, the GeoTIFF compressed by GDAL in a background thread with
+C kernels, the GeoTIFF compressed by GDAL in a background thread with
 NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB), which also writes the GLT; and once more with
---no-glt, the GeoTIFF alone, the one product gdalwarp makes. The time of orthorectify() itself
+--no-glt, the GeoTIFF alone, the one product gdalwarp makes: each --ours-runs times (default
+3, alternating), the run of median wall time compared. The time of orthorectify() itself
 is read from the summary line.
 
 The position error of a cell is the distance from its centre to the ground position of the
@@ -296,8 +297,20 @@ def errors(folder: Path, grid: OrthoGrid, tag: str) -> dict[str, float]:
 
 # -- the runs --------------------------------------------------------------------------------
 
+def median_run(runs: list[Run]) -> Run:
+    """The run of median wall time (the lower middle one of an even count)."""
+    return sorted(runs, key=lambda r: r.wall_s)[(len(runs) - 1) // 2]
+
+
+def spread(runs: list[Run]) -> str:
+    if len(runs) < 2:
+        return ""
+    walls = sorted(r.wall_s for r in runs)
+    return f"; median of {len(runs)} runs, {walls[0]:.2f}-{walls[-1]:.2f} s"
+
+
 def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
-             codecs: list[str], gdal_modes: list[str]) -> None:
+             codecs: list[str], gdal_modes: list[str], ours_repeats: int) -> None:
     folder = work / "main"
     folder.mkdir()
     t0 = time.perf_counter()
@@ -319,11 +332,16 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
         gds = {mode: measured(gdal_cmd(folder, grid, compress, compress, mode), cwd=folder,
                               outputs=(folder / f"gdal_{compress}.tif",))
                for mode in gdal_modes}
-        us = measured(ours_cmd(folder, grid, compress, compress), outputs=ours_outputs(
-            folder, compress))
+        ours_runs: list[Run] = []
+        alone_runs: list[Run] = []
+        for _ in range(ours_repeats):  # alternating: a slow minute hits both alike
+            ours_runs.append(measured(ours_cmd(folder, grid, compress, compress),
+                                      outputs=ours_outputs(folder, compress)))
+            alone_runs.append(measured(
+                ours_cmd(folder, grid, f"{compress}_alone", compress, glt=False),
+                outputs=ours_outputs(folder, f"{compress}_alone")))
+        us, alone = median_run(ours_runs), median_run(alone_runs)
         _, ortho_s = ours_summary(us)
-        alone = measured(ours_cmd(folder, grid, f"{compress}_alone", compress, glt=False),
-                         outputs=ours_outputs(folder, f"{compress}_alone"))
         _, alone_ortho_s = ours_summary(alone)
         print(f"[{compress} GeoTIFF, tiled 512]  (load average {os.getloadavg()[0]:.1f} on "
               f"{os.cpu_count()} cores)")
@@ -331,10 +349,11 @@ def main_run(work: Path, lines: int, pixels: int, bands: int, cell_m: float,
             print(f"  gdalwarp ({mode:7s}): {gd.wall_s:7.2f} s wall, {gd.cpu_s:7.2f} s CPU, "
                   f"peak RSS {gd.peak_rss_mb:6.0f} MB")
         print(f"  sisa ortho:        {us.wall_s:7.2f} s wall, {us.cpu_s:7.2f} s CPU, peak RSS "
-              f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {ortho_s:.2f} s wall)")
+              f"{us.peak_rss_mb:6.0f} MB (orthorectify() itself {ortho_s:.2f} s wall)"
+              f"{spread(ours_runs)}")
         print(f"  ... --no-glt:      {alone.wall_s:7.2f} s wall, {alone.cpu_s:7.2f} s CPU, peak "
               f"RSS {alone.peak_rss_mb:6.0f} MB (orthorectify() itself {alone_ortho_s:.2f} s "
-              "wall): the GeoTIFF alone, as gdalwarp makes")
+              f"wall): the GeoTIFF alone, as gdalwarp makes{spread(alone_runs)}")
         best = min(gds, key=lambda m: gds[m].wall_s)
         gd = gds[best]
         print(f"  speed-up against the faster gdalwarp ({best}): {gd.wall_s / us.wall_s:.1f}x "
@@ -390,6 +409,9 @@ def main() -> None:
                     help="gdalwarp runs per codec: plain (one thread), threads (-multi, "
                          "NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 1 GB); the speed-up is against "
                          "the faster")
+    ap.add_argument("--ours-runs", type=int, default=3,
+                    help="runs of `sisa ortho` per codec (with and without GLT, alternating); "
+                         "the median is compared (gdalwarp takes 10x longer: one run a mode)")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temp)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch files")
     args = ap.parse_args()
@@ -397,7 +419,7 @@ def main() -> None:
     try:
         warm_up(work)
         main_run(work, args.lines, args.pixels, args.bands, args.cell_m,
-                 args.codecs.split(","), args.gdal_modes.split(","))
+                 args.codecs.split(","), args.gdal_modes.split(","), max(args.ours_runs, 1))
         if args.big_gb > 0:
             big_run(work, args.big_gb, args.pixels, args.bands, args.cell_m)
     finally:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+import warnings
 from collections import Counter
 from collections.abc import Collection
 from dataclasses import dataclass
@@ -289,6 +290,10 @@ def rtklib_trajectory(path: Path | str, columns: dict[str, Columns], ins_times: 
 
 # --- Applanix SBET ----------------------------------------------------------------------------
 
+class PartialRecordWarning(UserWarning):
+    """A trajectory file ends in part of a record, left out."""
+
+
 @dataclass(frozen=True)
 class Sbet:
     """SBET records with their full GPS times."""
@@ -302,10 +307,15 @@ def _sbet_values(path: Path) -> npt.NDArray[np.void]:
         size = path.stat().st_size
     except OSError as exc:
         raise InputError(f"{path}: unreadable: {exc}") from None
-    if size == 0 or size % SBET_RECORD_BYTES:
+    whole, rest = divmod(size, SBET_RECORD_BYTES)
+    if whole == 0:
         raise InputError(f"{path}: {size} bytes is not a whole number of {SBET_RECORD_BYTES}-byte"
                          " SBET records (17 little-endian float64)")
-    rec = np.fromfile(path, dtype=SBET_DTYPE)
+    if rest:  # a file cut while written: its whole records are still good
+        warnings.warn(f"{path}: the last {rest} bytes are not a whole {SBET_RECORD_BYTES}-byte "
+                      f"SBET record (a file cut while written?): read the {whole} records "
+                      "before them", PartialRecordWarning, stacklevel=3)
+    rec = np.fromfile(path, dtype=SBET_DTYPE, count=whole)
     values = rec.view("<f8").reshape(-1, len(SBET_FIELDS))
     bad = np.argwhere(~np.isfinite(values))
     if bad.size:

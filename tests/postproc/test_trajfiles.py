@@ -18,6 +18,7 @@ import pytest
 
 from postproc.navigation import PiecewiseTrajectory
 from postproc.trajfiles import (
+    PartialRecordWarning,
     read_rtklib_pos,
     read_sbet,
     read_trajectory_file,
@@ -324,7 +325,7 @@ def test_sbet_week_from_a_reference_within_half_a_week() -> None:
 
 
 @pytest.mark.parametrize(("damage", "message"), [
-    (lambda b: b + b"\0" * 5, r"sbet\.out: 413 bytes is not a whole number of 136-byte"),
+    (lambda b: b[:100], r"sbet\.out: 100 bytes is not a whole number of 136-byte"),
     (lambda b: b"", r"sbet\.out: 0 bytes"),
     (lambda b: b[:136 * 2 + 8 * 8] + np.float64(np.nan).tobytes() + b[136 * 2 + 8 * 9:],
      r"sbet\.out: record 2 \(byte 272\): pitch_rad is not finite"),
@@ -337,6 +338,19 @@ def test_a_bad_sbet_is_one_clear_line(tmp_path: Path, damage: Any, message: str)
     with pytest.raises(InputError, match=message) as err:
         read_sbet(path, T0_NS)
     assert "\n" not in str(err.value)
+
+
+def test_an_sbet_cut_mid_record_keeps_its_whole_records(tmp_path: Path) -> None:
+    """An SBET logger stopped while writing: the records before the partial one are read,
+    with a warning naming what was left out (the file was refused whole before)."""
+    path = tmp_path / "sbet.out"
+    write_sbet(path, SBET_T[:50])
+    whole = read_sbet(path, T0_NS)
+    path.write_bytes(path.read_bytes()[:136 * 40 + 77])
+    with pytest.warns(PartialRecordWarning, match=r"last 77 bytes .* read the 40 records"):
+        cut = read_sbet(path, T0_NS)
+    np.testing.assert_array_equal(cut.t_gps_ns, whole.t_gps_ns[:40])
+    assert cut.records.tobytes() == whole.records[:40].tobytes()
 
 
 def test_trajectory_file_told_apart_by_content(tmp_path: Path, synthetic: Any) -> None:

@@ -12,8 +12,10 @@ import math
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Sequence
 from types import FrameType
+from typing import Final, TextIO
 
 from sisa import __version__
 from sisa.errors import InputError, SisaError
@@ -153,9 +155,25 @@ def run() -> None:
     would walk them all again while it tears the modules down, 0.1-0.5 s of a short command's
     time on our 2-core VM. Everything is written and closed by now, so they are frozen out of
     its reach: they are freed with the process. Not in `main`, which tests call in-process."""
+    warnings.showwarning = _one_line_warning
     code = main(batch_gc=True)
     gc.freeze()
     sys.exit(code)
+
+
+OWN_PACKAGES: Final = frozenset({"sisa", "emulators", "acquisition", "recorder", "postproc"})
+
+
+def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
+                      lineno: int, file: TextIO | None = None, line: str | None = None
+                      ) -> None:
+    """SISA's own warnings (a DEM's undeclared voids, an SBET cut mid-record) are said to
+    the user in one line, like its errors; others keep Python's form, source line included."""
+    if category.__module__.split(".")[0] in OWN_PACKAGES:
+        text = f"sisa: warning: {message}\n"
+    else:
+        text = warnings.formatwarning(message, category, filename, lineno, line)
+    print(text, end="", file=file or sys.stderr)
 
 
 if __name__ == "__main__":

@@ -278,3 +278,20 @@ def test_sigterm_cleans_up_like_ctrl_c(tmp_path):
     assert proc.returncode == 143, err
     assert err.strip().splitlines()[-1] == "sisa simulate: terminated", err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_own_warnings_are_one_line_and_others_keep_their_form(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The console script says SISA's warnings as it says its errors; a library's warning
+    keeps Python's form (file, line, category) so it can be traced."""
+    from postproc.dem import DemVoidWarning
+    from postproc.trajfiles import PartialRecordWarning
+    from sisa.cli import _one_line_warning
+
+    for category in (PartialRecordWarning, DemVoidWarning):
+        _one_line_warning(category("a.out: cut"), category, "/x/trajfiles.py", 12)
+        assert capsys.readouterr().err == "sisa: warning: a.out: cut\n"
+    _one_line_warning(RuntimeWarning("overflow"), RuntimeWarning, "/x/lib.py", 7, line="f()")
+    err = capsys.readouterr().err
+    assert "/x/lib.py:7: RuntimeWarning: overflow" in err
+    assert "f()" in err

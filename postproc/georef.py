@@ -28,7 +28,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 import rasterio
-from pyproj import CRS, Transformer
+from pyproj import CRS, Proj, Transformer
 from rasterio.errors import NotGeoreferencedWarning
 
 from postproc.dem import Dem, dem_extent, height_range
@@ -195,10 +195,11 @@ class GeorefJob:
         self.opt = options
         self.dem_epsg, self.dem_bounds = dem_extent(options.dem)
         self.epsg = self.dem_epsg if options.epsg is None else options.epsg
-        check_output_crs(self.epsg)
+        crs = check_output_crs(self.epsg)
         self._to_out = (None if self.epsg == self.dem_epsg else
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        self.warnings: list[str] = []
+        note = grid_scale_note(crs, self.dem_epsg, self.dem_bounds)
+        self.warnings: list[str] = [] if note is None else [note]
         self.trajectory_info: dict[str, Any] = {}
 
     # -- the steps ---------------------------------------------------------------------------
@@ -541,6 +542,32 @@ def check_output_crs(epsg: int) -> CRS:
         raise InputError(f"EPSG:{epsg} ({crs.name}): axes in {said}: products need a projected "
                          "CRS in metres")
     return crs
+
+
+GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
+
+
+def grid_scale_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, float, float]
+                    ) -> str | None:
+    """A warning when a metre of the output grid is not a metre on the ground at the DEM's
+    centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
+    Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
+    distances are grid metres, which users take for ground metres."""
+    w, s, e, n = dem_bounds
+    lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
+        (w + e) / 2, (s + n) / 2)
+    factors = Proj(crs).get_factors(lon, lat)
+    scales = (factors.meridional_scale, factors.parallel_scale)
+    if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
+            math.isfinite(k) and k > 0 for k in scales):
+        return None
+    k = max(scales, key=lambda v: abs(v - 1))
+    zone = int((lon + 180) // 6) % 60 + 1
+    utm = (32600 if lat >= 0 else 32700) + zone
+    return (f"EPSG:{crs.to_epsg()} ({crs.name}): a metre of its grid is {1 / k:.3f} m on the "
+            f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
+            f"distances in the products are grid metres; UTM there (--crs {utm}) keeps them "
+            "within 0.1 %")
 
 
 def _median(parts: list[F64]) -> float:

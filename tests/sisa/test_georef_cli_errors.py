@@ -81,6 +81,24 @@ def test_the_job_itself_refuses_them(inputs: Path, epsg: int, says: str) -> None
         GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
 
 
+@pytest.mark.parametrize(("epsg", "ground_m"), [(3857, "0.747 m"), (32631, None),
+                                                (25831, None), (2056, None), (32630, None)])
+def test_a_grid_whose_metres_are_not_ground_metres_is_said(
+        inputs: Path, epsg: int, ground_m: str | None) -> None:
+    """EPSG:3857 has metre axes but, at the DEM's 41.6°N, 0.747 ground metres per grid metre:
+    accepted (products are right in its coordinates), with a warning that names the UTM zone;
+    UTM, a neighbouring zone, ETRS89 and the Swiss grid stay within 1 % there and say nothing."""
+    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", epsg=epsg)
+    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+    if ground_m is None:
+        assert job.warnings == []
+        return
+    note, = job.warnings
+    assert f"EPSG:{epsg}" in note
+    assert f"a metre of its grid is {ground_m} on the ground" in note
+    assert "--crs 32631" in note
+
+
 @pytest.mark.parametrize("command", ["georef", "process"])
 def test_the_options_the_trajectory_messages_name_exist(command: str) -> None:
     head = (["georef", "f.mcap", "--scanner", "s", "--dem", "d.tif", "--out", "o"]

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,14 +26,12 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-import rasterio
 from pyproj import CRS, Proj, Transformer
-from rasterio.errors import NotGeoreferencedWarning
 
 from postproc.dem import Dem, dem_extent, height_range
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
-from postproc.igm import IgmWriter, write_geolocation_vrt
+from postproc.igm import EnviRaster, IgmWriter, write_geolocation_vrt
 from postproc.jsonio import write_json
 from postproc.mosaic import mosaic
 from postproc.navigation import (
@@ -175,15 +172,16 @@ def segment_image(scanner_dir: Path, segment: int) -> Path:
     return path
 
 
-def image_shape(path: Path) -> tuple[int, int, int]:
-    """(lines, bands, pixels) from the ENVI header, through GDAL."""
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a raw image has no map
-            with rasterio.open(path) as ds:
-                return int(ds.height), int(ds.count), int(ds.width)
-    except rasterio.errors.RasterioIOError as exc:
-        raise InputError(f"{path}: not a readable ENVI image: {exc}") from None
+def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
+    """The segment's raw image, and what to say when its file is cut short (None if whole):
+    the lines before the cut are georeferenced, the rest named as missing."""
+    raw = EnviRaster.open(path)
+    if not raw.cut_short:
+        return raw, None
+    return raw, (f"segment {segment}: {path.name} is cut short: {raw.lines} of its header's "
+                 f"{raw.header_lines} lines are in the file (a copy or a recording "
+                 f"interrupted?): lines {raw.lines}-{raw.header_lines - 1} are not "
+                 "georeferenced")
 
 
 class GeorefJob:
@@ -314,17 +312,20 @@ class GeorefJob:
                          ln.t_gps_ns, ln.status)
         write_report(sync_dir / "sync_report.json", result.report)
 
-    def segment_eo(self, result: SyncResult, traj: Trajectory, segment: int, n_lines: int
-                   ) -> tuple[LineEo, I64]:
-        """EO of every line of the segment's image (invalid where the line has no time)."""
+    def segment_eo(self, result: SyncResult, traj: Trajectory, segment: int, n_lines: int,
+                   header_lines: int | None = None) -> tuple[LineEo, I64]:
+        """EO of every line of the segment's image (invalid where the line has no time).
+        `header_lines`: what the image's header declares when its file holds only `n_lines`
+        (cut short): the lines file may list those, which are left out."""
         ln = result.lines
         sel = ln.segment == segment
         t = np.full(n_lines, -1, dtype=np.int64)
         rows = ln.line[sel]
-        if rows.size and (rows.min() < 0 or rows.max() >= n_lines):
+        declared = n_lines if header_lines is None else max(header_lines, n_lines)
+        if rows.size and (rows.min() < 0 or rows.max() >= declared):
             raise InputError(f"segment {segment}: the lines file has line {rows.max()} but the "
-                             f"image only {n_lines} lines")
-        ok = ln.status[sel] == TimeStatus.OK
+                             f"image only {declared} lines")
+        ok = (ln.status[sel] == TimeStatus.OK) & (rows < n_lines)
         t[rows[ok]] = ln.t_gps_ns[sel][ok]
         timed = t >= 0
         eo = exterior_orientation(traj, np.where(timed, t, traj.span_ns[0]),
@@ -375,7 +376,8 @@ class GeorefJob:
 
     def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, image: Path,
                              progress: Progress | None) -> SegmentResult:
-        n_lines, _bands, pixels = image_shape(image)
+        raw = EnviRaster.open(image)
+        n_lines, pixels = raw.lines, raw.pixels
         self.opt.sensor.check_pixels(pixels, str(image))
         look = self.opt.sensor.scanner.look_vectors_camera()
         dem = self.dem_window(eo)
@@ -446,19 +448,23 @@ class GeorefJob:
         self.write_sync(result)
         segments = sorted({int(s) for s in result.lines.segment})
         images = {s: segment_image(self.scanner_dir, s) for s in segments}
-        shapes = {s: image_shape(images[s]) for s in segments}
+        rasters = {}
+        for s in segments:
+            rasters[s], cut = segment_raster(images[s], s)
+            if cut is not None:
+                self.warnings.append(cut)
         if on_total is not None:
-            on_total(sum(shapes[s][0] for s in segments))
+            on_total(sum(rasters[s].lines for s in segments))
         done: list[SegmentResult] = []
         skipped: list[SegmentSkip] = []
         for s in segments:
-            eo, t = self.segment_eo(result, traj, s, shapes[s][0])
+            eo, t = self.segment_eo(result, traj, s, rasters[s].lines, rasters[s].header_lines)
             if (skip := self.coverage(result, traj, s, eo, t)) is not None:
                 skipped.append(skip)
                 self.warnings.append(skip.message)
             if not eo.valid.any():
                 if progress is not None:
-                    progress(shapes[s][0])
+                    progress(rasters[s].lines)
                 continue
             done.append(self.georeference_segment(s, eo, t, images[s], progress))
         if not done:

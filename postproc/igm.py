@@ -16,7 +16,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, Final
@@ -62,6 +62,7 @@ class EnviRaster:
     band_names: tuple[str, ...]
     wavelengths_nm: tuple[float | None, ...]
     envi: dict[str, str]  # the header's fields as GDAL parsed them (keys with underscores)
+    header_lines: int = -1  # lines the header declares; more than `lines` in a file cut short
 
     @classmethod
     def open(cls, path: Path) -> EnviRaster:
@@ -91,18 +92,29 @@ class EnviRaster:
         raster = cls(path, *shape, dtype.newbyteorder("<") if dtype.byteorder == "=" else dtype,
                      interleave, int(float(envi.get("header_offset", "0"))),
                      None if nodata is None else float(nodata), names, wl, envi)
-        raster._check_size()
-        return raster
+        return raster._whole_lines()
 
     @property
     def line_bytes(self) -> int:
         return self.bands * self.pixels * self.dtype.itemsize
 
-    def _check_size(self) -> None:
+    @property
+    def cut_short(self) -> bool:
+        return self.lines < self.header_lines
+
+    def _whole_lines(self) -> EnviRaster:
+        """The raster as far as its file holds whole lines. A BIL or BIP file shorter than its
+        header (a copy or a recording interrupted) keeps the lines before the cut (`lines`;
+        the header's count in `header_lines`: callers say what is missing); a BSQ file, whose
+        every band would be cut, or one without a whole line, is refused."""
         need = self.header_offset + self.lines * self.line_bytes
         have = self.path.stat().st_size
-        if have < need:
+        whole = max(have - self.header_offset, 0) // self.line_bytes if self.line_bytes else 0
+        if have >= need:
+            return replace(self, header_lines=self.lines)
+        if self.interleave == "bsq" or whole == 0:
             raise InputError(f"{self.path}: truncated: {have} bytes, the header needs {need}")
+        return replace(self, lines=whole, header_lines=self.lines)
 
     def read_lines(self, line0: int, line1: int) -> npt.NDArray[Any]:
         """Lines [line0, line1) as an array (lines, bands, pixels) in native byte order."""

@@ -3,6 +3,7 @@ geolocation VRT landing every cell on a pixel centred near it (no half-pixel shi
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ from rasterio.errors import NotGeoreferencedWarning
 
 from postproc.igm import (
     IGM_BAND_NAMES,
+    EnviRaster,
     IgmWriter,
     igm_epsg,
     open_igm,
@@ -275,3 +277,36 @@ def test_vrt_refuses_mismatched_igm(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="IGM is 30 x 8"):
         write_geolocation_vrt(tmp_path / "v.vrt", tmp_path / "img.bil", igm, EPSG)
     assert not (tmp_path / "v.vrt").exists()
+
+
+@pytest.mark.parametrize("interleave", ["bil", "bip"])
+def test_a_raster_cut_mid_line_keeps_its_whole_lines(tmp_path: Path, interleave: str) -> None:
+    """A line-interleaved file shorter than its header: the lines before the cut are read
+    as written, the header's count is kept apart (callers say what is missing)."""
+    img = write_raw(tmp_path / "a.bil", 40, 9)
+    if interleave == "bip":
+        img.transpose(0, 2, 1).astype("<u2").tofile(tmp_path / "a.bil")
+        hdr = tmp_path / "a.hdr"
+        hdr.write_text(hdr.read_text().replace("interleave = bil", "interleave = bip"))
+    line_bytes = img.shape[1] * img.shape[2] * 2
+    os.truncate(tmp_path / "a.bil", 17 * line_bytes + 5)
+    raw = EnviRaster.open(tmp_path / "a.bil")
+    assert (raw.lines, raw.header_lines, raw.cut_short) == (17, 40, True)
+    np.testing.assert_array_equal(raw.read_lines(0, 17), img[:17])
+    with pytest.raises(InputError, match=r"lines \[0, 18\) outside 0\.\.17"):
+        raw.read_lines(0, 18)
+    write_raw(tmp_path / "whole.bil", 40, 9)
+    whole = EnviRaster.open(tmp_path / "whole.bil")
+    assert (whole.lines, whole.header_lines, whole.cut_short) == (40, 40, False)
+
+
+@pytest.mark.parametrize(("interleave", "size"), [("bsq", 17 * 9 * 2 * 5), ("bil", 10)])
+def test_a_cut_raster_without_a_whole_line_or_in_bands_is_refused(
+        tmp_path: Path, interleave: str, size: int) -> None:
+    """BSQ cut short has every band incomplete; a BIL shorter than one line has nothing."""
+    write_raw(tmp_path / "a.bil", 40, 9)
+    hdr = tmp_path / "a.hdr"
+    hdr.write_text(hdr.read_text().replace("interleave = bil", f"interleave = {interleave}"))
+    os.truncate(tmp_path / "a.bil", size)
+    with pytest.raises(InputError, match=r"a\.bil: truncated: \d+ bytes, the header needs"):
+        EnviRaster.open(tmp_path / "a.bil")

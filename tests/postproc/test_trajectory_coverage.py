@@ -253,6 +253,45 @@ def test_log_cut_between_the_strips_georeferences_strip_0(
     assert s["skipped"][0]["reason"] == "no line time"
 
 
+def test_image_cut_mid_line_georeferences_its_whole_lines(
+        run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A segment image shorter than its header (a copy interrupted): the job no longer fails
+    whole; the lines before the cut are georeferenced as from the intact file, the rest are
+    named in one warning (stderr and summary)."""
+    from postproc.igm import EnviRaster
+
+    scanner = tmp_path / "scanner"
+    scanner.mkdir()
+    for f in (run / "scanner").iterdir():
+        (scanner / f.name).write_bytes(f.read_bytes())
+    raw = EnviRaster.open(scanner / "segment_001.bil")
+    keep = raw.lines // 3
+    os.truncate(scanner / "segment_001.bil", keep * raw.line_bytes + 77)
+    rc, _, err = georef(run, tmp_path / "whole", capsys)
+    assert rc == 0, err
+    capsys.readouterr()
+    rc = main(["georef", str(run / "flight.mcap"), "--scanner", str(scanner),
+               "--dem", str(run / "terrain" / "dem.tif"), "--out", str(tmp_path / "cut"),
+               "--no-products"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    warning, = err.splitlines()
+    assert warning == (f"sisa georef: warning: segment 1: segment_001.bil is cut short: {keep} "
+                       f"of its header's {raw.lines} lines are in the file (a copy or a "
+                       f"recording interrupted?): lines {keep}-{raw.lines - 1} are not "
+                       "georeferenced")
+    s = summary(tmp_path / "cut")
+    assert s["warnings"] == [warning.removeprefix("sisa georef: warning: ")]
+    seg0, seg1 = s["segments"]
+    assert seg1["lines"] == keep
+    assert seg0 == summary(tmp_path / "whole")["segments"][0]
+    np.testing.assert_array_equal(igm(tmp_path / "cut", 0), igm(tmp_path / "whole", 0))
+    # the ray caster works relative to an origin set by the lines it is given: 0.01 mm here,
+    # well inside its < 1 mm contract
+    np.testing.assert_allclose(igm(tmp_path / "cut", 1), igm(tmp_path / "whole", 1)[:, :keep],
+                               rtol=0, atol=1e-4)
+
+
 def test_sbet_of_another_day_is_one_line_with_both_spans(
         run: Path, truth: TruthTrajectory, tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:

@@ -283,6 +283,29 @@ def open_log(path: Path) -> BinaryIO:
     return fh
 
 
+FIRST_DATA_KEY_BYTES: Final = 32  # a chunk's start and end times, size and CRC
+
+
+def first_data_key(path: Path) -> bytes | None:
+    """The first bytes of a log's first chunk (or unchunked message): its start and end
+    times, size and CRC. Two parts of one recording differ there; a file and a copy of it,
+    even one cut short, do not. None where there is no such record (or no MCAP)."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                return None
+            while len(head := fh.read(_RECORD_HEAD)) == _RECORD_HEAD:
+                length = int.from_bytes(head[1:], "little")
+                if head[0] in (Opcode.CHUNK, Opcode.MESSAGE):
+                    want = min(length, FIRST_DATA_KEY_BYTES)
+                    key = fh.read(want)
+                    return key if want and len(key) == want else None
+                fh.seek(length, io.SEEK_CUR)
+    except OSError:
+        pass
+    return None
+
+
 class LogReader:
     """One pass over a flight log (a file or the parts of a split set, in order).
 

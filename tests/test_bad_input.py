@@ -53,6 +53,8 @@ def inputs(tmp_path: Path, valid_log: Path) -> Path:
     (tmp_path / "taken" / "keep.txt").write_text("mine\n")
     (tmp_path / "flight.mcap").write_bytes(valid_log.read_bytes())
     (tmp_path / "stale_001.mcap").write_bytes(b"")  # a part left from another recording
+    log = valid_log.read_bytes()
+    (tmp_path / "copy_cut.mcap").write_bytes(log[:len(log) // 2])  # a copy that stopped
     return tmp_path
 
 
@@ -170,6 +172,11 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     # counted every message twice
     _case("log info {d}/flight.mcap {d}/flight.mcap", "{d}/flight.mcap is given twice"),
     _case("sync {d}/flight.mcap {d}/folder/../flight.mcap --out {d}/s", "is given twice"),
+    # a log and a (cut) copy of it were read as one flight with an INS reboot between
+    _case("log info {d}/flight.mcap {d}/copy_cut.mcap",
+          "{d}/copy_cut.mcap starts with the same data as {d}/flight.mcap (a copy of it?)"),
+    _case("sync {d}/copy_cut.mcap {d}/flight.mcap --out {d}/s",
+          "{d}/flight.mcap starts with the same data as {d}/copy_cut.mcap"),
     # a traceback after the ports were up (emulate), or ports opened before the error (replay)
     _case("emulate --endpoints {d}/nodir/ep.json --out {d}/emu", "--endpoints", "{d}/nodir"),
     _case("emulate --endpoints {d}/folder --out {d}/emu", "--endpoints", "is a folder"),

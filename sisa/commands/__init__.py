@@ -51,6 +51,7 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
     a split recording beside it (flight.mcap, flight_001.mcap, ...: `sisa record --split-*`),
     so that naming the first part never reads a flight only in part. A missing file is left
     for the reader to report."""
+    from recorder.reader import first_data_key
     from recorder.writer import split_parts
 
     if len(files) != 1:
@@ -59,8 +60,16 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
             if path.resolve() in seen:
                 raise InputError(f"{path} is given twice: each part of a flight is read once")
             seen.add(path.resolve())
-        return list(files)
-    return split_parts(files[0]) or list(files)
+    parts = list(files) if len(files) != 1 else split_parts(files[0]) or list(files)
+    first: dict[bytes, Path] = {}
+    for path in parts if len(parts) > 1 else ():
+        key = first_data_key(path)
+        if key is not None and key in first:
+            raise InputError(f"{path} starts with the same data as {first[key]} (a copy of "
+                             "it?): each part of a flight is read once")
+        if key is not None:
+            first[key] = path
+    return parts
 
 
 MAX_SEED = 2**32 - 1  # numpy's seeds, and the scenario's

@@ -300,9 +300,10 @@ class Sbet:
 
     t_gps_ns: I64
     records: npt.NDArray[np.void]  # structured, SBET_DTYPE fields
+    cut_note: str | None = None  # said when the file ends in part of a record (left out)
 
 
-def _sbet_values(path: Path) -> npt.NDArray[np.void]:
+def _sbet_values(path: Path) -> tuple[npt.NDArray[np.void], str | None]:
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -311,10 +312,10 @@ def _sbet_values(path: Path) -> npt.NDArray[np.void]:
     if whole == 0:
         raise InputError(f"{path}: {size} bytes is not a whole number of {SBET_RECORD_BYTES}-byte"
                          " SBET records (17 little-endian float64)")
-    if rest:  # a file cut while written: its whole records are still good
-        warnings.warn(f"{path}: the last {rest} bytes are not a whole {SBET_RECORD_BYTES}-byte "
-                      f"SBET record (a file cut while written?): read the {whole} records "
-                      "before them", PartialRecordWarning, stacklevel=3)
+    note = None  # a file cut while written: its whole records are still good
+    if rest:
+        note = (f"{path}: the last {rest} bytes are not a whole {SBET_RECORD_BYTES}-byte SBET "
+                f"record (a file cut while written?): read the {whole} records before them")
     rec = np.fromfile(path, dtype=SBET_DTYPE, count=whole)
     values = rec.view("<f8").reshape(-1, len(SBET_FIELDS))
     bad = np.argwhere(~np.isfinite(values))
@@ -328,7 +329,7 @@ def _sbet_values(path: Path) -> npt.NDArray[np.void]:
         i = int(out[0])
         raise InputError(f"{path}: record {i}: time or latitude/longitude out of range "
                          "(seconds of week; radians)")
-    return rec
+    return rec, note
 
 
 def sbet_times_ns(tow_s: F64, reference_gps_ns: int) -> I64:
@@ -346,14 +347,14 @@ def sbet_times_ns(tow_s: F64, reference_gps_ns: int) -> I64:
 def read_sbet(path: Path | str, reference_gps_ns: int) -> Sbet:
     """An SBET file, checked: size, finite values, ranges, strictly increasing times."""
     path = Path(path)
-    rec = _sbet_values(path)
+    rec, note = _sbet_values(path)
     t = sbet_times_ns(np.asarray(rec["time_s"], np.float64), reference_gps_ns)
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         i = int(back[0]) + 1
         raise InputError(f"{path}: record {i}: time {float(rec['time_s'][i]):.6f} s of week does"
                          " not increase")
-    return Sbet(t, rec)
+    return Sbet(t, rec, note)
 
 
 @dataclass(frozen=True)
@@ -366,10 +367,16 @@ class _SplinePosition:
 
 def sbet_trajectory(path: Path | str, reference_gps_ns: int, *,
                     reference_offset_m: npt.ArrayLike = (0.0, 0.0, 0.0),
-                    max_gap_s: float = SBET_MAX_GAP_S) -> PiecewiseTrajectory:
+                    max_gap_s: float = SBET_MAX_GAP_S,
+                    report: dict[str, Any] | None = None) -> PiecewiseTrajectory:
     """The INS-centre trajectory of an SBET. `reference_offset_m`: INS centre → the point the
-    SBET refers to, body frame (zero for an SBET of the INS centre)."""
+    SBET refers to, body frame (zero for an SBET of the INS centre). A file cut mid-record is
+    said in `report["warnings"]` when a report is given, else as a PartialRecordWarning."""
     sb = read_sbet(path, reference_gps_ns)
+    if sb.cut_note is not None and report is not None:
+        report.setdefault("warnings", []).append(sb.cut_note)
+    elif sb.cut_note is not None:
+        warnings.warn(sb.cut_note, PartialRecordWarning, stacklevel=2)
     r = sb.records
     r_bn = body_to_ned_matrix(r["roll_rad"], r["pitch_rad"],
                               r["platform_heading_rad"] - r["wander_rad"])
@@ -543,7 +550,8 @@ def read_trajectory_file(path: Path | str, columns: dict[str, Columns], ins_time
     info["format"] = "Applanix SBET"
     return sbet_trajectory(path, _reference_gps_ns(columns, ins_times),
                            reference_offset_m=sbet_offset_m,
-                           max_gap_s=SBET_MAX_GAP_S if max_gap_s is None else max_gap_s)
+                           max_gap_s=SBET_MAX_GAP_S if max_gap_s is None else max_gap_s,
+                           report=info)
 
 
 __all__ = ["LEAP_SECONDS_RANGE", "RTK_Q_ALL", "SBET_DTYPE", "SBET_FIELDS", "TRAJ_WANTED",

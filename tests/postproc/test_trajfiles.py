@@ -340,17 +340,30 @@ def test_a_bad_sbet_is_one_clear_line(tmp_path: Path, damage: Any, message: str)
     assert "\n" not in str(err.value)
 
 
-def test_an_sbet_cut_mid_record_keeps_its_whole_records(tmp_path: Path) -> None:
-    """An SBET logger stopped while writing: the records before the partial one are read,
-    with a warning naming what was left out (the file was refused whole before)."""
+def test_an_sbet_cut_mid_record_keeps_its_whole_records(tmp_path: Path, synthetic: Any
+                                                         ) -> None:
+    """An SBET logger stopped while writing: the records before the partial one are read
+    (the file was refused whole before), and what was left out is said: in the report's
+    warnings (georef prints them and keeps them in its summary), else as a warning."""
     path = tmp_path / "sbet.out"
-    write_sbet(path, SBET_T[:50])
+    write_sbet(path, SBET_T)
     whole = read_sbet(path, T0_NS)
-    path.write_bytes(path.read_bytes()[:136 * 40 + 77])
-    with pytest.warns(PartialRecordWarning, match=r"last 77 bytes .* read the 40 records"):
-        cut = read_sbet(path, T0_NS)
-    np.testing.assert_array_equal(cut.t_gps_ns, whole.t_gps_ns[:40])
-    assert cut.records.tobytes() == whole.records[:40].tobytes()
+    assert whole.cut_note is None
+    keep = SBET_T.size - 40
+    path.write_bytes(path.read_bytes()[:136 * keep + 77])
+    cut = read_sbet(path, T0_NS)
+    assert cut.cut_note is not None
+    assert "last 77 bytes are not a whole 136-byte SBET record" in cut.cut_note
+    assert f"read the {keep} records before them" in cut.cut_note
+    np.testing.assert_array_equal(cut.t_gps_ns, whole.t_gps_ns[:keep])
+    assert cut.records.tobytes() == whole.records[:keep].tobytes()
+    cols, times = synthetic
+    info: dict[str, Any] = {}
+    traj = read_trajectory_file(path, cols, times, antenna_offset_m=G_B, report=info)
+    assert traj.span_ns == (int(SBET_T[0]), int(SBET_T[keep - 1]))
+    assert info["warnings"] == [cut.cut_note]
+    with pytest.warns(PartialRecordWarning, match="last 77 bytes"):
+        sbet_trajectory(path, T0_NS)
 
 
 def test_trajectory_file_told_apart_by_content(tmp_path: Path, synthetic: Any) -> None:

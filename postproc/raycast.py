@@ -85,6 +85,8 @@ SLOPE_MARGIN: Final = 0.98  # first-root test: slope × rate must stay below thi
 BOX_MARGIN_M: Final = 60.0  # map box beyond the sampled footprints...
 BOX_MARGIN_FRACTION: Final = 0.1  # ...plus this fraction of its size
 BAND_PAD_M: Final = 10.0  # map box reaches this far above / below the DEM's heights
+FOOTPRINT_LEVELS: Final = 17  # heights spanning the DEM's range; a block's band is widened
+# to the nearest of them (its map box is sized by footprints there)
 SAFE_SEGMENT_M: Final = 4.0  # longest stretch of ray solved as one quadratic in the safe path
 REFERENCE_MIN_STEP_M: Final = 1e-4
 REFERENCE_MAX_STEPS: Final = 100_000  # march steps per ray; a ray still marching then: missed
@@ -407,15 +409,24 @@ class _Maps:
     h0_m: F64  # (b,)
     box_en_m: F64  # (b, 4) west, south, east, north where the map is valid
     error_m: F64  # (b,) worst check-point error
+    low_m: F64  # (b,) lowest and highest terrain the block's rays can meet (see
+    high_m: F64  # _fit_block_maps): the height band of the map and of the kernel's search
 
 
-def _fit_maps(boxes: F64, low_m: float, high_m: float, epsg: int) -> _Maps:
-    """Quadratic ENU → (E, N, h) maps over each EN box × [low, high] (padded), by least
-    squares on pyproj at Chebyshev nodes; error at independent check points."""
+_PER_BLOCK: Final = ("origin_ecef_m", "rot", "a", "g", "hess", "en0_m", "h0_m", "box_en_m",
+                      "error_m", "low_m", "high_m")  # _Maps' fields after `starts`, in order
+
+
+def _fit_maps(boxes: F64, low_m: npt.ArrayLike, high_m: npt.ArrayLike, epsg: int) -> _Maps:
+    """Quadratic ENU → (E, N, h) maps over each EN box × [low, high] (padded; per box or one
+    for all), by least squares on pyproj at Chebyshev nodes; error at independent check
+    points."""
     to_geo, to_map, from_map, to_ecef = _transformers(epsg)
     b = boxes.shape[0]
+    low = np.broadcast_to(np.asarray(low_m, np.float64), (b,)).copy()
+    high = np.broadcast_to(np.asarray(high_m, np.float64), (b,)).copy()
     en0 = np.round(0.5 * (boxes[:, :2] + boxes[:, 2:]))
-    h0 = np.full(b, float(round(0.5 * (low_m + high_m))))
+    h0 = np.round(0.5 * (low + high))
     lon0, lat0 = from_map.transform(en0[:, 0], en0[:, 1])
     origin = np.stack(to_ecef.transform(lon0, lat0, h0), axis=-1)
     rot = _enu_rotation(np.radians(lat0), np.radians(lon0))
@@ -424,7 +435,7 @@ def _fit_maps(boxes: F64, low_m: float, high_m: float, epsg: int) -> _Maps:
     fe, fn, fh = (g.ravel() for g in np.meshgrid(t, t, [0.0, 1.0], indexing="ij"))
     e = boxes[:, None, 0] + fe * (boxes[:, None, 2] - boxes[:, None, 0])
     n = boxes[:, None, 1] + fn * (boxes[:, None, 3] - boxes[:, None, 1])
-    h = (low_m - BAND_PAD_M) + fh * (high_m - low_m + 2.0 * BAND_PAD_M) + 0.0 * e
+    h = (low[:, None] - BAND_PAD_M) + fh * (high - low + 2.0 * BAND_PAD_M)[:, None] + 0.0 * e
     p = _map_to_enu(e, n, h, origin, rot, epsg)
     centre = 0.5 * (p.min(axis=1) + p.max(axis=1))
     half = 0.5 * (p.max(axis=1) - p.min(axis=1)) + 2.0
@@ -440,7 +451,7 @@ def _fit_maps(boxes: F64, low_m: float, high_m: float, epsg: int) -> _Maps:
     err = np.abs(_CHECK_MONOMIALS @ coef - exact(_CHECKS))
     a, g, hess = _expand(coef, centre, half)
     return _Maps(np.zeros(0, np.int64), origin, rot, a, g, hess, en0, h0, boxes.copy(),
-                 err.max(axis=(1, 2)))
+                 err.max(axis=(1, 2)), low, high)
 
 
 def _map_to_enu(e: F64, n: F64, h: F64, origin: F64, rot: F64, epsg: int) -> F64:
@@ -478,30 +489,59 @@ def _expand(coef: F64, centre: F64, half: F64) -> tuple[F64, F64, F64]:
 
 def _fit_block_maps(surf: _Surface, centre: F64, rot: F64, unit: F64) -> _Maps:
     """Blocks of BLOCK_LINES lines, each with a map fitted over the box its rays' paths
-    through the DEM's height range cover (from a coarse whole-DEM map); blocks whose map misses
-    MAP_TOLERANCE_M are halved until they fit (a single line that cannot is left with an empty
-    box: its rays go to the reference method)."""
+    through its height band cover (from a coarse whole-DEM map). The band is first the DEM's
+    whole range; a block whose map misses MAP_TOLERANCE_M then takes its own band, and is
+    halved until it fits (a single line that cannot is left with an empty box: its rays go to
+    the reference method). Where every block fits at first, nothing changes.
+
+    A block's height band is the terrain's range inside the box its rays' paths cover through
+    the whole DEM's range (margins as for every box): above the band those paths pass over
+    nothing as high, below it nothing is as low, so the first crossing is within it. Bands
+    keep the maps small where the DEM spans more relief than one block sees (alpine terrain:
+    3.8 km of relief sent every ray to the reference method). A box with a void keeps the
+    DEM's whole range (a ray over a void while in that range is a miss, as before)."""
     dem = surf.dem
     n = centre.shape[0]
     hull = np.array(dem.bounds_m, dtype=np.float64)
     lines = _every(n, 8)
     pix = _every(unit.shape[1], 16)
-    foot = _footprints(surf.coarse_map, centre[lines], rot[lines], unit[:, pix], surf, hull)
+    levels = np.linspace(surf.low_m, surf.high_m, FOOTPRINT_LEVELS)
+    foot: dict[int, F64] = {}  # footprints (sampled lines, 4) at the levels asked for so far
+
+    def footprints(*ks: I64) -> dict[int, F64]:
+        new = sorted({int(k) for k in np.concatenate(ks)} - foot.keys())
+        if new:
+            got = _footprints(surf.coarse_map, centre[lines], rot[lines], unit[:, pix],
+                              levels[new], hull)
+            foot.update({k: got[:, i] for i, k in enumerate(new)})
+        return foot
+
     # equal blocks, as many as a multiple of the threads: the kernel's static schedule is
     # balanced
     threads = numba.get_num_threads()
     count = min(n, math.ceil(math.ceil(n / BLOCK_LINES) / threads) * threads)
     bounds = (np.arange(count + 1, dtype=np.int64) * n) // count
     start, stop = bounds[:-1], bounds[1:]
+    banded = np.zeros(start.size, np.bool_)  # blocks given their own height band
     parts: list[tuple[I64, _Maps]] = []
     for _ in range(64):
-        maps = _fit_maps(_block_boxes(foot, lines, start, stop, hull), surf.low_m, surf.high_m,
-                         dem.epsg)
-        keep = (maps.error_m <= MAP_TOLERANCE_M) | (stop - start == 1)
+        k_lo, k_hi = np.zeros_like(start), np.full_like(start, FOOTPRINT_LEVELS - 1)
+        low, high = np.full(start.size, surf.low_m), np.full(start.size, surf.high_m)
+        if banded.any():
+            reach = _block_boxes(footprints(k_lo, k_hi), lines, start[banded], stop[banded],
+                                 hull, k_lo[banded], k_hi[banded])
+            low[banded], high[banded] = _box_heights(surf, reach)
+            k_lo[banded], k_hi[banded] = _level_span(levels, low[banded], high[banded])
+        boxes = _block_boxes(footprints(k_lo, k_hi), lines, start, stop, hull, k_lo, k_hi)
+        maps = _fit_maps(boxes, low, high, dem.epsg)
+        keep = (maps.error_m <= MAP_TOLERANCE_M) | (banded & (stop - start == 1))
         parts.append((start[keep], _take(maps, keep)))
+        # a block that misses with the DEM's whole range tries its own band first, then halves
+        retry, halve = ~keep & ~banded, ~keep & banded
         mid = (start + stop) // 2
-        start, stop = (np.concatenate([start[~keep], mid[~keep]]),
-                       np.concatenate([mid[~keep], stop[~keep]]))
+        start, stop, banded = (np.concatenate([start[retry], start[halve], mid[halve]]),
+                               np.concatenate([stop[retry], mid[halve], stop[halve]]),
+                               np.ones(int(retry.sum() + 2 * halve.sum()), np.bool_))
         if start.size == 0:
             break
     starts = np.concatenate([p[0] for p in parts])
@@ -512,6 +552,33 @@ def _fit_block_maps(surf: _Surface, centre: F64, rot: F64, unit: F64) -> _Maps:
     return _with_starts(maps, np.append(starts[order], n).astype(np.int64))
 
 
+def _box_heights(surf: _Surface, boxes: F64) -> tuple[F64, F64]:
+    """Lowest and highest DEM sample of each EN box (b, 4), with the cells around its edges;
+    the DEM's whole range where a box holds a void or no sample."""
+    dem = surf.dem
+    low, high = np.full(boxes.shape[0], surf.low_m), np.full(boxes.shape[0], surf.high_m)
+    heights = surf.flat.reshape(surf.rows, surf.cols)
+    for k, (w, s, e, n) in enumerate(boxes):
+        c0 = max(math.floor((w - dem.first_easting_m) / dem.cell_e_m), 0)
+        c1 = min(math.ceil((e - dem.first_easting_m) / dem.cell_e_m) + 1, surf.cols)
+        r0 = max(math.floor((dem.first_northing_m - n) / dem.cell_n_m), 0)
+        r1 = min(math.ceil((dem.first_northing_m - s) / dem.cell_n_m) + 1, surf.rows)
+        if r1 <= r0 or c1 <= c0:
+            continue
+        window = heights[r0:r1, c0:c1]
+        lo, hi = float(window.min()), float(window.max())
+        if math.isfinite(lo) and math.isfinite(hi):  # NaN (a void) propagates: whole range
+            low[k], high[k] = lo, hi
+    return low, high
+
+
+def _level_span(levels: F64, low: F64, high: F64) -> tuple[I64, I64]:
+    """Per block, the footprint levels that bracket [low, high]."""
+    k_lo = np.clip(np.searchsorted(levels, low, side="right") - 1, 0, levels.size - 1)
+    k_hi = np.clip(np.searchsorted(levels, high, side="left"), 0, levels.size - 1)
+    return k_lo.astype(np.int64), np.maximum(k_hi, k_lo).astype(np.int64)
+
+
 def _every(n: int, k: int) -> I64:
     """0, k, 2k, ... and n - 1 (sorted, unique)."""
     idx = np.arange(0, n, k, dtype=np.int64)
@@ -519,34 +586,28 @@ def _every(n: int, k: int) -> I64:
 
 
 def _take(maps: _Maps, keep: B1) -> _Maps:
-    return _Maps(maps.starts, maps.origin_ecef_m[keep], maps.rot[keep], maps.a[keep],
-                 maps.g[keep], maps.hess[keep], maps.en0_m[keep], maps.h0_m[keep],
-                 maps.box_en_m[keep], maps.error_m[keep])
+    return _Maps(maps.starts, *(getattr(maps, f)[keep] for f in _PER_BLOCK))
 
 
 def _concat(parts: list[_Maps], order: I64) -> _Maps:
-    def cat(name: str) -> F64:
-        return np.concatenate([getattr(p, name) for p in parts])[order]
-
-    return _Maps(np.zeros(0, np.int64), cat("origin_ecef_m"), cat("rot"), cat("a"), cat("g"),
-                 cat("hess"), cat("en0_m"), cat("h0_m"), cat("box_en_m"), cat("error_m"))
+    return _Maps(np.zeros(0, np.int64),
+                 *(np.concatenate([getattr(p, f) for p in parts])[order] for f in _PER_BLOCK))
 
 
 def _with_starts(maps: _Maps, starts: I64) -> _Maps:
-    return _Maps(starts, maps.origin_ecef_m, maps.rot, maps.a, maps.g, maps.hess, maps.en0_m,
-                 maps.h0_m, maps.box_en_m, maps.error_m)
+    return _Maps(starts, *(getattr(maps, f) for f in _PER_BLOCK))
 
 
-def _footprints(coarse: _Maps, centre: F64, rot: F64, unit: F64, surf: _Surface,
-                hull: F64) -> F64:
-    """Per line (lines, 4): approximate EN box (west, south, east, north) of where its rays
-    cross the DEM's lowest and highest heights (the camera itself when below), clipped to the
+def _footprints(coarse: _Maps, centre: F64, rot: F64, unit: F64, levels: F64, hull: F64
+                ) -> F64:
+    """Per line and height level (lines, levels, 4): approximate EN box (west, south, east,
+    north) of where its rays cross that height (the camera itself when below), clipped to the
     DEM; the camera's own position when no ray comes down."""
     coarse = _with_starts(coarse, np.array([0, centre.shape[0]], np.int64))
     coef = _line_coefficients(coarse, centre, rot)
-    out = np.empty((centre.shape[0], 4))
-    levels = np.array([surf.low_m, surf.high_m]) - coarse.h0_m[0]
-    _footprint_kernel(coef, _look_products(unit), levels, coarse.en0_m[0], hull, out)
+    out = np.empty((centre.shape[0], levels.size, 4))
+    _footprint_kernel(coef, _look_products(unit), levels - coarse.h0_m[0], coarse.en0_m[0],
+                      hull, out)
     return out
 
 
@@ -554,37 +615,47 @@ def _footprints(coarse: _Maps, centre: F64, rot: F64, unit: F64, surf: _Surface,
 def _footprint_kernel(coef: Any, look9: Any, levels: Any, en0: Any, hull: Any, out: Any
                       ) -> None:
     for i in numba.prange(coef.shape[0]):
-        w, s, e, n = np.inf, np.inf, -np.inf, -np.inf
-        for j in range(look9.shape[1]):
-            be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
-            for level in levels:
-                r = _first_at_or_below(coef[i, 2], bh, ch, level, 0.0)
+        for k in range(levels.size):
+            w, s, e, n = np.inf, np.inf, -np.inf, -np.inf
+            for j in range(look9.shape[1]):
+                be, ce, bn, cn, bh, ch = _terms(coef, look9, i, j)
+                r = _first_at_or_below(coef[i, 2], bh, ch, levels[k], 0.0)
                 if r == r:
                     x = en0[0] + coef[i, 0] + r * (be + r * ce)
                     y = en0[1] + coef[i, 1] + r * (bn + r * cn)
                     w, e = min(w, x), max(e, x)
                     s, n = min(s, y), max(n, y)
-        if w > e:
-            w = e = en0[0] + coef[i, 0]
-            s = n = en0[1] + coef[i, 1]
-        out[i, 0] = min(max(w, hull[0]), hull[2])
-        out[i, 1] = min(max(s, hull[1]), hull[3])
-        out[i, 2] = min(max(e, hull[0]), hull[2])
-        out[i, 3] = min(max(n, hull[1]), hull[3])
+            if w > e:
+                w = e = en0[0] + coef[i, 0]
+                s = n = en0[1] + coef[i, 1]
+            out[i, k, 0] = min(max(w, hull[0]), hull[2])
+            out[i, k, 1] = min(max(s, hull[1]), hull[3])
+            out[i, k, 2] = min(max(e, hull[0]), hull[2])
+            out[i, k, 3] = min(max(n, hull[1]), hull[3])
 
 
-def _block_boxes(foot: F64, lines: I64, start: I64, stop: I64, hull: F64) -> F64:
+def _block_boxes(foot: dict[int, F64], lines: I64, start: I64, stop: I64, hull: F64,
+                 k_lo: I64, k_hi: I64) -> F64:
     """EN boxes (blocks, 4: west, south, east, north) for lines [start, stop): the sampled
-    footprints of the lines around them, grown by BOX_MARGIN_M and BOX_MARGIN_FRACTION, within
-    the DEM."""
+    footprints of the lines around them at the levels k_lo and k_hi of each block (a ray's
+    path between two heights lies between its crossings of them), grown by BOX_MARGIN_M and
+    BOX_MARGIN_FRACTION, within the DEM."""
     lo = np.searchsorted(lines, start - 8)
     hi = np.maximum(np.searchsorted(lines, stop + 8), lo + 1)
-    pad = np.vstack([foot, foot[-1:]])
     idx = np.stack([lo, hi], axis=1).ravel()
-    box = np.stack([np.minimum.reduceat(pad[:, 0], idx)[::2],
-                    np.minimum.reduceat(pad[:, 1], idx)[::2],
-                    np.maximum.reduceat(pad[:, 2], idx)[::2],
-                    np.maximum.reduceat(pad[:, 3], idx)[::2]], axis=1)
+    used = np.union1d(k_lo, k_hi)
+    per_level = np.empty((used.size, start.size, 4))
+    for m, k in enumerate(used.tolist()):
+        pad = np.vstack([foot[k], foot[k][-1:]])
+        per_level[m] = np.stack([np.minimum.reduceat(pad[:, 0], idx)[::2],
+                                 np.minimum.reduceat(pad[:, 1], idx)[::2],
+                                 np.maximum.reduceat(pad[:, 2], idx)[::2],
+                                 np.maximum.reduceat(pad[:, 3], idx)[::2]], axis=1)
+    blocks = np.arange(start.size)
+    a = per_level[np.searchsorted(used, k_lo), blocks]
+    z = per_level[np.searchsorted(used, k_hi), blocks]
+    box = np.concatenate([np.minimum(a[:, :2], z[:, :2]), np.maximum(a[:, 2:], z[:, 2:])],
+                         axis=1)
     grow = BOX_MARGIN_M + BOX_MARGIN_FRACTION * np.maximum(box[:, 2] - box[:, 0],
                                                            box[:, 3] - box[:, 1])
     box += grow[:, None] * np.array([-1.0, -1.0, 1.0, 1.0])
@@ -665,9 +736,9 @@ def _ray_terms(coef: F64, look9: F64) -> tuple[F64, F64]:
 
 
 def _kernel_tables(surf: _Surface, maps: _Maps) -> tuple[F64, F64]:
-    """Per block (b, 12): fractional grid offset of the block origin (x, y), its integer grid
-    origin (x, y), the valid box in local grid coordinates (x0, x1, y0, y1), E0, N0, h0.
-    Constants: 1/cell_e, 1/cell_n, lowest and highest DEM height."""
+    """Per block (b, 14): fractional grid offset of the block origin (x, y), its integer grid
+    origin (x, y), the valid box in local grid coordinates (x0, x1, y0, y1), E0, N0, h0, (unused),
+    the lowest and highest terrain its rays can meet. Constants: 1/cell_e, 1/cell_n."""
     dem = surf.dem
     gx = (maps.en0_m[:, 0] - dem.first_easting_m) / dem.cell_e_m
     gy = (dem.first_northing_m - maps.en0_m[:, 1]) / dem.cell_n_m
@@ -681,8 +752,9 @@ def _kernel_tables(surf: _Surface, maps: _Maps) -> tuple[F64, F64]:
     empty = ~np.isfinite(box).all(axis=1)
     vx0[empty], vx1[empty] = 1.0, 0.0
     blk = np.stack([gx - ox, gy - oy, ox, oy, vx0 - ox, vx1 - ox, vy0 - oy, vy1 - oy,
-                    maps.en0_m[:, 0], maps.en0_m[:, 1], maps.h0_m, np.zeros_like(ox)], axis=1)
-    consts = np.array([1.0 / dem.cell_e_m, 1.0 / dem.cell_n_m, surf.low_m, surf.high_m])
+                    maps.en0_m[:, 0], maps.en0_m[:, 1], maps.h0_m, np.zeros_like(ox),
+                    maps.low_m, maps.high_m], axis=1)
+    consts = np.array([1.0 / dem.cell_e_m, 1.0 / dem.cell_n_m])
     return np.ascontiguousarray(blk), consts
 
 
@@ -866,7 +938,7 @@ def _newton(m: Any, dem: Any, cols: int, rows: int, blk: Any, b: int, consts: An
           & (abs(step) <= f32(MAX_NEWTON_STEP_M))
           & (abs(gdd) * step * step <= f32(2.0 * ROOT_TOLERANCE_M) * abs(gd))
           & (gd < f32(-1e-3)) & (hd < f32(0.0)))
-    back = (f32(consts[3] - blk[b, 10]) - h) / hd
+    back = (f32(blk[b, 13] - blk[b, 10]) - h) / hd
     xa, xb = x, x + xd * back
     ya, yb = y, y + yd * back
     pad = f32(0.5)  # cells: covers the path's curvature over any in-range stretch
@@ -1116,7 +1188,7 @@ def _safe_ray(dem: Any, cols: int, ae: float, be: float, ce: float, an: float, b
     vx0, vx1, vy0, vy1 = blk[b, 4], blk[b, 5], blk[b, 6], blk[b, 7]
     h0 = blk[b, 10]
     inv_e, inv_n = consts[0], consts[1]
-    lo_rel, hi_rel = consts[2] - h0, consts[3] - h0
+    lo_rel, hi_rel = blk[b, 12] - h0, blk[b, 13] - h0
     rows = dem.size // cols
     s = _first_at_or_below(ah, bh, ch, hi_rel, 0.0)
     if not s >= 0.0:

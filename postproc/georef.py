@@ -374,10 +374,9 @@ class GeorefJob:
                   float(xy[:, 1].max()) + FOOTPRINT_MARGIN_M)
         return Dem.read(self.opt.dem, bounds_m=bounds, geoid=self.opt.geoid)
 
-    def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, image: Path,
+    def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
                              progress: Progress | None) -> SegmentResult:
-        raw = EnviRaster.open(image)
-        n_lines, pixels = raw.lines, raw.pixels
+        image, n_lines, pixels = raw.path, raw.lines, raw.pixels
         self.opt.sensor.check_pixels(pixels, str(image))
         look = self.opt.sensor.scanner.look_vectors_camera()
         dem = self.dem_window(eo)
@@ -466,7 +465,7 @@ class GeorefJob:
                 if progress is not None:
                     progress(rasters[s].lines)
                 continue
-            done.append(self.georeference_segment(s, eo, t, images[s], progress))
+            done.append(self.georeference_segment(s, eo, t, rasters[s], progress))
         if not done:
             raise self.no_overlap_error(result, traj)
         cell_m = self.opt.cell_m or nice_cell_m(

@@ -291,18 +291,17 @@ def first_data_key(path: Path) -> bytes | None:
     times, size and CRC. Two parts of one recording differ there; a file and a copy of it,
     even one cut short, do not. None where there is no such record (or no MCAP)."""
     try:
-        with open(path, "rb") as fh:
-            if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-                return None
-            while len(head := fh.read(_RECORD_HEAD)) == _RECORD_HEAD:
-                length = int.from_bytes(head[1:], "little")
-                if head[0] in (Opcode.CHUNK, Opcode.MESSAGE):
-                    want = min(length, FIRST_DATA_KEY_BYTES)
-                    key = fh.read(want)
-                    return key if want and len(key) == want else None
-                fh.seek(length, io.SEEK_CUR)
-    except OSError:
-        pass
+        fh = open_log(path)
+    except InputError:  # the reader says what is wrong with it
+        return None
+    with fh:
+        while len(head := fh.read(_RECORD_HEAD)) == _RECORD_HEAD:
+            length = int.from_bytes(head[1:], "little")
+            if head[0] in (Opcode.CHUNK, Opcode.MESSAGE):
+                want = min(length, FIRST_DATA_KEY_BYTES)
+                key = fh.read(want)
+                return key if want and len(key) == want else None
+            fh.seek(length, io.SEEK_CUR)
     return None
 
 

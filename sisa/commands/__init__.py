@@ -62,9 +62,9 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
             seen.add(path.resolve())
     parts = list(files) if len(files) != 1 else split_parts(files[0]) or list(files)
     first: dict[bytes, Path] = {}
-    for path in parts if len(parts) > 1 else ():
+    for path in parts if len(parts) > 1 else []:  # one file cannot repeat itself
         key = first_data_key(path)
-        if key is not None and key in first:
+        if key in first:
             raise InputError(f"{path} starts with the same data as {first[key]} (a copy of "
                              "it?): each part of a flight is read once")
         if key is not None:

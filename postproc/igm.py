@@ -109,9 +109,9 @@ class EnviRaster:
         every band would be cut, or one without a whole line, is refused."""
         need = self.header_offset + self.lines * self.line_bytes
         have = self.path.stat().st_size
-        whole = max(have - self.header_offset, 0) // self.line_bytes if self.line_bytes else 0
         if have >= need:
             return replace(self, header_lines=self.lines)
+        whole = max(have - self.header_offset, 0) // self.line_bytes if self.line_bytes else 0
         if self.interleave == "bsq" or whole == 0:
             raise InputError(f"{self.path}: truncated: {have} bytes, the header needs {need}")
         return replace(self, lines=whole, header_lines=self.lines)

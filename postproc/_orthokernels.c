@@ -109,6 +109,13 @@ static inline int in_triangle(double ax, double ay, double bx, double by, double
     return e0 <= tol && e1 <= tol && e2 <= tol;
 }
 
+/* ceil(x) for 0 < x < 2^53 (truncation is floor there) */
+static inline i64 ceil_pos(double x)
+{
+    i64 i = (i64)x;
+    return (double)i < x ? i + 1 : i;
+}
+
 static inline double dist2(double x, double y, double px, double py)
 {
     double t = (x - px) * (x - px) + (y - py) * (y - py);
@@ -178,10 +185,11 @@ void rasterise(const double *u, const double *v, const double *box, const double
             double vmin = fmin2(fmin2(fmin2(py, qy), ry), sy);
             double vmax = fmax2(fmax2(fmax2(py, qy), ry), sy);
             if (umax < 0 || vmax < 0 || umin > last_col || vmin > last_row) continue;
-            i64 c_lo = umin > 0 ? (i64)ceil(umin) : 0;
-            i64 c_hi = umax < last_col ? (i64)floor(umax) : cols - 1;
-            i64 r_lo = vmin > 0 ? (i64)ceil(vmin) : 0;
-            i64 r_hi = vmax < last_row ? (i64)floor(vmax) : rows - 1;
+            /* ceil and floor of values inside [0, last]: integer casts, no libm calls */
+            i64 c_lo = umin > 0 ? ceil_pos(umin) : 0;
+            i64 c_hi = umax < last_col ? (i64)umax : cols - 1;
+            i64 r_lo = vmin > 0 ? ceil_pos(vmin) : 0;
+            i64 r_hi = vmax < last_row ? (i64)vmax : rows - 1;
             for (i64 r = r_lo; r <= r_hi; r++) {
                 double fr = (double)r;
                 for (i64 c = c_lo; c <= c_hi; c++) {

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import importlib
+import itertools
 import math
 import os
 from collections import deque
@@ -227,13 +228,22 @@ class SwathIndex:
     boxes_m: F64  # (blocks, 4): west, south, east, north; NaN where a block has no position
 
     @classmethod
-    def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES) -> SwathIndex:
+    def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES,
+              workers: int = WORKERS) -> SwathIndex:
         raster = igm_raster(Path(igm))
         per_line = np.empty((raster.lines, 4))
-        sc = Scratch()
-        for lo in range(0, raster.lines, MAX_READ_LINES):
-            hi = min(lo + MAX_READ_LINES, raster.lines)
-            _line_extents(sc.read_lines("igm", raster, lo, hi), per_line[lo:hi])
+        # the reads and the kernel release the GIL: `workers` parts of the file at once
+        parts = np.linspace(0, raster.lines, max(int(workers), 1) + 1).astype(int).tolist()
+
+        def extents(first: int, end: int) -> None:
+            sc = Scratch()
+            for lo in range(first, end, MAX_READ_LINES):
+                hi = min(lo + MAX_READ_LINES, end)
+                _line_extents(sc.read_lines("igm", raster, lo, hi), per_line[lo:hi])
+
+        with ThreadPoolExecutor(len(parts) - 1, thread_name_prefix="sisa-index") as pool:
+            for done in [pool.submit(extents, a, b) for a, b in itertools.pairwise(parts)]:
+                done.result()
         starts = np.arange(0, max(raster.lines - 1, 1), block_lines)
         boxes = np.empty((starts.size, 4))
         boxes[:, :2] = np.fmin.reduceat(per_line[:, :2], starts, axis=0)

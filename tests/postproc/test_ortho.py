@@ -331,6 +331,20 @@ def test_line_extents_skip_pixels_without_a_position() -> None:
     assert np.isnan(got[3]).all()
 
 
+def test_index_built_in_parts_is_the_whole_pass(made: Made,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """The IGM read by several workers, in reads of 7 lines (600 = 3 parts of 200): the
+    same boxes as one worker reading it whole, and they hold every position."""
+    igm = made.folder / "seg_igm.bil"
+    whole = SwathIndex.build(igm, workers=1)
+    monkeypatch.setattr(ortho, "MAX_READ_LINES", 7)
+    for workers in (2, 3, 7):
+        np.testing.assert_array_equal(SwathIndex.build(igm, workers=workers).boxes_m,
+                                      whole.boxes_m)
+    e, n = made.strip.easting_m, made.strip.northing_m
+    assert whole.bounds_m == (np.nanmin(e), np.nanmin(n), np.nanmax(e), np.nanmax(n))
+
+
 @pytest.mark.parametrize("dtype", ["u1", "<i2", "<f4", "<f8", ">u2"])
 def test_gather_copies_every_band_of_any_type(dtype: str) -> None:
     """The C copy moves values of 1, 2, 4 or 8 bytes as they are, into bands kept apart as

@@ -415,6 +415,8 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None, help="scratch folder (default: a temp)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch files")
     args = ap.parse_args()
+    if args.work is not None and not args.work.is_dir():
+        ap.error(f"--work {args.work}: no such folder")
     work = Path(tempfile.mkdtemp(prefix="ortho_speed_", dir=args.work))
     try:
         warm_up(work)

@@ -47,6 +47,10 @@ _WAVELENGTH_SCALE_TO_NM: Final = {"nanometers": 1.0, "nm": 1.0, "micrometers": 1
 
 # -- ENVI rasters on disk --------------------------------------------------------------------
 
+class CutShortWarning(UserWarning):
+    """A raster file holds fewer lines than its header says; the lines it holds are used."""
+
+
 @dataclass(frozen=True)
 class EnviRaster:
     """Where the numbers of an ENVI raster lie in its file, from its header (read by GDAL)."""

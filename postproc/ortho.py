@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import importlib
 import itertools
 import math
 import os
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -37,6 +39,7 @@ from rasterio.errors import RasterioIOError
 from rasterio.windows import Window
 
 from postproc.igm import (
+    CutShortWarning,
     EnviRaster,
     commit_envi,
     coordinate_system_string,
@@ -229,8 +232,11 @@ class SwathIndex:
 
     @classmethod
     def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES,
-              workers: int = WORKERS) -> SwathIndex:
+              workers: int = WORKERS, lines: int | None = None) -> SwathIndex:
+        """The index of the IGM's lines, or of its first `lines`."""
         raster = igm_raster(Path(igm))
+        if lines is not None and lines < raster.lines:
+            raster = dataclasses.replace(raster, lines=lines)
         per_line = np.empty((raster.lines, 4))
         # the reads and the kernel release the GIL: `workers` parts of the file at once
         parts = np.linspace(0, raster.lines, max(int(workers), 1) + 1).astype(int).tolist()
@@ -727,6 +733,25 @@ class OrthoResult:
     max_distance_m: float
 
 
+def common_lines(index: SwathIndex, raw: EnviRaster) -> tuple[SwathIndex, EnviRaster]:
+    """The IGM and the image over the lines both files hold, when their headers agree and one
+    (or both) is cut short (a copy or a recording interrupted): the lines past the cut are
+    left out with a warning naming them. Otherwise the pair as given (check_pair judges it)."""
+    g = index.raster
+    if g.lines == raw.lines or g.pixels != raw.pixels or g.header_lines != raw.header_lines:
+        return index, raw
+    lines = min(g.lines, raw.lines)
+    for cut in (g, raw):
+        if cut.cut_short:
+            warnings.warn(CutShortWarning(
+                f"{cut.path} is cut short: {cut.lines} of its header's {cut.header_lines} "
+                f"lines are in the file (a copy or a recording interrupted?): lines "
+                f"{lines}-{cut.header_lines - 1} are not mapped"), stacklevel=3)
+    if g.lines > lines:
+        index = SwathIndex.build(g.path, index.block_lines, lines=lines)
+    return index, dataclasses.replace(raw, lines=lines)
+
+
 def check_pair(index: SwathIndex, raw: EnviRaster, epsg: int) -> None:
     g = index.raster
     if (g.lines, g.pixels) != (raw.lines, raw.pixels):
@@ -784,7 +809,7 @@ def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: 
     depend on it). `on_total` is told how many cells the swath can reach (the windows to map),
     `progress` how many of them each finished window held."""
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
-    raw = EnviRaster.open(Path(image))
+    index, raw = common_lines(index, EnviRaster.open(Path(image)))
     check_pair(index, raw, grid.epsg)
     w, s, e, n = index.bounds_m
     gw, gs, ge, gn = grid.bounds_m

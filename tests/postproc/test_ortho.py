@@ -4,8 +4,10 @@ GDAL reading every product."""
 
 from __future__ import annotations
 
+import shutil
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,7 +18,7 @@ import rasterio
 from scipy.spatial import cKDTree
 
 import postproc.ortho as ortho
-from postproc.igm import EnviRaster
+from postproc.igm import CutShortWarning, EnviRaster
 from postproc.ortho import OrthoGrid, SwathIndex, orthorectify
 from sisa.errors import InputError
 from tests.postproc.test_igm import (
@@ -450,6 +452,49 @@ def test_image_must_match_the_igm(made: Made, tmp_path: Path) -> None:
         orthorectify(made.folder / "seg_igm.bil", made.folder / "seg.bil", other,
                      tmp_path / "o.tif", tmp_path / "g")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["short.bil", "short.hdr"]
+
+
+def _cut_copy(src: Path, dst: Path, lines: float) -> Path:
+    """A copy of an ENVI raster cut after `lines` lines (a fraction: mid-line)."""
+    raster = EnviRaster.open(src)
+    dst.write_bytes(src.read_bytes()[:raster.header_offset
+                                     + int(lines * raster.line_bytes)])
+    shutil.copy(src.with_suffix(".hdr"), dst.with_suffix(".hdr"))
+    return dst
+
+
+@pytest.mark.parametrize("cut", ["image", "igm"])
+def test_a_file_cut_short_maps_the_lines_both_hold(made: Made, tmp_path: Path,
+                                                   cut: str) -> None:
+    """The image (or the IGM) cut mid-line 450: lines 0-449 mapped, a warning names the
+    rest; every cell whose choice was a line before the cut keeps it."""
+    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
+    if cut == "image":
+        image = _cut_copy(image, tmp_path / "cut.bil", 450.5)
+    else:
+        igm = _cut_copy(igm, tmp_path / "cut_igm.bil", 450.5)
+    with pytest.warns(CutShortWarning, match=r"450 of its header's 600 lines .* lines "
+                                             r"450-599 are not mapped"):
+        orthorectify(igm, image, made.grid, tmp_path / "o.tif", tmp_path / "g")
+    with rasterio.open(tmp_path / "o.tif") as o, rasterio.open(tmp_path / "g.bil") as g:
+        tif, glt = o.read(), g.read()
+    full_tif, full_glt = made.read()
+    line = np.abs(glt[1]) - 1
+    assert line.max() == 449
+    before = (full_glt[1] != 0) & (np.abs(full_glt[1]) - 1 < 440)
+    assert before.sum() > 1000
+    np.testing.assert_array_equal(glt[:, before], full_glt[:, before])
+    np.testing.assert_array_equal(tif[:, before], full_tif[:, before])
+
+
+def test_a_shorter_header_is_still_refused(made: Made, tmp_path: Path) -> None:
+    """Files whose headers disagree are a different image, not one cut short."""
+    write_raw(tmp_path / "short.bil", 450, 64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match="IGM is 600 x 64"):
+            orthorectify(made.folder / "seg_igm.bil", tmp_path / "short.bil", made.grid,
+                         tmp_path / "o.tif", tmp_path / "g")
 
 
 def test_zstd_product_holds_the_same_values(made: Made, tmp_path: Path) -> None:

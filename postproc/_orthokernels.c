@@ -14,9 +14,11 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
+#include <errno.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include <unistd.h>
 
 typedef int64_t i64;
 
@@ -313,9 +315,12 @@ void glt_values(const int32_t *line, const int32_t *pixel, const uint8_t *inside
     figures[3] = top;
 }
 
-/* [first[r], end[r]): the columns from the first to the last non-zero sample of row r of a
- * GLT window (rows, 2, cols); first = end = 0 where the row is all zeros. */
-void row_spans(const int32_t *values, i64 rows, i64 cols, i64 *first, i64 *end)
+/* Write a GLT window (rows, 2, cols, little-endian int32) into the GLT file `fd` (BIL, rows of
+ * `width` cells, the window's first cell at row0, col0): per row, its two bands from the first
+ * to the last non-zero sample, nothing where a row is all zeros (the file is zeros already,
+ * and stays sparse there). Returns 0, or the errno of the write that failed. */
+int write_glt_rows(int fd, const int32_t *values, i64 rows, i64 cols, i64 width, i64 row0,
+                   i64 col0)
 {
     for (i64 r = 0; r < rows; r++) {
         const int32_t *s = values + r * 2 * cols;
@@ -326,9 +331,24 @@ void row_spans(const int32_t *values, i64 rows, i64 cols, i64 *first, i64 *end)
         for (i64 c = cols - 1; c > a; c--) {
             if (s[c] != 0) { b = c + 1; break; }
         }
-        first[r] = a;
-        end[r] = b;
+        for (i64 band = 0; band < 2 && b > a; band++) {
+            const char *src = (const char *)(s + band * cols + a);
+            size_t left = (size_t)(b - a) * 4;
+            off_t at = (off_t)((((row0 + r) * 2 + band) * width + col0 + a) * 4);
+            while (left > 0) {
+                ssize_t done = pwrite(fd, src, left, at);
+                if (done < 0) {
+                    if (errno == EINTR) continue;
+                    return errno;
+                }
+                if (done == 0) return EIO;
+                src += done;
+                left -= (size_t)done;
+                at += done;
+            }
+        }
     }
+    return 0;
 }
 
 /* An importable module, so the import system finds this library wherever SISA is

@@ -4,6 +4,7 @@ GDAL reading every product."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import threading
 import time
@@ -171,6 +172,28 @@ def test_geotiff_layout_and_cell_convention(made: Made) -> None:
         in_cell = (np.asarray(r) == rows) & (np.asarray(c) == cols)
         np.testing.assert_array_equal(in_cell, glt[0][rows, cols] > 0)
         assert in_cell.mean() > 0.5
+
+
+def test_glt_writer_refuses_windows_outside_and_reports_write_errors(tmp_path: Path) -> None:
+    grid = OrthoGrid(500_000.0, 4_600_000.0, 1.0, 8, 6, 32631)
+    glt = ortho.GltWriter(tmp_path / "g", grid, "seg.bil", "o.tif")
+    values = np.zeros((3, 2, 4), np.int32)
+    values[1, :, 1:3] = [[5, 6], [7, 8]]
+    glt.write_window(2, 4, values)
+    for row0, col0 in ((4, 0), (0, 5), (-1, 0)):
+        with pytest.raises(ValueError, match="outside the 6 x 8 grid"):
+            glt.write_window(row0, col0, values)
+    glt.close()
+    got = np.fromfile(tmp_path / "g.bil", "<i4").reshape(6, 2, 8)
+    want = np.zeros((6, 2, 8), np.int32)
+    want[3, :, 5:7] = [[5, 6], [7, 8]]
+    np.testing.assert_array_equal(got, want)
+    broken = ortho.GltWriter(tmp_path / "b", grid, "seg.bil", "o.tif")
+    os.close(broken._fd or -1)  # the file gone from under it: the write fails, said as such
+    with pytest.raises(OSError, match="Bad file descriptor"):
+        broken.write_window(0, 0, values)
+    broken._fd = None
+    broken.abort()
 
 
 def test_small_tiles_give_the_same_products(made: Made, tmp_path: Path) -> None:

@@ -499,9 +499,7 @@ class FlightRecorder:
         reason = (exc.strerror if isinstance(exc, OSError) else None) or exc
         where = (exc.filename if isinstance(exc, OSError) else None) or self._part.path
         self._error = RecorderError(
-            f"cannot write {where}: {reason} (after "
-            f"{self.messages_written} messages); the file is readable up to its last complete "
-            f"chunk and `sisa log recover` makes it whole")
+            f"cannot write {where}: {reason} (after {self.messages_written} messages)")
         self._error.__cause__ = exc
 
 

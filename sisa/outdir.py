@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from sisa.errors import InputError
+from sisa.errors import InputError, RecorderError
 
 
 @contextmanager
@@ -31,6 +31,10 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
         raise InputError(f"cannot write in {parent}: {exc.strerror}") from None
     try:
         yield scratch
+    except RecorderError as exc:  # the log it names went with the scratch folder: say so
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise RecorderError(f"{exc}; nothing was kept ({out} is made whole or not at "
+                            "all)") from exc
     except BaseException:
         shutil.rmtree(scratch, ignore_errors=True)
         raise

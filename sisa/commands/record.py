@@ -14,7 +14,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, cast
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
-from sisa.errors import InputError
+from sisa.errors import InputError, RecorderError
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -80,6 +80,9 @@ def _run(args: argparse.Namespace) -> int:
                             metadata={"settings": scn.block.name}) as rec:
             acq = Acquisition(config, rec.write, sources.send_edge)
             _loop(acq, sources, stop, args)
+    except RecorderError as exc:  # a recording is kept whatever happens: say how to use it
+        raise RecorderError(f"{exc}; the file is readable up to its last complete chunk and "
+                            "`sisa log recover` makes it whole") from exc
     finally:
         sources.close()
     _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)

@@ -210,6 +210,8 @@ def test_sisa_record_on_a_full_disk_exits_with_one_line(tmp_path: Path) -> None:
     assert lines[0].startswith("sisa record: error: cannot write ")
     assert "File too large" in lines[0]
     assert str(tmp_path) in lines[0]
+    assert lines[0].endswith("readable up to its last complete chunk and `sisa log recover` "
+                             "makes it whole")  # the file is kept: how to use it
     parts = split_parts(out)
     assert parts == [out]
     assert out.stat().st_size <= limit

@@ -1,10 +1,11 @@
 """Output folders: whole or not at all, never over another folder."""
 
+import re
 from pathlib import Path
 
 import pytest
 
-from sisa.errors import InputError
+from sisa.errors import InputError, RecorderError
 from sisa.outdir import staged_output_dir
 
 
@@ -53,3 +54,13 @@ def test_a_name_taken_while_running_keeps_both(tmp_path, taken_by):
     else:
         assert sorted(p.name for p in out.iterdir()) == \
             (["theirs.txt"] if taken_by == "folder" else [])
+
+
+def test_a_log_that_failed_in_a_run_is_said_gone(tmp_path):
+    """A recorder error names its log, inside the scratch folder that goes with the run."""
+    out = tmp_path / "run"
+    said = (r"cannot write .*flight.mcap: No space left on device; nothing was kept \("
+            + re.escape(str(out)) + r" is made whole or not at all\)$")
+    with pytest.raises(RecorderError, match=said), staged_output_dir(out) as scratch:
+        raise RecorderError(f"cannot write {scratch / 'flight.mcap'}: No space left on device")
+    assert list(tmp_path.iterdir()) == []

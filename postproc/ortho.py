@@ -784,7 +784,8 @@ def _glt_values(line: I32, pixel: I32, inside: B, d2: F64, out: I32
 Progress = Callable[[int], None]  # told a count of work just done (lines, grid cells)
 
 
-def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: Path,
+def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGrid,
+                 out_tif: Path,
                  glt_stem: Path | None, *, tile_cells: int | None = None,
                  compress: str = "deflate", workers: int = WORKERS,
                  progress: Progress | None = None, on_total: Progress | None = None
@@ -792,12 +793,14 @@ def orthorectify(igm: Path | SwathIndex, image: Path, grid: OrthoGrid, out_tif: 
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
     unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
     the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
-    over the IGM, not two). `tile_cells` forces square work tiles of that side (default:
-    windows sized by WINDOW_BYTES); `workers`: windows computed at once (the products do not
-    depend on it). `on_total` is told how many cells the swath can reach (the windows to map),
-    `progress` how many of them each finished window held."""
+    over the IGM, not two); `image`: the image file, or the EnviRaster its caller opened (and
+    perhaps cut to the IGM's lines with common_lines). `tile_cells` forces square work tiles
+    of that side (default: windows sized by WINDOW_BYTES); `workers`: windows computed at once
+    (the products do not depend on it). `on_total` is told how many cells the swath can reach
+    (the windows to map), `progress` how many of them each finished window held."""
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
-    index, raw = common_lines(index, EnviRaster.open(Path(image)))
+    raw = image if isinstance(image, EnviRaster) else EnviRaster.open(Path(image))
+    index, raw = common_lines(index, raw)
     check_pair(index, raw, grid.epsg)
     w, s, e, n = index.bounds_m
     gw, gs, ge, gn = grid.bounds_m

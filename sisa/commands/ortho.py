@@ -53,8 +53,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    from postproc.igm import igm_epsg, igm_pixel_spacing_m
-    from postproc.ortho import OrthoGrid, SwathIndex, nice_cell_m, orthorectify
+    from postproc.igm import EnviRaster, igm_epsg, igm_pixel_spacing_m
+    from postproc.ortho import OrthoGrid, SwathIndex, common_lines, nice_cell_m, orthorectify
 
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff"):
@@ -74,11 +74,13 @@ def _run(args: argparse.Namespace) -> int:
                          if args.cell is not None else
                          f"{args.igm}: no two neighbouring pixels have positions: give --cell")
     t0 = time.perf_counter()
-    index = SwathIndex.build(args.igm)  # the IGM's extent, and then the ortho's index
+    # the extent of the lines to be mapped (both files', one perhaps cut short), then the
+    # ortho's index
+    index, image = common_lines(SwathIndex.build(args.igm), EnviRaster.open(args.image))
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
     glt = None if args.no_glt else out.with_name(f"{out.stem}_glt")
     with terminal_progress("ortho") as (progress, on_total):
-        res = orthorectify(index, args.image, grid, out, glt, compress=args.compress,
+        res = orthorectify(index, image, grid, out, glt, compress=args.compress,
                            progress=progress, on_total=on_total)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "

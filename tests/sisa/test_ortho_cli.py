@@ -16,7 +16,7 @@ from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
 from sisa import cli
 from sisa.commands.ortho import COMPRESSIONS
 from tests.postproc.test_igm import synthetic_strip
-from tests.postproc.test_ortho import Made, make
+from tests.postproc.test_ortho import Made, _cut_copy, make
 
 
 @pytest.fixture(scope="module")
@@ -136,6 +136,34 @@ def test_default_grid_is_the_pixel_spacing_over_the_extent(made: Made, tmp_path:
         assert west <= np.nanmin(e) < west + cell
         assert north - cell < np.nanmax(n) <= north
         assert west / cell == pytest.approx(round(west / cell))
+
+
+@pytest.mark.parametrize("cut", ["image", "igm"])
+def test_a_file_cut_short_gets_the_grid_of_the_lines_mapped(made: Made, tmp_path: Path,
+                                                            cut: str) -> None:
+    """The default grid covers lines 0-199 of a pair cut mid-line 200, not the header's 400
+    (the rest would be nodata); the warning is printed once."""
+    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
+    if cut == "image":
+        image = _cut_copy(image, tmp_path / "cut.bil", 200.5)
+    else:
+        igm = _cut_copy(igm, tmp_path / "cut_igm.bil", 200.5)
+    out = tmp_path / "o.tif"
+    proc = sisa_ortho(igm, image, "--out", out, "--cell", made.grid.cell_m, "--no-glt")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.count("\n") == 1
+    assert proc.stderr.startswith("sisa: warning:")
+    assert "lines 200-399 are not mapped" in proc.stderr
+    e = made.strip.easting_m[:200]
+    n = made.strip.northing_m[:200]
+    cell = made.grid.cell_m
+    with rasterio.open(out) as o:
+        west, north = o.transform.c, o.transform.f
+        south = north - o.height * cell
+        assert west <= np.nanmin(e) < west + cell
+        assert north - cell < np.nanmax(n) <= north
+        assert south <= np.nanmin(n) < south + cell
+        assert np.nanmax(made.strip.northing_m) > north + cell  # where the lines left out go
 
 
 def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) -> None:

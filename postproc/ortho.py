@@ -785,8 +785,7 @@ Progress = Callable[[int], None]  # told a count of work just done (lines, grid 
 
 
 def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGrid,
-                 out_tif: Path,
-                 glt_stem: Path | None, *, tile_cells: int | None = None,
+                 out_tif: Path, glt_stem: Path | None, *, tile_cells: int | None = None,
                  compress: str = "deflate", workers: int = WORKERS,
                  progress: Progress | None = None, on_total: Progress | None = None
                  ) -> OrthoResult:

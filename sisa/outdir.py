@@ -33,7 +33,8 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
         yield scratch
     except RecorderError as exc:  # the log it names went with the scratch folder: say so
         shutil.rmtree(scratch, ignore_errors=True)
-        raise RecorderError(f"{exc}; nothing was kept ({out} is made whole or not at "
+        said = str(exc).replace(str(scratch), str(out))  # the run as the user named it
+        raise RecorderError(f"{said}; nothing was kept ({out} is made whole or not at "
                             "all)") from exc
     except BaseException:
         shutil.rmtree(scratch, ignore_errors=True)

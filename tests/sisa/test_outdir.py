@@ -59,8 +59,8 @@ def test_a_name_taken_while_running_keeps_both(tmp_path, taken_by):
 def test_a_log_that_failed_in_a_run_is_said_gone(tmp_path):
     """A recorder error names its log, inside the scratch folder that goes with the run."""
     out = tmp_path / "run"
-    said = (r"cannot write .*flight.mcap: No space left on device; nothing was kept \("
-            + re.escape(str(out)) + r" is made whole or not at all\)$")
+    said = ("^" + re.escape(f"cannot write {out / 'flight.mcap'}: No space left on device; "
+                            f"nothing was kept ({out} is made whole or not at all)") + "$")
     with pytest.raises(RecorderError, match=said), staged_output_dir(out) as scratch:
         raise RecorderError(f"cannot write {scratch / 'flight.mcap'}: No space left on device")
     assert list(tmp_path.iterdir()) == []

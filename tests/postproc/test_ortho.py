@@ -477,7 +477,7 @@ def test_image_must_match_the_igm(made: Made, tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["short.bil", "short.hdr"]
 
 
-def _cut_copy(src: Path, dst: Path, lines: float) -> Path:
+def cut_copy(src: Path, dst: Path, lines: float) -> Path:
     """A copy of an ENVI raster cut after `lines` lines (a fraction: mid-line)."""
     raster = EnviRaster.open(src)
     dst.write_bytes(src.read_bytes()[:raster.header_offset
@@ -493,9 +493,9 @@ def test_a_file_cut_short_maps_the_lines_both_hold(made: Made, tmp_path: Path,
     rest; every cell whose choice was a line before the cut keeps it."""
     igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
     if cut == "image":
-        image = _cut_copy(image, tmp_path / "cut.bil", 450.5)
+        image = cut_copy(image, tmp_path / "cut.bil", 450.5)
     else:
-        igm = _cut_copy(igm, tmp_path / "cut_igm.bil", 450.5)
+        igm = cut_copy(igm, tmp_path / "cut_igm.bil", 450.5)
     with pytest.warns(CutShortWarning, match=r"450 of its header's 600 lines .* lines "
                                              r"450-599 are not mapped"):
         orthorectify(igm, image, made.grid, tmp_path / "o.tif", tmp_path / "g")

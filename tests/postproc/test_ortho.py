@@ -486,16 +486,21 @@ def cut_copy(src: Path, dst: Path, lines: float) -> Path:
     return dst
 
 
+def pair_cut_short(made: Made, folder: Path, cut: str, lines: float) -> tuple[Path, Path]:
+    """`made`'s IGM and image, one of them (`cut`: "image" or "igm") a copy in `folder` cut
+    after `lines` lines."""
+    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
+    if cut == "image":
+        return igm, cut_copy(image, folder / "cut.bil", lines)
+    return cut_copy(igm, folder / "cut_igm.bil", lines), image
+
+
 @pytest.mark.parametrize("cut", ["image", "igm"])
 def test_a_file_cut_short_maps_the_lines_both_hold(made: Made, tmp_path: Path,
                                                    cut: str) -> None:
     """The image (or the IGM) cut mid-line 450: lines 0-449 mapped, a warning names the
     rest; every cell whose choice was a line before the cut keeps it."""
-    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
-    if cut == "image":
-        image = cut_copy(image, tmp_path / "cut.bil", 450.5)
-    else:
-        igm = cut_copy(igm, tmp_path / "cut_igm.bil", 450.5)
+    igm, image = pair_cut_short(made, tmp_path, cut, 450.5)
     with pytest.warns(CutShortWarning, match=r"450 of its header's 600 lines .* lines "
                                              r"450-599 are not mapped"):
         orthorectify(igm, image, made.grid, tmp_path / "o.tif", tmp_path / "g")

@@ -16,7 +16,7 @@ from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
 from sisa import cli
 from sisa.commands.ortho import COMPRESSIONS
 from tests.postproc.test_igm import synthetic_strip
-from tests.postproc.test_ortho import Made, cut_copy, make
+from tests.postproc.test_ortho import Made, make, pair_cut_short
 
 
 @pytest.fixture(scope="module")
@@ -143,11 +143,7 @@ def test_a_file_cut_short_gets_the_grid_of_the_lines_mapped(made: Made, tmp_path
                                                             cut: str) -> None:
     """The default grid covers lines 0-199 of a pair cut mid-line 200, not the header's 400
     (the rest would be nodata); the warning is printed once."""
-    igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
-    if cut == "image":
-        image = cut_copy(image, tmp_path / "cut.bil", 200.5)
-    else:
-        igm = cut_copy(igm, tmp_path / "cut_igm.bil", 200.5)
+    igm, image = pair_cut_short(made, tmp_path, cut, 200.5)
     out = tmp_path / "o.tif"
     proc = sisa_ortho(igm, image, "--out", out, "--cell", made.grid.cell_m, "--no-glt")
     assert proc.returncode == 0, proc.stderr

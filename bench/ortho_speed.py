@@ -30,9 +30,10 @@ C kernels, the GeoTIFF compressed by GDAL in a background thread with
 NUM_THREADS=ALL_CPUS, GDAL_CACHEMAX 128 MB), which also writes the GLT; and once more with
 --no-glt, the GeoTIFF alone, the one product gdalwarp makes: each --ours-runs times (default
 5, alternating), the run of median wall time compared. Five, because on this VM a run's
-kernel time now and then doubles (0.5 -> 1.6-2.3 s of system time, a third of the samples
-then in copying the written GeoTIFF into the page cache), in either mode: with three runs,
-two such took the median. The time of orthorectify() itself is read from the summary line.
+kernel time now and then grows threefold or more (0.5 -> 1.6-2.3 s of system time, a third
+of the samples then in copying the written GeoTIFF into the page cache), in either mode:
+with three runs, two such took the median. The time of orthorectify() itself is read from
+the summary line.
 
 The position error of a cell is the distance from its centre to the ground position of the
 pixel chosen for it; the exact nearest neighbour comes from a cKDTree over every pixel.

@@ -531,7 +531,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         return scenario_from_table(_preset_table(text), source=f"preset {text}")
     path = Path(text)
     if not path.is_file():
-        raise ConfigError(f"no preset or scenario file named {text!r} (presets: {PRESETS})")
+        raise ConfigError(f"no preset or scenario file named {text!r} (presets: "
+                          f"{', '.join(PRESETS)})")
     try:
         table = tomllib.loads(path.read_text("utf-8"))
     except (OSError, ValueError) as exc:  # TOMLDecodeError, bad UTF-8, an int > 4300 digits

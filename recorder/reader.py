@@ -37,6 +37,7 @@ import dataclasses
 import io
 import json
 import struct
+import warnings
 import zlib
 from array import array
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -174,6 +175,27 @@ class FileStats:
     @property
     def bytes_unreadable(self) -> int:
         return self.size_bytes - self.bytes_readable
+
+
+class DamagedLogWarning(UserWarning):
+    """A flight log was cut short or had damaged chunks; everything readable around them was
+    read, and post-processing goes on with it."""
+
+
+def damage_notes(fs: FileStats) -> list[str]:
+    """What a pass could not read of one file, in words (nothing for a sound file)."""
+    notes = []
+    if not fs.complete:
+        rest = (f", the last {fs.bytes_unreadable} bytes unreadable" if fs.bytes_unreadable
+                else "")
+        notes.append(f"{fs.path}: cut short (no footer, as after a power cut or a kill): "
+                     f"read to its last complete chunk{rest}")
+    if fs.chunks_skipped or fs.bytes_skipped:
+        chunks = f"{fs.chunks_skipped} damaged chunk{'s' if fs.chunks_skipped != 1 else ''}"
+        notes.append(f"{fs.path}: {chunks} skipped ({fs.bytes_skipped} bytes): the messages in "
+                     f"{'it' if fs.chunks_skipped == 1 else 'them'} are missing "
+                     f"(`sisa log info {fs.path}` shows the gaps)")
+    return notes
 
 
 @dataclass
@@ -1078,6 +1100,9 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
     except DecodeError as exc:
         where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
         raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
+    for fs in reader.stats.files:  # said once per file and kind (Python's warning registry)
+        for note in damage_notes(fs):
+            warnings.warn(note, DamagedLogWarning, stacklevel=1)
     return out
 
 

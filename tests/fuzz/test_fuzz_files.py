@@ -53,6 +53,9 @@ INTERESTING_U64 = (0, 1, 7, 8, 9, 22, 255, 2**16, 2**31, 2**32 - 1, 2**32, 2**62
                    2**63 - 1, 2**64 - 1)
 CHUNK = 0x06
 
+# fuzzed logs are damaged by design: the reader's warning saying so is expected
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+
 
 
 # --- MCAP seeds: real recordings ----------------------------------------------------------------

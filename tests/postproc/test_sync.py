@@ -304,6 +304,8 @@ def test_sisa_sync_writes_the_tables_and_the_report(imaged: Path, tmp_path: Path
     proc = _sisa("sync", str(imaged / "flight.mcap"), "--scanner", str(imaged / "scanner"),
                  "--out", str(out))
     assert proc.returncode == 0, proc.stderr
+    assert "damaged" not in proc.stderr
+    assert "cut short" not in proc.stderr
     assert sorted(p.name for p in out.iterdir()) == ["ins_times.csv", "line_times.csv",
                                                       "sync_report.json"]
     head, rows = _csv(out / "line_times.csv")
@@ -596,3 +598,21 @@ def test_lines_files_align_to_the_header_axis_by_whole_wraps() -> None:
     assert linked.all()
     assert np.array_equal(u - u[10], frames - frames[10])
     assert np.array_equal(u[10:], u_hdr)
+
+
+def test_sisa_sync_says_once_what_it_could_not_read_of_a_damaged_log(imaged: Path,
+                                                                    tmp_path: Path) -> None:
+    """20 kB overwritten in the middle of the log: sync goes on with every chunk around the
+    damage, and says once (the log is read in several passes) that it skipped some."""
+    data = bytearray((imaged / "flight.mcap").read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 20_000] = np.random.default_rng(7).bytes(20_000)
+    bad = tmp_path / "flight.mcap"
+    bad.write_bytes(bytes(data))
+    proc = _sisa("sync", str(bad), "--scanner", str(imaged / "scanner"),
+                 "--out", str(tmp_path / "sync"))
+    assert proc.returncode == 0, proc.stderr
+    said = [line for line in proc.stderr.splitlines() if "damaged chunk" in line]
+    assert len(said) == 1, proc.stderr
+    assert said[0].startswith(f"sisa: warning: {bad}: ")
+    assert f"`sisa log info {bad}` shows the gaps" in said[0]

@@ -23,6 +23,9 @@ from sisa.errors import RecorderError
 from tests.recorder.crash_child import fix, ins, kill_many
 from tests.recorder.fakedisk import Disk
 
+# every log here is cut short or damaged on purpose: the reader's warning saying so is expected
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+
 MAX_LOSS_NS = 1_500_000_000
 ROOT = Path(__file__).resolve().parents[2]
 

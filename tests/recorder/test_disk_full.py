@@ -32,6 +32,9 @@ from sisa.errors import RecorderError
 from tests.recorder.crash_child import fix, ins
 from tests.recorder.fakedisk import Disk
 
+# every log here is cut short or damaged on purpose: the reader's warning saying so is expected
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+
 T0 = 1_700_000_000 * 10**9
 MESSAGES = 3000  # INS records at 500 Hz of log time, a fix every 25th
 FLUSH_EVERY = 200

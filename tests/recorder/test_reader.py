@@ -3,6 +3,7 @@ and an independent reader (@mcap/core under node) that must count what the Pytho
 
 import math
 import struct
+import warnings
 from collections import Counter
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from recorder.messages import GpsFix, InsRecordLog, PulseEdgeLog, RawBytes, Topic
-from recorder.reader import LogReader, read_columns, read_log, scan_log
+from recorder.reader import DamagedLogWarning, LogReader, read_columns, read_log, scan_log
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
 from sisa.errors import InputError
@@ -105,6 +106,25 @@ def test_a_damaged_chunk_is_skipped_and_its_messages_counted_as_lost(flight, tmp
     lost = full.messages - stats.messages
     assert lost > 0
     assert sum(t.lost_by_sequence for t in stats.topics.values()) == lost
+
+
+def test_columns_of_a_cut_or_damaged_log_come_with_a_warning_that_names_the_file(flight,
+                                                                                 tmp_path):
+    data = bytearray(flight.read_bytes())
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bytes(data[:len(data) // 2 + 3]))
+    with pytest.warns(DamagedLogWarning, match=rf"^{cut}: cut short .* the last \d+ bytes "
+                      "unreadable$"):
+        assert read_columns(cut, Topic.INS_RECORD)["counter"].size > 0
+    data[_chunk_offsets(data)[5] + 9 + 40 + 60] ^= 0xFF
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.warns(DamagedLogWarning, match=rf"^{bad}: 1 damaged chunk skipped \(\d+ bytes\): "
+                      "the messages in it are missing"):
+        read_columns(bad, Topic.INS_RECORD)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DamagedLogWarning)  # a sound log: nothing to say
+        read_columns(flight, Topic.INS_RECORD)
 
 
 def test_unknown_records_are_skipped(flight, tmp_path):

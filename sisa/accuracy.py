@@ -120,7 +120,9 @@ class TruthGround:
                         Transformer.from_crs(self.terrain.epsg, out_epsg, always_xy=True))
 
     def line_times(self, segment: int, lines: int) -> npt.NDArray[np.int64]:
-        sel = self.frames["segment"] == segment
+        """The true time of each of the segment's first `lines` lines (an image cut short is
+        georeferenced over the lines it holds; truth knows them all)."""
+        sel = (self.frames["segment"] == segment) & (self.frames["line_index"] < lines)
         t = np.full(lines, -1, dtype=np.int64)
         t[self.frames["line_index"][sel]] = self.frames["t_mid_gps_ns"][sel]
         return t

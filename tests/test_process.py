@@ -90,3 +90,26 @@ def test_an_existing_output_is_refused_and_left_alone(processed):
     assert "already exists" in proc.stderr
     assert proc.stderr.count("\n") == 1
     assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_path):
+    """A copy of the run whose first image lost its second half (a copy interrupted): the
+    lines it holds are georeferenced and judged against truth, the rest said to be missing.
+    (The accuracy report indexed truth by the header's line count and crashed.)"""
+    import shutil
+
+    run, _, _ = processed
+    cut = tmp_path / "run"
+    shutil.copytree(run, cut, ignore=shutil.ignore_patterns("process"))
+    image = cut / "scanner" / "segment_000.bil"
+    whole = image.stat().st_size
+    with open(image, "r+b") as f:
+        f.truncate(whole // 2 + 777)  # mid-line
+    proc = _sisa("process", cut, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert "segment_000.bil is cut short" in proc.stderr
+    acc = json.loads((cut / "process" / "accuracy.json").read_text())
+    full = json.loads((run / "process" / "accuracy.json").read_text())
+    assert 0 < acc["pixels"]["pixels"] < full["pixels"]["pixels"]
+    for comp in ("along", "across", "height"):
+        assert acc["pixels"][comp]["max_abs_px"] < 0.01, (comp, acc["pixels"][comp])

@@ -62,14 +62,31 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
     try:
         data = np.loadtxt(io.StringIO("\n".join(body[1:])), delimiter=",", dtype=np.int64,
                           ndmin=2) if len(body) > 1 else np.zeros((0, 2), dtype=np.int64)
-    except ValueError as exc:
-        raise InputError(f"{path}: not two integer columns: {exc}") from None
+    except ValueError:
+        data = np.zeros((0, 3), dtype=np.int64)  # the row at fault is found below
     if data.shape[1] != 2:
-        raise InputError(f"{path}: expected two columns, line_index,frame_counter")
+        raise InputError(f"{path}: {_first_bad_row(text)}: expected two integers, "
+                         "line_index,frame_counter")
     line, counter = data[:, 0], data[:, 1]
     if not np.array_equal(line, np.arange(line.size)):
         raise InputError(f"{path}: line_index must run 0, 1, 2, ... in file order")
     return LineTable(np.full(line.size, segment, dtype=np.int64), line, counter)
+
+
+def _first_bad_row(text: str) -> str:
+    """Where a lines file stops being line_index,frame_counter: 'row N ('...')', N as an
+    editor counts the file's lines."""
+    seen_header = False
+    for number, row in enumerate(text.splitlines(), start=1):
+        if not row.strip() or row.startswith("#"):
+            continue
+        if not seen_header:
+            seen_header = True
+            continue
+        fields = row.split(",")
+        if len(fields) != 2 or not all(f.strip().lstrip("+-").isdigit() for f in fields):
+            return f"row {number} ({row[:40]!r})"
+    return "a row"
 
 
 def read_scanner_lines(folder: Path) -> LineTable:

@@ -20,3 +20,13 @@ def test_a_segment_image_without_its_lines_file_is_an_error(tmp_path: Path) -> N
     (tmp_path / "segment_001.bil").write_bytes(b"")
     with pytest.raises(InputError, match=r"segment_001\.bil: no segment_001\.lines\.csv"):
         read_scanner_lines(tmp_path)
+
+
+@pytest.mark.parametrize(("row", "shown"), [("garbage,,x", "'garbage,,x'"), ("3,", "'3,'"),
+                                            ("3,10,1", "'3,10,1'"), ("3,1.5", "'3,1.5'")])
+def test_a_damaged_row_of_a_lines_file_is_named_by_its_row_number(tmp_path: Path, row: str,
+                                                                  shown: str) -> None:
+    (tmp_path / "segment_000.lines.csv").write_text(LINES_CSV + row + "\n4,11\n")
+    with pytest.raises(InputError, match=rf"segment_000\.lines\.csv: row 6 \({shown}\): "
+                       "expected two integers, line_index,frame_counter$"):
+        read_scanner_lines(tmp_path)

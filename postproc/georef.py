@@ -205,7 +205,7 @@ class GeorefJob:
     def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
         lines = read_scanner_lines(self.scanner_dir)
         wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
-        cols = read_topics(self.flight, merged_wanted(*wanted))
+        cols = read_topics(self.flight, merged_wanted(*wanted), notes=self.warnings)
         result = synchronise(sync_input_from_columns(cols), lines)
         mounting = self.opt.sensor.mounting
         info = self.trajectory_info

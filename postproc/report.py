@@ -172,6 +172,9 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
     body = [f"<h1>{html.escape(title)}</h1>"]
     if headline:
         body.append(_table(["figure", "value"], [[k, v] for k, v in headline]))
+    if result.warnings:  # what was left out and why, where the reader of the report sees it
+        body += ["<h2>Warnings</h2>", "<ul>", *(f"<li>{html.escape(w)}</li>"
+                                                for w in result.warnings), "</ul>"]
     body += ["<h2>Segments</h2>",
              _table(["segment", "lines", "timed", "georeferenced", "pixels on DEM",
                      "pixel across (m)", "line spacing (m)"], seg_rows),

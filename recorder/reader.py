@@ -1079,12 +1079,14 @@ class _TopicBatches:
         return columns
 
 
-def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
-                ) -> dict[str, dict[str, npt.NDArray[Any]]]:
+def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None], *,
+                notes: list[str] | None = None) -> dict[str, dict[str, npt.NDArray[Any]]]:
     """Several topics as numpy columns in ONE streaming pass (each pass over a long log costs
     seconds): {topic: {field: array}} for the wanted fields (None: all), plus `log_time_ns`.
     A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
-    with a value of the wrong type, raises DecodeError."""
+    with a value of the wrong type, raises DecodeError. What could not be read (a file cut
+    short, damaged chunks) is said as a DamagedLogWarning, or appended to `notes` if given
+    (for a caller that reports its own warnings)."""
     batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
     reader = LogReader(path_or_paths)
     topic = ""
@@ -1100,9 +1102,12 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
     except DecodeError as exc:
         where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
         raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
-    for fs in reader.stats.files:  # said once per file and kind (Python's warning registry)
+    for fs in reader.stats.files:
         for note in damage_notes(fs):
-            warnings.warn(note, DamagedLogWarning, stacklevel=1)
+            if notes is not None:
+                notes.append(note)
+            else:  # said once per file and kind (Python's warning registry)
+                warnings.warn(note, DamagedLogWarning, stacklevel=1)
     return out
 
 

@@ -113,3 +113,29 @@ def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_
     assert 0 < acc["pixels"]["pixels"] < full["pixels"]["pixels"]
     for comp in ("along", "across", "height"):
         assert acc["pixels"][comp]["max_abs_px"] < 0.01, (comp, acc["pixels"][comp])
+
+
+def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed, tmp_path):
+    """20 kB overwritten in the middle of the log: the run is processed from the rest, and the
+    skipped chunk is said once on stderr, in the summary and in the report."""
+    import shutil
+
+    run, _, _ = processed
+    bad = tmp_path / "run"
+    shutil.copytree(run, bad, ignore=shutil.ignore_patterns("process"))
+    log = bad / "flight.mcap"
+    data = bytearray(log.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 20_000] = np.random.default_rng(3).bytes(20_000)
+    log.write_bytes(bytes(data))
+    proc = _sisa("process", bad, check=False)
+    assert proc.returncode == 0, proc.stderr
+    said = [line for line in proc.stderr.splitlines() if "damaged chunk" in line]
+    assert len(said) == 1, proc.stderr
+    assert said[0].startswith(f"sisa process: warning: {log}: ")
+    note = said[0].removeprefix("sisa process: warning: ")
+    summary = json.loads((bad / "process" / "georef_summary.json").read_text())
+    assert note in summary["warnings"]
+    page = (bad / "process" / "report.html").read_text()
+    assert "<h2>Warnings</h2>" in page
+    assert "damaged chunk" in page

@@ -158,6 +158,12 @@ def run() -> None:
     warnings.showwarning = _one_line_warning
     code = main(batch_gc=True)
     gc.freeze()
+    # The command is over. The interpreter gives signals their default action back as it shuts
+    # down, so a late Ctrl-C or stop (`sisa bench` asking a child that had the terminal's own
+    # already, a second Ctrl-C) would turn this exit into death by signal, the run's status
+    # lost: ignored from here.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     sys.exit(code)
 
 

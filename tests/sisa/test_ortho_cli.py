@@ -4,8 +4,10 @@ errors with nothing written; and the console entry's exit."""
 from __future__ import annotations
 
 import gc
+import signal
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -207,14 +209,22 @@ def test_compressions_offered_are_the_writers() -> None:
 
 def test_console_entry_exits_with_the_code_and_leaves_objects_to_the_process(
         monkeypatch: pytest.MonkeyPatch) -> None:
+    """...and ignores a late Ctrl-C or stop while the interpreter shuts down (which would kill
+    the process by the signal: `sisa bench` saw its recorder end with -2)."""
     monkeypatch.setattr(sys, "argv", ["sisa", "scenario", "show", "no-such-preset"])
+    monkeypatch.setattr(warnings, "showwarning", warnings.showwarning)  # run() sets its own
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with pytest.raises(SystemExit) as done:
             cli.run()
         assert done.value.code == 2
         assert gc.get_freeze_count() > 0
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
     finally:
         gc.unfreeze()
+        for s, h in handlers.items():
+            signal.signal(s, h)
 
 
 def test_a_float_radiance_image_maps_like_its_dn(made: Made, tmp_path: Path) -> None:

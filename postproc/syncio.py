@@ -62,11 +62,11 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
     try:
         data = np.loadtxt(io.StringIO("\n".join(body[1:])), delimiter=",", dtype=np.int64,
                           ndmin=2) if len(body) > 1 else np.zeros((0, 2), dtype=np.int64)
+        if data.shape[1] != 2:
+            raise ValueError("not two columns")
     except ValueError:
-        data = np.zeros((0, 3), dtype=np.int64)  # the row at fault is found below
-    if data.shape[1] != 2:
         raise InputError(f"{path}: {_first_bad_row(text)}: expected two integers, "
-                         "line_index,frame_counter")
+                         "line_index,frame_counter") from None
     line, counter = data[:, 0], data[:, 1]
     if not np.array_equal(line, np.arange(line.size)):
         raise InputError(f"{path}: line_index must run 0, 1, 2, ... in file order")

@@ -84,9 +84,17 @@ def _first_bad_row(text: str) -> str:
             seen_header = True
             continue
         fields = row.split(",")
-        if len(fields) != 2 or not all(f.strip().lstrip("+-").isdigit() for f in fields):
+        if len(fields) != 2 or not all(_is_int64(f) for f in fields):
             return f"row {number} ({row[:40]!r})"
     return "a row"
+
+
+def _is_int64(text: str) -> bool:
+    try:
+        value = int(text)
+    except ValueError:
+        return False
+    return -2**63 <= value < 2**63
 
 
 def read_scanner_lines(folder: Path) -> LineTable:

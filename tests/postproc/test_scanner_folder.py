@@ -23,7 +23,10 @@ def test_a_segment_image_without_its_lines_file_is_an_error(tmp_path: Path) -> N
 
 
 @pytest.mark.parametrize(("row", "shown"), [("garbage,,x", "'garbage,,x'"), ("3,", "'3,'"),
-                                            ("3,10,1", "'3,10,1'"), ("3,1.5", "'3,1.5'")])
+                                            ("3,10,1", "'3,10,1'"), ("3,1.5", "'3,1.5'"),
+                                            ("3,99999999999999999999",
+                                             "'3,99999999999999999999'"),
+                                            ("3,+-5", "'3,\\+-5'")])
 def test_a_damaged_row_of_a_lines_file_is_named_by_its_row_number(tmp_path: Path, row: str,
                                                                   shown: str) -> None:
     (tmp_path / "segment_000.lines.csv").write_text(LINES_CSV + row + "\n4,11\n")

@@ -88,7 +88,9 @@ MAX_GAPS_KEPT: Final = 1000
 MAX_PROBLEMS_KEPT: Final = 20
 _SEQUENCE_MOD: Final = 2**32
 _BATCH: Final = 4096
-_PARSE_ERRORS: Final = (McapError, ValueError, struct.error, UnicodeDecodeError, KeyError)
+# OverflowError: a length of 2^63 or more inside a chunk, which mcap hands to a read
+_PARSE_ERRORS: Final = (McapError, ValueError, struct.error, UnicodeDecodeError, KeyError,
+                        OverflowError)
 _JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, RecursionError)
 _RECORD_HEAD: Final = 9  # opcode u8, length u64
 _FOOTER_BODY: Final = 20  # summary_start u64, summary_offset_start u64, summary_crc u32

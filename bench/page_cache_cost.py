@@ -15,7 +15,8 @@ to write the same bytes (1 MB writes, in a child process each, system time from 
   dropped from the cache two 32 MB chunks later (posix_fadvise DONTNEED), so its pages are
   taken again as it grows: the kernel's write-back work falls inside the run instead.
 
-Tried in `sisa ortho` on 2026-11-27 and not adopted: see docs/georef.md, "Why runs vary".
+Tried in `sisa ortho` on 2026-11-27 and not adopted: see docs/georef.md, "Why runs of
+the ortho vary on this machine".
 """
 
 from __future__ import annotations

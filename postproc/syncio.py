@@ -56,16 +56,18 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: unreadable: {exc}") from None
-    body = [row for row in text.splitlines() if row.strip() and not row.startswith("#")]
-    if not body or body[0].strip() != "line_index,frame_counter":
+    body = [(number, row) for number, row in enumerate(text.splitlines(), start=1)
+            if row.strip() and not row.startswith("#")]  # numbered as an editor counts lines
+    if not body or body[0][1].strip() != "line_index,frame_counter":
         raise InputError(f"{path}: expected the header line 'line_index,frame_counter'")
+    rows = [row for _, row in body[1:]]
     try:
-        data = np.loadtxt(io.StringIO("\n".join(body[1:])), delimiter=",", dtype=np.int64,
-                          ndmin=2) if len(body) > 1 else np.zeros((0, 2), dtype=np.int64)
+        data = np.loadtxt(io.StringIO("\n".join(rows)), delimiter=",", dtype=np.int64,
+                          ndmin=2) if rows else np.zeros((0, 2), dtype=np.int64)
         if data.shape[1] != 2:
             raise ValueError("not two columns")
     except ValueError:
-        raise InputError(f"{path}: {_first_bad_row(text)}: expected two integers, "
+        raise InputError(f"{path}: {_first_bad_row(body[1:])}: expected two integers, "
                          "line_index,frame_counter") from None
     line, counter = data[:, 0], data[:, 1]
     if not np.array_equal(line, np.arange(line.size)):
@@ -73,16 +75,9 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
     return LineTable(np.full(line.size, segment, dtype=np.int64), line, counter)
 
 
-def _first_bad_row(text: str) -> str:
-    """Where a lines file stops being line_index,frame_counter: 'row N ('...')', N as an
-    editor counts the file's lines."""
-    seen_header = False
-    for number, row in enumerate(text.splitlines(), start=1):
-        if not row.strip() or row.startswith("#"):
-            continue
-        if not seen_header:
-            seen_header = True
-            continue
+def _first_bad_row(rows: list[tuple[int, str]]) -> str:
+    """Where the data rows stop being line_index,frame_counter: 'row N ('...')'."""
+    for number, row in rows:
         fields = row.split(",")
         if len(fields) != 2 or not all(_is_int64(f) for f in fields):
             return f"row {number} ({row[:40]!r})"

@@ -3,12 +3,15 @@ With no navigation errors, every pixel must land where the emulator's own forwar
 different ray caster in a different frame) says it looked."""
 
 import json
+import shutil
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 import rasterio
+
+from tests.recorder import overwrite_middle
 
 SHORT_ERROR_FREE = """
 base = "bench"
@@ -92,15 +95,18 @@ def test_an_existing_output_is_refused_and_left_alone(processed):
     assert sorted(p.name for p in out.iterdir()) == before
 
 
+def _copy_run(run, dest):
+    """The run without its products, to be damaged and processed again."""
+    shutil.copytree(run, dest, ignore=shutil.ignore_patterns("process"))
+    return dest
+
+
 def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_path):
     """A copy of the run whose first image lost its second half (a copy interrupted): the
     lines it holds are georeferenced and judged against truth, the rest said to be missing.
     (The accuracy report indexed truth by the header's line count and crashed.)"""
-    import shutil
-
     run, _, _ = processed
-    cut = tmp_path / "run"
-    shutil.copytree(run, cut, ignore=shutil.ignore_patterns("process"))
+    cut = _copy_run(run, tmp_path / "run")
     image = cut / "scanner" / "segment_000.bil"
     whole = image.stat().st_size
     with open(image, "r+b") as f:
@@ -118,16 +124,9 @@ def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_
 def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed, tmp_path):
     """20 kB overwritten in the middle of the log: the run is processed from the rest, and the
     skipped chunk is said once on stderr, in the summary and in the report."""
-    import shutil
-
     run, _, _ = processed
-    bad = tmp_path / "run"
-    shutil.copytree(run, bad, ignore=shutil.ignore_patterns("process"))
-    log = bad / "flight.mcap"
-    data = bytearray(log.read_bytes())
-    mid = len(data) // 2
-    data[mid:mid + 20_000] = np.random.default_rng(3).bytes(20_000)
-    log.write_bytes(bytes(data))
+    bad = _copy_run(run, tmp_path / "run")
+    log = overwrite_middle(run / "flight.mcap", bad / "flight.mcap", seed=3)
     proc = _sisa("process", bad, check=False)
     assert proc.returncode == 0, proc.stderr
     said = [line for line in proc.stderr.splitlines() if "damaged chunk" in line]

@@ -35,6 +35,7 @@ from postproc.syncio import read_scanner_lines
 from postproc.synclog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
 from sisa.errors import InputError
 from sisa.simulation import simulate
+from tests.recorder import overwrite_middle
 
 ROOT = Path(__file__).resolve().parents[2]
 WRONG_NS = 10_000  # a time off by more than this is a wrong tag
@@ -604,11 +605,7 @@ def test_sisa_sync_says_once_what_it_could_not_read_of_a_damaged_log(imaged: Pat
                                                                     tmp_path: Path) -> None:
     """20 kB overwritten in the middle of the log: sync goes on with every chunk around the
     damage, and says once (the log is read in several passes) that it skipped some."""
-    data = bytearray((imaged / "flight.mcap").read_bytes())
-    mid = len(data) // 2
-    data[mid:mid + 20_000] = np.random.default_rng(7).bytes(20_000)
-    bad = tmp_path / "flight.mcap"
-    bad.write_bytes(bytes(data))
+    bad = overwrite_middle(imaged / "flight.mcap", tmp_path / "flight.mcap", seed=7)
     proc = _sisa("sync", str(bad), "--scanner", str(imaged / "scanner"),
                  "--out", str(tmp_path / "sync"))
     assert proc.returncode == 0, proc.stderr

@@ -6,6 +6,10 @@ values a real log holds (bytes with NULs, empty bytes, NaN, infinities, negative
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
+
 from recorder.messages import (
     FrameHeaderLog,
     GpsFix,
@@ -24,6 +28,16 @@ from recorder.messages import (
 )
 
 T0_NS = 1_700_000_000 * 10**9  # host clock (Unix ns)
+
+
+def overwrite_middle(src: Path, dst: Path, n_bytes: int = 20_000, seed: int = 0) -> Path:
+    """A copy of the log `src` at `dst` with `n_bytes` of noise over its middle: a chunk or
+    more damaged, the rest whole."""
+    data = bytearray(src.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + n_bytes] = np.random.default_rng(seed).bytes(n_bytes)
+    dst.write_bytes(bytes(data))
+    return dst
 
 
 def sample_messages(t0_ns: int = T0_NS) -> list[tuple[LoggedMessage, Topic | None]]:

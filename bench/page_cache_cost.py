@@ -51,10 +51,10 @@ def write_file(path: Path, mb: int, behind: bool) -> None:
             if behind and done % CHUNK == 0:
                 start_writeback(fd, started, done - started, SYNC_FILE_RANGE_WRITE)
                 started = done
-                if started - LAG_CHUNKS * CHUNK > dropped:
-                    os.posix_fadvise(fd, dropped, started - LAG_CHUNKS * CHUNK - dropped,
-                                     os.POSIX_FADV_DONTNEED)
-                    dropped = started - LAG_CHUNKS * CHUNK
+                behind = started - LAG_CHUNKS * CHUNK
+                if behind > dropped:
+                    os.posix_fadvise(fd, dropped, behind - dropped, os.POSIX_FADV_DONTNEED)
+                    dropped = behind
     finally:
         os.close(fd)
 

@@ -214,8 +214,7 @@ def _must_survive(case: Damaged, raws: Sequence[bytes]) -> list[bytes]:
     decoder could resynchronise on: one message is lost either way)."""
     keep = []
     for i, (message, touched) in enumerate(zip(case.messages, case.touched, strict=True)):
-        before = case.messages[i - 1] if i else None
-        rejoined = (i > 0 and case.touched[i - 1] and before in raws
+        rejoined = (i > 0 and case.touched[i - 1] and (before := case.messages[i - 1]) in raws
                     and before not in case.parts[i - 1]
                     and (case.parts[i - 1] + message).startswith(before))
         if not touched and not rejoined:

@@ -58,7 +58,7 @@ I32 = npt.NDArray[np.int32]
 I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
-TIFF_BLOCK: Final = 512
+TIFF_BLOCK: Final = 256  # GeoTIFF tile side, cells (see docs/georef.md: 512 wrote a third more)
 WINDOW_BYTES: Final = 160_000_000  # output values (all bands) held per work window
 STRIP_MAX_COLS: Final = 8192  # grids up to this wide go by full-width strips of rows
 INDEX_BLOCK_LINES: Final = 128  # lines per bounding box of the swath index
@@ -344,7 +344,7 @@ class Scratch:
                fill: float | None = None) -> npt.NDArray[Any]:
         """A (bands, rows, cols) array whose bands lie PLANE_PAD_BYTES more than a multiple
         of 4 KB apart: writing a cell's value into every band otherwise hits one cache set
-        per band at once (windows are multiples of 512 cells), several times slower."""
+        per band at once (windows are multiples of TIFF_BLOCK cells), several times slower."""
         bands, rows, cols = shape
         item = np.dtype(dtype).itemsize
         plane = rows * cols + (-rows * cols * item % 4096 + PLANE_PAD_BYTES) // item

@@ -2,8 +2,10 @@
 
     .venv/bin/python bench/page_cache_cost.py [--mb 812] [--runs 3] [--pause-s 5] [--dir DIR]
 
-The uncompressed GeoTIFF of bench/ortho_speed.py is ~812 MB; how long the kernel takes to copy
-it into the page cache decides whether a run of `sisa ortho` takes ~1.1 s or ~2 s. Three ways
+The uncompressed GeoTIFF of bench/ortho_speed.py was ~812 MB when its tiles were 512 cells (the
+default size, as measured in docs/georef.md; ~600 MB with today's 256); how long the kernel
+takes to copy it into the page cache decides whether a run of `sisa ortho` takes ~1.1 s or
+~2 s. Three ways
 to write the same bytes (1 MB writes, in a child process each, system time from its rusage):
 
 - reused: a file of the same size written, then deleted just before (as bench/ortho_speed.py

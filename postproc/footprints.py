@@ -153,13 +153,13 @@ def footprint_feature(igm: IgmSource, epsg: int, *, properties: Mapping[str, Any
     """A GeoJSON Feature of the swath: lon/lat polygon (null if fewer than two lines have
     positions) and properties lines, first_line, last_line, area_m2 (on the WGS 84
     ellipsoid), then `properties`; with t_first_gps_ns/t_last_gps_ns ≥ 0 also duration_s."""
-    crs = projected_crs(epsg)
+    projected_crs(epsg)  # a projected CRS, or the InputError saying why not
     fp = footprint_polygon(igm, tolerance_m=tolerance_m)
     props: dict[str, Any] = {"lines": fp.lines, "first_line": fp.first_line,
                              "last_line": fp.last_line, "area_m2": 0.0}
     geometry: dict[str, Any] | None = None
     if fp.ring_m.shape[0] >= 4:
-        to_geo = Transformer.from_crs(crs, 4326, always_xy=True)
+        to_geo = Transformer.from_crs(int(epsg), 4326, always_xy=True)
         lon, lat = to_geo.transform(fp.ring_m[:, 0], fp.ring_m[:, 1])
         lon = np.round(np.asarray(lon), COORD_DECIMALS)
         lat = np.round(np.asarray(lat), COORD_DECIMALS)

@@ -43,6 +43,7 @@ from postproc.igm import (
     EnviRaster,
     commit_envi,
     coordinate_system_string,
+    crs_name,
     envi_header_text,
     envi_list,
     igm_epsg,
@@ -717,7 +718,7 @@ def envi_map_info(grid: OrthoGrid) -> str:
     if 32601 <= grid.epsg <= 32660 or 32701 <= grid.epsg <= 32760:
         hemi = "North" if grid.epsg < 32700 else "South"
         return f"{{UTM, {head}, {grid.epsg % 100}, {hemi}, WGS-84, units=Meters}}"
-    return f"{{{crs.name.replace(',', ' ')}, {head}, units=Meters}}"
+    return f"{{{crs_name(crs).replace(',', ' ')}, {head}, units=Meters}}"
 
 
 # -- orthorectify one segment ----------------------------------------------------------------

@@ -67,6 +67,9 @@ NAV_WANTED: Final[dict[str, tuple[str, ...]]] = {
 }
 
 
+MAX_GAP_LIMIT_S: Final = 86_400  # a "gap" longer than a day bridges nothing a flight holds
+
+
 @dataclass(frozen=True)
 class NavConfig:
     """Which gaps the solution bridges (seconds)."""
@@ -75,8 +78,9 @@ class NavConfig:
     max_ins_gap_s: float = 0.25  # longest run of missing/unusable INS records inside a piece
 
     def __post_init__(self) -> None:
-        if not (self.max_gps_gap_s > 0 and self.max_ins_gap_s > 0):
-            raise ConfigError("navigation config: max_gps_gap_s and max_ins_gap_s must be > 0")
+        if not all(0 < g <= MAX_GAP_LIMIT_S for g in (self.max_gps_gap_s, self.max_ins_gap_s)):
+            raise ConfigError("navigation config: max_gps_gap_s and max_ins_gap_s must be > 0 "
+                              f"and at most {MAX_GAP_LIMIT_S} s")
 
 
 class Pose(NamedTuple):

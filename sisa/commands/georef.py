@@ -23,7 +23,6 @@ covers; each segment or stretch of lines skipped is one warning line on stderr.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -81,6 +80,7 @@ def add_georef_args(parser: argparse.ArgumentParser) -> None:
 def options_from_args(args: argparse.Namespace, sensor_default: object = None
                       ) -> GeorefOptions:
     from postproc.georef import GeorefOptions
+    from postproc.navigation import MAX_GAP_LIMIT_S
     from postproc.sensorfile import SensorModel
     from postproc.trajfiles import LEAP_SECONDS_RANGE
 
@@ -98,8 +98,9 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
     if args.leap_seconds is not None and not lo <= args.leap_seconds <= hi:
         raise InputError(f"--leap-seconds {args.leap_seconds}: must be {lo} to {hi} (GPS - UTC: "
                          "18 since 2017)")
-    if args.max_gap_s is not None and not (math.isfinite(args.max_gap_s) and args.max_gap_s > 0):
-        raise InputError(f"--max-gap-s {args.max_gap_s}: must be a positive number of seconds")
+    if args.max_gap_s is not None and not 0 < args.max_gap_s <= MAX_GAP_LIMIT_S:
+        raise InputError(f"--max-gap-s {args.max_gap_s}: must be a positive number of seconds, "
+                         f"at most {MAX_GAP_LIMIT_S}")
     geoid = args.geoid if args.geoid is not None else args.geoid_m
     return GeorefOptions(sensor=sensor, dem=args.dem, geoid=geoid, epsg=args.crs,
                          cell_m=args.cell, trajectory=args.trajectory,

@@ -36,7 +36,7 @@ from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
 from recorder.messages import Topic
 from recorder.reader import read_topics
-from sisa.errors import InputError
+from sisa.errors import ConfigError, InputError
 from sisa.frames import body_to_ned_matrix, euler_from_body_to_ned, ned_to_ecef_matrix
 from sisa.timescale import NS_PER_S, parse_gps_datetime
 
@@ -469,3 +469,13 @@ def test_nav_from_log_reads_the_same_solution(error_free_run: Any) -> None:
     assert a.span_ns == b.span_ns
     np.testing.assert_array_equal(pa.ins_ecef_m, pb.ins_ecef_m)
     np.testing.assert_array_equal(pa.r_ecef_from_body, pb.r_ecef_from_body)
+
+
+@pytest.mark.parametrize("gaps", [{"max_gps_gap_s": 0.0}, {"max_ins_gap_s": -1.0},
+                                  {"max_gps_gap_s": math.nan}, {"max_gps_gap_s": 1e300},
+                                  {"max_ins_gap_s": 86_401.0}])
+def test_a_gap_limit_that_bridges_nothing_or_overflows_nanoseconds_is_refused(
+        gaps: dict[str, float]) -> None:
+    with pytest.raises(ConfigError, match="at most 86400 s"):
+        NavConfig(**gaps)
+    assert NavConfig(max_gps_gap_s=86_400.0).max_gps_gap_s == 86_400.0

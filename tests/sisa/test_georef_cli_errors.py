@@ -110,8 +110,15 @@ def test_the_options_the_trajectory_messages_name_exist(command: str) -> None:
 @pytest.mark.parametrize(("option", "says"), [
     (("--leap-seconds", "-1"), "--leap-seconds -1: must be 0 to 60 (GPS - UTC: 18 since 2017)"),
     (("--leap-seconds", "99"), "--leap-seconds 99: must be 0 to 60 (GPS - UTC: 18 since 2017)"),
-    (("--max-gap-s", "0"), "--max-gap-s 0.0: must be a positive number of seconds"),
-    (("--max-gap-s", "-2"), "--max-gap-s -2.0: must be a positive number of seconds"),
+    (("--max-gap-s", "0"), "--max-gap-s 0.0: must be a positive number of seconds, at most "
+                           "86400"),
+    (("--max-gap-s", "-2"), "--max-gap-s -2.0: must be a positive number of seconds, at most "
+                            "86400"),
+    (("--max-gap-s", "nan"), "--max-gap-s nan: must be a finite number"),
+    # an OverflowError traceback from the bridged gap in nanoseconds (found by a bad-input sweep)
+    (("--max-gap-s", "1e300"), "--max-gap-s 1e+300: must be a positive number of seconds, at "
+                               "most 86400"),
+    (("--max-gap-s", "inf"), "--max-gap-s inf: must be a finite number"),
 ])
 def test_bad_leap_seconds_and_max_gap_are_one_line(
         inputs: Path, capsys: pytest.CaptureFixture[str], option: tuple[str, str], says: str

@@ -11,6 +11,7 @@ memmap would keep every page it touched in the process's resident memory.
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import warnings
@@ -48,6 +49,18 @@ _WAVELENGTH_SCALE_TO_NM: Final = {"nanometers": 1.0, "nm": 1.0, "micrometers": 1
 
 class CutShortWarning(UserWarning):
     """A raster file holds fewer lines than its header says; the lines it holds are used."""
+
+
+def _header_offset(path: Path, text: str) -> int:
+    """The header's `header offset`: a whole number of bytes, or an InputError naming it."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0 and value == int(value)):
+        raise InputError(f"{path}: ENVI header offset {text.strip()!r} is not a whole number "
+                         "of bytes")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -93,7 +106,7 @@ class EnviRaster:
         if envi.get("byte_order", "0").strip() == "1":
             dtype = dtype.newbyteorder(">")
         raster = cls(path, *shape, dtype.newbyteorder("<") if dtype.byteorder == "=" else dtype,
-                     interleave, int(float(envi.get("header_offset", "0"))),
+                     interleave, _header_offset(path, envi.get("header_offset", "0")),
                      None if nodata is None else float(nodata), names, wl, envi)
         return raster._whole_lines()
 

@@ -4,6 +4,7 @@ geolocation VRT landing every cell on a pixel centred near it (no half-pixel shi
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from dataclasses import dataclass
@@ -309,4 +310,17 @@ def test_a_cut_raster_without_a_whole_line_or_in_bands_is_refused(
     hdr.write_text(hdr.read_text().replace("interleave = bil", f"interleave = {interleave}"))
     os.truncate(tmp_path / "a.bil", size)
     with pytest.raises(InputError, match=r"a\.bil: truncated: \d+ bytes, the header needs"):
+        EnviRaster.open(tmp_path / "a.bil")
+
+
+@pytest.mark.parametrize("offset", ["abc", "nan", "1.5", "1e400"])
+def test_a_header_offset_that_is_not_a_whole_number_of_bytes_is_named(
+        tmp_path: Path, offset: str) -> None:
+    """Were tracebacks (float('abc'), int(nan)), or a guess (1.5 read as 1): found by a
+    bad-input sweep of `sisa ortho`."""
+    write_raw(tmp_path / "a.bil", 40, 9)
+    hdr = tmp_path / "a.hdr"
+    hdr.write_text(hdr.read_text().replace("header offset = 0", f"header offset = {offset}"))
+    with pytest.raises(InputError, match=rf"a\.bil: ENVI header offset '{re.escape(offset)}' "
+                                         "is not a whole number of bytes"):
         EnviRaster.open(tmp_path / "a.bil")

@@ -408,7 +408,8 @@ def igm_pixel_spacing_m(path: Path, sample_lines: int = 64) -> float:
     rows = np.unique(np.linspace(0, igm.shape[0] - 1, min(sample_lines, igm.shape[0]))
                      .astype(np.int64))
     east, north = np.asarray(igm[rows, 0]), np.asarray(igm[rows, 1])
-    step = np.hypot(np.diff(east, axis=1), np.diff(north, axis=1)).ravel()
+    with np.errstate(invalid="ignore", over="ignore"):  # inf or garbage: not a step, no warning
+        step = np.hypot(np.diff(east, axis=1), np.diff(north, axis=1)).ravel()
     step = step[np.isfinite(step)]
     return float(np.median(step)) if step.size else float("nan")
 

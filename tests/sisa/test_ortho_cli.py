@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import rasterio
 
+from postproc.igm import open_igm
 from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
 from sisa import cli
 from sisa.commands.ortho import COMPRESSIONS
@@ -164,9 +165,19 @@ def test_a_file_cut_short_gets_the_grid_of_the_lines_mapped(made: Made, tmp_path
         assert np.nanmax(made.strip.northing_m) > north + cell  # where the lines left out go
 
 
+def igm_of_infinities(made: Made, folder: Path) -> Path:
+    """The IGM with every easting infinite (as a byte-swapped or foreign file can read)."""
+    xyz = np.array(open_igm(made.folder / "seg_igm.bil"))
+    xyz[:, 0] = np.inf
+    xyz.tofile(folder / "inf_igm.bil")
+    (folder / "inf_igm.hdr").write_text((made.folder / "seg_igm.hdr").read_text())
+    return folder / "inf_igm.bil"
+
+
 def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) -> None:
     igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
     no_crs = igm_without_crs(made, tmp_path)
+    inf_igm = igm_of_infinities(made, tmp_path)
     cases = [
         ((igm, tmp_path / "missing.bil", "--out", tmp_path / "o.tif"), "missing"),
         ((igm, image, "--out", tmp_path / "o.png"), "name the GeoTIFF"),
@@ -181,6 +192,8 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
         ((igm, image, "--out", tmp_path / "o.tif", "--cell", "0.001"), "is too large"),
         ((igm, image, "--out", tmp_path / "o.tif", "--bounds", "0", "0", "10", "10"),
          "does not overlap the image's ground"),
+        # numpy's RuntimeWarnings on stderr before the error (found by a bad-input sweep)
+        ((inf_igm, image, "--out", tmp_path / "o.tif"), "no two neighbouring pixels"),
     ]
     before = sorted(p.name for p in tmp_path.iterdir())
     for args, says in cases:

@@ -177,7 +177,7 @@ def dem_extent(path: str | Path) -> tuple[int, tuple[float, float, float, float]
         last_e = first_e + (ds.width - 1) * cell_e
         last_n = first_n - (ds.height - 1) * cell_n
         shape = (min(ds.height, SAMPLE_CELLS), min(ds.width, SAMPLE_CELLS))
-        sample = _voids_to_nan(ds.read(1, out_shape=shape, masked=True))[0]
+        sample = _voids_to_nan(_read(ds, out_shape=shape))[0]
         if not np.isfinite(sample).any() and not _has_valid_height(ds):
             raise _no_valid_height(path)
     return epsg, (first_e, last_n, last_e, first_n)
@@ -196,6 +196,9 @@ def _open(path: Path, what: str) -> Any:
     if ds.count < 1:
         ds.close()
         raise InputError(f"{path}: {what} raster has no band")
+    if str(ds.dtypes[0]).startswith("complex"):
+        ds.close()
+        raise InputError(f"{path}: {what} band 1 holds {ds.dtypes[0]} values, not heights")
     return ds
 
 
@@ -236,7 +239,7 @@ def height_range(path: str | Path, overview: int = OVERVIEW_FACTOR) -> tuple[flo
     path = Path(path)
     with _open(path, "DEM") as ds:
         shape = (max(ds.height // overview, 1), max(ds.width // overview, 1))
-        data = _voids_to_nan(ds.read(1, out_shape=shape, masked=True))[0]
+        data = _voids_to_nan(_read(ds, out_shape=shape))[0]
     if not np.isfinite(data).any():
         return None
     return float(np.nanmin(data)), float(np.nanmax(data))
@@ -268,7 +271,7 @@ def _read_band(ds: Any, win: Window, path: Path, what: str) -> F32:
     """Band 1 in the window as float32, voids NaN: masked (declared nodata) cells, NaN and
     values outside PLAUSIBLE_HEIGHTS_M. Undeclared voids other than NaN get a
     DemVoidWarning."""
-    out, marked = _voids_to_nan(ds.read(1, window=win, masked=True))
+    out, marked = _voids_to_nan(_read(ds, window=win))
     if marked.size:
         values, counts = np.unique(marked, return_counts=True)
         top = values[np.argsort(counts)[::-1][:3]]
@@ -277,6 +280,19 @@ def _read_band(ds: Any, win: Window, path: Path, what: str) -> F32:
                       f"outside {_plausible_text()}, and no nodata value declares them: read as "
                       "voids (no surface there)", DemVoidWarning, stacklevel=3)
     return out
+
+
+def _read(ds: Any, **kwargs: Any) -> np.ma.MaskedArray[Any, Any]:
+    """Band 1 as a masked array (rasterio's `read` arguments), or an InputError naming the file
+    when GDAL cannot read it (damaged tiles, a file cut short, a size it cannot allocate)."""
+    try:
+        band: np.ma.MaskedArray[Any, Any] = ds.read(1, masked=True, **kwargs)
+    except (RasterioError, MemoryError) as exc:
+        said = exc.__cause__ or exc  # rasterio's "Read failed" points at GDAL's own error
+        reason = str(said).splitlines()[0] if str(said) else type(exc).__name__
+        raise InputError(f"{ds.name}: cannot read band 1 ({reason}): a damaged or "
+                         "incomplete file?") from None
+    return band
 
 
 def _voids_to_nan(data: np.ma.MaskedArray[Any, Any]) -> tuple[F32, F64]:
@@ -298,7 +314,7 @@ def _has_valid_height(ds: Any) -> bool:
     only on the way to an error)."""
     for r0 in range(0, ds.height, SCAN_ROWS):
         win = Window(0, r0, ds.width, min(SCAN_ROWS, ds.height - r0))
-        if np.isfinite(_voids_to_nan(ds.read(1, window=win, masked=True))[0]).any():
+        if np.isfinite(_voids_to_nan(_read(ds, window=win))[0]).any():
             return True
     return False
 

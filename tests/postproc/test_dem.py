@@ -135,11 +135,38 @@ def test_geoid_that_does_not_cover_the_dem_is_refused(tmp_path: Path, small: Pat
         Dem.read(small, geoid=geoid)
 
 
-@pytest.mark.parametrize("case", ["missing", "text", "geographic", "rotated", "outside"])
+def damaged_tif(path: Path) -> Path:
+    """A DEFLATE GeoTIFF whose first block's bytes are overwritten: its header still opens."""
+    data = np.arange(64 * 64, dtype=np.float32).reshape(64, 64)
+    with rasterio.open(path, "w", driver="GTiff", width=64, height=64, count=1,
+                       dtype="float32", crs=CRS.from_epsg(UTM31N), compress="deflate",
+                       transform=north_up(401_000.0, 4_600_000.0, 2.0, 2.0)) as ds:
+        ds.write(data, 1)
+    with rasterio.open(path) as ds:
+        at = int(ds.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1))
+        size = int(ds.get_tag_item("BLOCK_SIZE_0_0", "TIFF", bidx=1))
+    with path.open("r+b") as fh:
+        fh.seek(at)
+        fh.write(b"\xa5" * size)
+    return path
+
+
+@pytest.mark.parametrize("case", ["missing", "text", "geographic", "rotated", "outside",
+                                  "complex", "damaged", "damaged geoid"])
 def test_bad_inputs_raise_one_line_input_errors(tmp_path: Path, small: Path, case: str) -> None:
+    """"complex" and "damaged" were a traceback or numpy's warnings and heights from the real
+    part (found by a bad-input sweep of `sisa georef`)."""
     data = np.zeros((4, 4), np.float32)
     kwargs: dict[str, object] = {}
-    if case == "missing":
+    if case == "complex":
+        path = write_tif(tmp_path / "c.tif", data.astype(np.complex64),
+                         north_up(401_000.0, 4_600_000.0, 2.0, 2.0))
+    elif case == "damaged":
+        path = damaged_tif(tmp_path / "damaged.tif")
+    elif case == "damaged geoid":
+        path = small
+        kwargs["geoid"] = damaged_tif(tmp_path / "geoid.tif")
+    elif case == "missing":
         path = tmp_path / "nope.tif"
     elif case == "text":
         path = tmp_path / "dem.tif"
@@ -155,8 +182,10 @@ def test_bad_inputs_raise_one_line_input_errors(tmp_path: Path, small: Path, cas
     with pytest.raises(InputError) as err:
         Dem.read(path, **kwargs)  # type: ignore[arg-type]
     message = str(err.value)
-    assert str(path) in message
+    assert str(kwargs.get("geoid", path)) in message
     assert "\n" not in message
+    if case.startswith("damaged"):
+        assert "cannot read band 1" in message
 
 
 def test_reads_the_emulator_dem_as_the_emulator_samples_it(tmp_path: Path) -> None:

@@ -26,6 +26,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import math
 import re
 import warnings
 from collections import Counter
@@ -80,6 +81,10 @@ SBET_FIELDS: Final = (
 SBET_DTYPE: Final = np.dtype([(name, "<f8") for name in SBET_FIELDS])
 SBET_RECORD_BYTES: Final = SBET_DTYPE.itemsize  # 136
 SBET_MAX_GAP_S: Final = 0.25
+# ellipsoidal heights an airborne trajectory can hold; beyond them a value is damage (1e300 m
+# overflowed the Earth-centred coordinates into a spline's traceback)
+TRAJECTORY_HEIGHTS_M: Final = (-10_000.0, 100_000.0)
+_EARTH_RADII_M: Final = (6_356_752.3, 6_378_137.0)  # polar, equatorial (WGS 84)
 LEAP_SECONDS_RANGE: Final = (0, 60)  # GPS − UTC: 0 in 1980, 18 since 2017
 LEAP_HINT: Final = "--leap-seconds N: GPS - UTC, 18 s since 2017"
 TIME_SCALES: Final = ("GPST", "UTC", "JST")
@@ -221,6 +226,9 @@ def _solution(fmt: _PosFormat, text: str) -> tuple[int, list[float], int, int, l
     if len(tok) < 3 + n_pos:
         raise ValueError(f"{len(tok)} fields, need at least {3 + n_pos} (time, position, Q)")
     t_ns = _time_ns(tok[0], tok[1]) + fmt.offset_ns
+    if not 0 <= t_ns < 2**63:
+        raise ValueError(f"time {tok[0]} {tok[1]} is outside GPS time as nanoseconds hold it "
+                         "(1980-01-06 to 2272)")
     vals = [float(x) for x in tok[2:2 + n_pos]]
     if fmt.layout == "dms":
         vals = [_dms_deg(*tok[2:5]), _dms_deg(*tok[5:8]), vals[6]]
@@ -233,8 +241,17 @@ def _solution(fmt: _PosFormat, text: str) -> tuple[int, list[float], int, int, l
 def _check_position(layout: str, vals: list[float]) -> None:
     if not all(np.isfinite(vals)):
         raise ValueError("non-finite position")
-    if layout != "xyz" and not (-90.0 <= vals[0] <= 90.0 and -180.0 <= vals[1] <= 360.0):
+    low, high = TRAJECTORY_HEIGHTS_M
+    if layout == "xyz":
+        radius = math.hypot(*vals)
+        if not _EARTH_RADII_M[0] + low <= radius <= _EARTH_RADII_M[1] + high:
+            raise ValueError(f"ECEF position {radius:.6g} m from the Earth's centre, not within "
+                             f"{low:g} to {high:g} m of its surface")
+        return
+    if not (-90.0 <= vals[0] <= 90.0 and -180.0 <= vals[1] <= 360.0):
         raise ValueError(f"latitude/longitude out of range: {vals[0]}, {vals[1]}")
+    if not low <= vals[2] <= high:
+        raise ValueError(f"ellipsoidal height {vals[2]:g} m outside {low:g} to {high:g} m")
 
 
 def read_rtklib_pos(path: Path | str, *, leap_seconds: int | None = None) -> RtkPos:
@@ -329,6 +346,12 @@ def _sbet_values(path: Path) -> tuple[npt.NDArray[np.void], str | None]:
         i = int(out[0])
         raise InputError(f"{path}: record {i}: time or latitude/longitude out of range "
                          "(seconds of week; radians)")
+    low, high = TRAJECTORY_HEIGHTS_M
+    out = np.flatnonzero((values[:, 3] < low) | (values[:, 3] > high))
+    if out.size:
+        i = int(out[0])
+        raise InputError(f"{path}: record {i}: ellipsoidal height {values[i, 3]:g} m outside "
+                         f"{low:g} to {high:g} m")
     return rec, note
 
 

@@ -228,6 +228,15 @@ FIRST = PROGRAM_HEADER.count("\n") + 2  # index of the first solution line (line
      r"bad\.pos:23: 5 fields, need at least 6"),
     (lambda L: [*L[:FIRST], L[FIRST].replace("09:00:01", "09:0O:01"), *L[FIRST + 1:]],
      r"bad\.pos:23: not a time of day '09:0O:01\.000'"),
+    # tracebacks from int64 overflow and from a spline over infinite ECEF coordinates (found by
+    # a bad-input sweep of `sisa georef --trajectory`)
+    (lambda L: [*L[:FIRST], " ".join(["9999/12/31", *L[FIRST].split()[1:]]), *L[FIRST + 1:]],
+     r"bad\.pos:23: time 9999/12/31 09:00:01\.000 is outside GPS time as nanoseconds hold it"),
+    (lambda L: [*L[:FIRST], " ".join(["1970/01/01", *L[FIRST].split()[1:]]), *L[FIRST + 1:]],
+     r"bad\.pos:23: time 1970/01/01 .* is outside GPS time"),
+    (lambda L: [*L[:FIRST + 1], " ".join([*L[FIRST + 1].split()[:4], "1e308",
+                                           *L[FIRST + 1].split()[5:]]), *L[FIRST + 2:]],
+     r"bad\.pos:24: ellipsoidal height 1e\+308 m outside -10000 to 100000 m"),
 ])
 def test_a_bad_pos_file_is_one_clear_line(tmp_path: Path, edit: Any, message: str) -> None:
     path = tmp_path / "bad.pos"
@@ -330,6 +339,8 @@ def test_sbet_week_from_a_reference_within_half_a_week() -> None:
     (lambda b: b[:136 * 2 + 8 * 8] + np.float64(np.nan).tobytes() + b[136 * 2 + 8 * 9:],
      r"sbet\.out: record 2 \(byte 272\): pitch_rad is not finite"),
     (lambda b: b[:136] + b[272:408] + b[136:272], r"sbet\.out: record 2: time .* not increase"),
+    (lambda b: b[:136 + 3 * 8] + np.float64(1e300).tobytes() + b[136 + 4 * 8:],
+     r"sbet\.out: record 1: ellipsoidal height 1e\+300 m outside -10000 to 100000 m"),
 ])
 def test_a_bad_sbet_is_one_clear_line(tmp_path: Path, damage: Any, message: str) -> None:
     path = tmp_path / "sbet.out"

@@ -14,6 +14,7 @@ from typing import Any, Final, TextIO
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.scanner_header import BODY as HEADER_BODY
 from postproc.jsonio import write_json
 from postproc.lines import LineTable
 from postproc.syncconfig import TimeStatus
@@ -23,6 +24,7 @@ I64 = npt.NDArray[np.int64]
 
 LINES_GLOB: Final = "segment_*.lines.csv"
 _SEGMENT_RE: Final = re.compile(r"segment_(\d+)\.lines\.csv$")
+_COUNTER, _SEGMENT = HEADER_BODY.field("frame_counter"), HEADER_BODY.field("segment")
 WRITE_BLOCK: Final = 100_000
 
 STATUS_DOC: Final = ("status: " + " | ".join(s.name.lower() for s in TimeStatus)
@@ -72,6 +74,11 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
     line, counter = data[:, 0], data[:, 1]
     if not np.array_equal(line, np.arange(line.size)):
         raise InputError(f"{path}: line_index must run 0, 1, 2, ... in file order")
+    bad = np.flatnonzero((counter < _COUNTER.raw_min) | (counter > _COUNTER.raw_max))
+    if bad.size:  # beyond the header's field: damage (2^63 overflowed the unwrapping)
+        number, row = body[1 + int(bad[0])]
+        raise InputError(f"{path}: row {number} ({row.strip()!r}): frame_counter outside "
+                         f"{_COUNTER.raw_min}..{_COUNTER.raw_max}, what a frame header holds")
     return LineTable(np.full(line.size, segment, dtype=np.int64), line, counter)
 
 
@@ -111,7 +118,11 @@ def read_scanner_lines(folder: Path) -> LineTable:
         m = _SEGMENT_RE.search(path.name)
         if m is None:
             raise InputError(f"{path}: cannot read the segment number from the name")
-        tables.append(_read_lines_csv(path, int(m.group(1))))
+        segment = int(m.group(1))
+        if not _SEGMENT.raw_min <= segment <= _SEGMENT.raw_max:
+            raise InputError(f"{path}: segment {segment} outside {_SEGMENT.raw_min}.."
+                             f"{_SEGMENT.raw_max}, what a frame header holds")
+        tables.append(_read_lines_csv(path, segment))
     return LineTable(*(np.concatenate([getattr(t, f) for t in tables])
                        for f in ("segment", "line", "frame_counter")))
 

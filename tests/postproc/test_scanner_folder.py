@@ -33,3 +33,23 @@ def test_a_damaged_row_of_a_lines_file_is_named_by_its_row_number(tmp_path: Path
     with pytest.raises(InputError, match=rf"segment_000\.lines\.csv: row 6 \({shown}\): "
                        "expected two integers, line_index,frame_counter$"):
         read_scanner_lines(tmp_path)
+
+
+@pytest.mark.parametrize("counter", ["9223372036854775807", "4294967296", "-1"])
+def test_a_frame_counter_no_header_can_hold_is_named_by_its_row(tmp_path: Path,
+                                                                counter: str) -> None:
+    """2^63 − 1 was an OverflowError traceback in the unwrapping; -1 went through (found by a
+    bad-input sweep of `sisa georef`)."""
+    (tmp_path / "segment_000.lines.csv").write_text(LINES_CSV + f"3,{counter}\n4,11\n")
+    with pytest.raises(InputError, match=rf"segment_000\.lines\.csv: row 6 \('3,{counter}'\): "
+                       r"frame_counter outside 0\.\.4294967295, what a frame header holds$"):
+        read_scanner_lines(tmp_path)
+
+
+def test_a_segment_number_no_header_can_hold_is_refused(tmp_path: Path) -> None:
+    """An OverflowError traceback for a 20-digit number in the file name."""
+    name = "segment_99999999999999999999.lines.csv"
+    (tmp_path / name).write_text(LINES_CSV)
+    with pytest.raises(InputError, match=rf"{name}: segment 99999999999999999999 outside "
+                       r"0\.\.65535, what a frame header holds$"):
+        read_scanner_lines(tmp_path)

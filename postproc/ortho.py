@@ -495,8 +495,9 @@ def _copy_pixels(block: npt.NDArray[Any], lo: int, line: npt.NDArray[np.integer[
     block (lines, bands, pixels), cell by cell, every band; out (bands, cells) may have its
     bands apart (see Scratch.planes: they should not lie a multiple of 4 KB apart)."""
     item = out.dtype.itemsize
-    if (out.ndim != 2 or not out.flags.writeable or out.strides[1] != item
-            or out.strides[0] % item or not out.dtype.isnative):
+    # numpy may give an axis of length 1 any stride (a one-cell window): only longer ones count
+    if (out.ndim != 2 or not out.flags.writeable or (out.shape[1] > 1 and out.strides[1] != item)
+            or (out.shape[0] > 1 and out.strides[0] % item) or not out.dtype.isnative):
         raise ValueError("out must be a writable (bands, cells) array of native values, "
                          "cells contiguous")
     src = np.ascontiguousarray(block, out.dtype)  # the image's byte order to the machine's

@@ -207,6 +207,24 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+def test_a_one_cell_grid_is_mapped(made: Made, tmp_path: Path) -> None:
+    """Was a traceback: numpy gives a one-cell window's cell axis any stride (found by a
+    bad-input sweep)."""
+    g = made.grid
+    with rasterio.open(made.tif) as ds:
+        band = ds.read(1)
+    row, col = (int(v[len(v) // 2]) for v in np.nonzero(band != ds.nodata))
+    west, north = g.west_m + col * g.cell_m, g.north_m - row * g.cell_m
+    out = tmp_path / "one.tif"
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--cell", g.cell_m, "--bounds", west, north - g.cell_m, west + g.cell_m,
+                      north)
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(out) as one, rasterio.open(made.tif) as whole:
+        assert (one.width, one.height) == (1, 1)
+        np.testing.assert_array_equal(one.read()[:, 0, 0], whole.read()[:, row, col])
+
+
 def test_the_igm_without_crs_maps_with_crs_given(made: Made, tmp_path: Path) -> None:
     proc = sisa_ortho(igm_without_crs(made, tmp_path), made.folder / "seg.bil", "--out",
                       tmp_path / "o.tif", "--crs", "32631", "--cell", "2")

@@ -178,6 +178,8 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
     igm, image = made.folder / "seg_igm.bil", made.folder / "seg.bil"
     no_crs = igm_without_crs(made, tmp_path)
     inf_igm = igm_of_infinities(made, tmp_path)
+    (tmp_path / "taken_glt.hdr").mkdir()
+    (tmp_path / "dir.tif").mkdir()
     cases = [
         ((igm, tmp_path / "missing.bil", "--out", tmp_path / "o.tif"), "missing"),
         ((igm, image, "--out", tmp_path / "o.png"), "name the GeoTIFF"),
@@ -194,6 +196,9 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
          "does not overlap the image's ground"),
         # numpy's RuntimeWarnings on stderr before the error (found by a bad-input sweep)
         ((inf_igm, image, "--out", tmp_path / "o.tif"), "no two neighbouring pixels"),
+        # a traceback after the GeoTIFF was in place, the GLT's parts left beside it
+        ((igm, image, "--out", tmp_path / "taken.tif"), "taken_glt.hdr is a folder"),
+        ((igm, image, "--out", tmp_path / "dir.tif"), "dir.tif is a folder"),
     ]
     before = sorted(p.name for p in tmp_path.iterdir())
     for args, says in cases:

@@ -17,6 +17,8 @@ from typing import IO, Any, Final
 
 import numpy as np
 
+from sisa.errors import InputError
+
 SPILL_ROWS: Final = 100_000  # rows held in memory per table before they go to a temporary file
 
 
@@ -93,10 +95,22 @@ class TruthTable:
 
 
 def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
-    """A truth table back as columns (int64 where every value is an integer)."""
-    with Path(path).open(encoding="utf-8") as fh:
-        rows = list(csv.reader(line for line in fh if not line.startswith("#")))
+    """A truth table back as columns (int64 where every value is an integer); an InputError
+    naming the file when it is missing, unreadable, or cut or damaged (a row of another
+    width: were tracebacks in `sisa process` and `calibrate`)."""
+    path = Path(path)
+    try:
+        with path.open(encoding="utf-8") as fh:
+            rows = list(csv.reader(line for line in fh if not line.startswith("#")))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"{path}: unreadable truth table: {exc}") from None
+    if not rows:
+        raise InputError(f"{path}: empty truth table (no header line)")
     header, body = rows[0], rows[1:]
+    short = next((n for n, r in enumerate(body, start=1) if len(r) != len(header)), None)
+    if short is not None:
+        raise InputError(f"{path}: data row {short} has {len(body[short - 1])} values for "
+                         f"{len(header)} columns: the truth table is cut or damaged")
     out: dict[str, np.ndarray[Any, Any]] = {}
     for i, col in enumerate(header):
         values = [r[i] for r in body]

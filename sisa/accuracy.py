@@ -27,8 +27,10 @@ from emulators.scenario import Scenario
 from emulators.terrain import Terrain
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
+from postproc.calib_data import read_ground_points
 from postproc.georef import GeorefResult, SegmentResult
 from postproc.igm import open_igm
+from postproc.navigation import ecef_to_geodetic
 
 F64 = npt.NDArray[np.float64]
 BLOCK_LINES: Final = 2048
@@ -242,17 +244,15 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
     return out
 
 
-def read_ground_points(path: Path) -> dict[str, Any]:
-    rows = [r for r in path.read_text(encoding="utf-8").splitlines() if not r.startswith("#")]
-    names = rows[0].split(",")
-    cols = list(zip(*(r.split(",") for r in rows[1:] if r.strip()), strict=True))
-    out: dict[str, Any] = {}
-    for name, values in zip(names, cols, strict=True):
-        try:
-            out[name] = np.array([float(v) for v in values])
-        except ValueError:
-            out[name] = np.array(values)
-    return out
+def check_points(path: Path, epsg: int) -> dict[str, Any]:
+    """The check points of a ground points file (calib_data's reader: one-line errors for a
+    damaged file), as id, easting_m, northing_m, height_m (ellipsoidal) in `epsg`."""
+    points = read_ground_points(path)
+    check = points.kind == "check"
+    lat, lon, h = ecef_to_geodetic(points.ecef_m[check])
+    east, north = Transformer.from_crs(4326, epsg, always_xy=True).transform(lon, lat)
+    return {"id": points.ids[check], "easting_m": np.asarray(east, dtype=np.float64),
+            "northing_m": np.asarray(north, dtype=np.float64), "height_m": h}
 
 
 def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
@@ -282,14 +282,9 @@ def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, An
     per_segment = []
     checks: list[CheckPoint] = []
     gp_csv = run / "terrain" / "ground_points.csv"
-    points = read_ground_points(gp_csv) if gp_csv.is_file() else {
-        "id": np.zeros(0, str), "kind": np.zeros(0, str), "easting_m": np.zeros(0),
-        "northing_m": np.zeros(0), "height_m": np.zeros(0)}
-    chk = {k: v[points["kind"] == "check"] for k, v in points.items()}
-    if result.epsg != truth.terrain.epsg:
-        to_out = Transformer.from_crs(truth.terrain.epsg, result.epsg, always_xy=True)
-        chk["easting_m"], chk["northing_m"] = (
-            np.asarray(v) for v in to_out.transform(chk["easting_m"], chk["northing_m"]))
+    chk = check_points(gp_csv, result.epsg) if gp_csv.is_file() else {
+        "id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
+        "height_m": np.zeros(0)}
     for seg in result.segments:
         stats, found = segment_accuracy(truth, seg, chk, seed=seg.segment)
         per_segment.append({"segment": seg.segment, **stats.summary()})

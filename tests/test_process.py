@@ -138,3 +138,24 @@ def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed,
     page = (bad / "process" / "report.html").read_text()
     assert "<h2>Warnings</h2>" in page
     assert "damaged chunk" in page
+
+
+@pytest.mark.parametrize(("name", "text", "says"), [
+    ("terrain/ground_points.csv", "", "ground_points.csv"),
+    ("terrain/ground_points.csv", "a,b,c\n1,2\nxyz\n", "ground_points.csv"),
+    ("truth/frames.csv", "frame,t\n1\n", "frames.csv: data row 1 has 1 values for 2 columns"),
+])
+def test_a_damaged_table_of_the_run_is_one_line_naming_it(processed, tmp_path, name, text,
+                                                          says):
+    """Were IndexError / ValueError tracebacks after the georeferencing (found by a bad-input
+    sweep); check points now come from the reader `sisa calibrate` uses."""
+    run, _, _ = processed
+    bad = _copy_run(run, tmp_path / "run")
+    (bad / name).write_text(text)
+    proc = _sisa("process", bad, check=False)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[-1].startswith("sisa process: error: "), proc.stderr
+    assert says in lines[-1], proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (bad / "process").exists()

@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from emulators.truth import TruthTable, read_truth_csv
+from sisa.errors import InputError
 
 
 def _table(spill_rows: int) -> TruthTable:
@@ -34,3 +36,20 @@ def test_a_spilled_table_writes_what_a_held_one_does(tmp_path: Path) -> None:
     assert spilled.column("i").tolist() == list(range(26))
     assert np.allclose(spilled.column("x_m")[:23], np.arange(23) / 7)
     assert held.column("i").tolist() == list(range(25))
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    (None, "unreadable truth table"),
+    ("", "empty truth table"),
+    ("# only a comment\n", "empty truth table"),
+    ("a,b,c\n1,2,3\n4,5\n", "data row 2 has 2 values for 3 columns"),
+])
+def test_a_missing_empty_or_cut_truth_table_is_named(tmp_path: Path, text: str | None,
+                                                     says: str) -> None:
+    """Were FileNotFoundError / IndexError tracebacks in `sisa process` and `calibrate` (found
+    by a bad-input sweep)."""
+    path = tmp_path / "frames.csv"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(InputError, match=rf"frames\.csv: {says}"):
+        read_truth_csv(path)

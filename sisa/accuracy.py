@@ -31,6 +31,8 @@ from postproc.calib_data import read_ground_points
 from postproc.georef import GeorefResult, SegmentResult
 from postproc.igm import open_igm
 from postproc.navigation import ecef_to_geodetic
+from sisa.errors import InputError
+from sisa.timescale import gps_span_label
 
 F64 = npt.NDArray[np.float64]
 BLOCK_LINES: Final = 2048
@@ -106,16 +108,30 @@ def decompose(d_e: F64, d_n: F64, d_h: F64, along: F64, right: F64) -> F64:
     return np.stack([a.ravel(), c.ravel(), d_h.ravel()], axis=1)
 
 
+def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int64]
+                   ) -> TruthTrajectory:
+    """The scenario's true trajectory, checked against the run's truth frames: a scenario.toml
+    changed after the run (another preset) put the frames outside it, a traceback later."""
+    traj = TruthTrajectory.from_scenario(scn)
+    t = np.asarray(t_frames_gps_ns, dtype=np.int64)
+    if t.size and (t.min() < traj.t_start_ns or t.max() > traj.t_end_ns):
+        raise InputError(f"{run / 'scenario.toml'}: its flight "
+                         f"({gps_span_label(traj.t_start_ns, traj.t_end_ns)}) does not hold the "
+                         f"run's truth frames ({gps_span_label(int(t.min()), int(t.max()))}): "
+                         "not the scenario this run was made from")
+    return traj
+
+
 class TruthGround:
     """True ground position of every pixel of a segment, block by block."""
 
     def __init__(self, scn: Scenario, run: Path, out_epsg: int) -> None:
         self.scn = scn
-        self.traj = TruthTrajectory.from_scenario(scn)
+        frames = read_truth_csv(run / "truth" / "frames.csv")
+        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"])
         self.terrain = Terrain.from_scenario(scn)
         self.intersector = GroundIntersector(self.terrain)
         self.look = scn.scanner.look_vectors_camera()
-        frames = read_truth_csv(run / "truth" / "frames.csv")
         kept = frames["line_index"] >= 0
         self.frames = {k: v[kept] for k, v in frames.items()}
         self._to_out = (None if out_epsg == self.terrain.epsg else

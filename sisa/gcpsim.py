@@ -33,6 +33,7 @@ from emulators.truth import read_truth_csv
 from postproc.calib_data import GroundPoints, ImageObservations
 from postproc.dem import Dem
 from postproc.navigation import ecef_to_geodetic, geodetic_to_ecef
+from sisa.accuracy import run_trajectory
 from sisa.errors import InputError
 from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B
@@ -241,8 +242,9 @@ def simulate_observations(run: Path, points: GroundPoints, settings: SimSettings
                           ) -> SimulatedObservations:
     """Measurements of `points` (control and check) and of new tie points, from the truth."""
     scn = load_scenario(run / "scenario.toml")
-    traj = TruthTrajectory.from_scenario(scn)
     segs = truth_segments(run)
+    traj = run_trajectory(run, scn, np.concatenate([s.t_ns for s in segs]) if segs
+                          else np.zeros(0, np.int64))
     rng = np.random.default_rng([settings.seed, 7])
     pts = points
     if settings.tie_points > 0:

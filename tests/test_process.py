@@ -144,6 +144,7 @@ def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed,
     ("terrain/ground_points.csv", "", "ground_points.csv"),
     ("terrain/ground_points.csv", "a,b,c\n1,2\nxyz\n", "ground_points.csv"),
     ("truth/frames.csv", "frame,t\n1\n", "frames.csv: data row 1 has 1 values for 2 columns"),
+    ("scenario.toml", 'base = "garrotxa"\n', "not the scenario this run was made from"),
 ])
 def test_a_damaged_table_of_the_run_is_one_line_naming_it(processed, tmp_path, name, text,
                                                           says):

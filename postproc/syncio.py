@@ -14,7 +14,6 @@ from typing import Any, Final, TextIO
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.scanner_header import BODY as HEADER_BODY
 from postproc.jsonio import write_json
 from postproc.lines import LineTable
 from postproc.syncconfig import TimeStatus
@@ -24,7 +23,10 @@ I64 = npt.NDArray[np.int64]
 
 LINES_GLOB: Final = "segment_*.lines.csv"
 _SEGMENT_RE: Final = re.compile(r"segment_(\d+)\.lines\.csv$")
-_COUNTER, _SEGMENT = HEADER_BODY.field("frame_counter"), HEADER_BODY.field("segment")
+# what a frame header can carry (acquisition/scanner_header.py: frame_counter u32, segment u16;
+# postproc reads files, not the codecs: tests/postproc/test_sync.py checks they agree)
+FRAME_COUNTER_MAX: Final = 2**32 - 1
+SEGMENT_MAX: Final = 2**16 - 1
 WRITE_BLOCK: Final = 100_000
 
 STATUS_DOC: Final = ("status: " + " | ".join(s.name.lower() for s in TimeStatus)
@@ -74,11 +76,11 @@ def _read_lines_csv(path: Path, segment: int) -> LineTable:
     line, counter = data[:, 0], data[:, 1]
     if not np.array_equal(line, np.arange(line.size)):
         raise InputError(f"{path}: line_index must run 0, 1, 2, ... in file order")
-    bad = np.flatnonzero((counter < _COUNTER.raw_min) | (counter > _COUNTER.raw_max))
+    bad = np.flatnonzero((counter < 0) | (counter > FRAME_COUNTER_MAX))
     if bad.size:  # beyond the header's field: damage (2^63 overflowed the unwrapping)
         number, row = body[1 + int(bad[0])]
         raise InputError(f"{path}: row {number} ({row.strip()!r}): frame_counter outside "
-                         f"{_COUNTER.raw_min}..{_COUNTER.raw_max}, what a frame header holds")
+                         f"0..{FRAME_COUNTER_MAX}, what a frame header holds")
     return LineTable(np.full(line.size, segment, dtype=np.int64), line, counter)
 
 
@@ -119,9 +121,9 @@ def read_scanner_lines(folder: Path) -> LineTable:
         if m is None:
             raise InputError(f"{path}: cannot read the segment number from the name")
         segment = int(m.group(1))
-        if not _SEGMENT.raw_min <= segment <= _SEGMENT.raw_max:
-            raise InputError(f"{path}: segment {segment} outside {_SEGMENT.raw_min}.."
-                             f"{_SEGMENT.raw_max}, what a frame header holds")
+        if not 0 <= segment <= SEGMENT_MAX:
+            raise InputError(f"{path}: segment {segment} outside 0..{SEGMENT_MAX}, what a frame "
+                             "header holds")
         tables.append(_read_lines_csv(path, segment))
     return LineTable(*(np.concatenate([getattr(t, f) for t in tables])
                        for f in ("segment", "line", "frame_counter")))

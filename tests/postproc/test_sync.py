@@ -22,10 +22,11 @@ import pytest
 from acquisition.ins_can import TICK_NS as WIRE_TICK_NS
 from acquisition.ins_can import InsStatus
 from acquisition.lfsr import Lfsr
+from acquisition.scanner_header import BODY as HEADER_BODY
 from acquisition.syncfilter import GATE_DELAY_NS as BOX_GATE_DELAY_NS
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
 from emulators.truth import read_truth_csv
-from postproc import insclock, lines, pulses
+from postproc import insclock, lines, pulses, syncio
 from postproc.clockmap import ptt_of_seconds
 from postproc.insclock import PieceStart, ins_timeline
 from postproc.linefit import prediction_rms, robust_line
@@ -470,6 +471,8 @@ def test_postproc_constants_agree_with_the_devices() -> None:
     assert int(InsStatus.REBOOTED) == insclock.REBOOTED_BIT
     assert insclock.TICK_NS == WIRE_TICK_NS
     assert pulses.GATE_DELAY_NS == BOX_GATE_DELAY_NS
+    assert HEADER_BODY.field("frame_counter").raw_max == syncio.FRAME_COUNTER_MAX
+    assert HEADER_BODY.field("segment").raw_max == syncio.SEGMENT_MAX
 
 
 def test_postproc_never_imports_emulators_or_acquisition() -> None:

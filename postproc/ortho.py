@@ -592,7 +592,9 @@ class TiffWriter:
                 count=raw.bands, dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
                 transform=grid.transform, nodata=nodata, tiled=True, blockxsize=TIFF_BLOCK,
                 blockysize=TIFF_BLOCK, interleave="band", bigtiff="IF_SAFER",
-                num_threads="ALL_CPUS", **packing)
+                # spectral bands, not colours: GDAL makes 3 or 4 bytes bands RGB(A) by default,
+                # the 4th then an alpha mask over the data (found by a bad-input sweep)
+                photometric="MINISBLACK", num_threads="ALL_CPUS", **packing)
         except RasterioIOError as exc:  # a grid GDAL cannot hold, a folder it cannot write
             self._tmp.unlink(missing_ok=True)
             raise InputError(f"{self.path}: GDAL cannot create a {grid.width} x {grid.height} "

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+from rasterio.enums import ColorInterp
 
 from postproc.igm import open_igm
 from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
@@ -261,6 +262,26 @@ def test_console_entry_exits_with_the_code_and_leaves_objects_to_the_process(
         gc.unfreeze()
         for s, h in handlers.items():
             signal.signal(s, h)
+
+
+def test_a_four_band_byte_image_keeps_four_data_bands(made: Made, tmp_path: Path) -> None:
+    """GDAL's default made band 4 of a 4-band uint8 GeoTIFF an alpha mask over the data (and
+    rasterio then warned on every read of the products: found by a bad-input sweep)."""
+    header = [x for x in (made.folder / "seg.hdr").read_text().splitlines()
+              if not x.startswith(("wavelength", "band names", "data type", "bands"))]
+    (tmp_path / "four.hdr").write_text("\n".join([*header, "data type = 1", "bands = 4"]) + "\n")
+    (made.raw[:, :4] % 251).astype(np.uint8).tofile(tmp_path / "four.bil")
+    g = made.grid
+    proc = sisa_ortho(made.folder / "seg_igm.bil", tmp_path / "four.bil", "--out",
+                      tmp_path / "four.tif", "--cell", g.cell_m, "--bounds", *g.bounds_m)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with rasterio.open(tmp_path / "four.tif") as r:
+            assert r.count == 4
+            assert ColorInterp.alpha not in r.colorinterp
+            assert r.read(4, masked=True).count() > 0
 
 
 def test_a_float_radiance_image_maps_like_its_dn(made: Made, tmp_path: Path) -> None:

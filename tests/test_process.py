@@ -160,3 +160,20 @@ def test_a_damaged_table_of_the_run_is_one_line_naming_it(processed, tmp_path, n
     assert says in lines[-1], proc.stderr
     assert "Traceback" not in proc.stderr
     assert not (bad / "process").exists()
+
+
+def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, tmp_path):
+    """A lines file cut short (or holding only its header) left lines, or a whole segment, out
+    of the products without a word (found by a bad-input sweep)."""
+    run, _, _ = processed
+    cut = _copy_run(run, tmp_path / "run")
+    lines_csv = cut / "scanner" / "segment_000.lines.csv"
+    rows = lines_csv.read_text().splitlines(keepends=True)
+    data_at = next(i for i, r in enumerate(rows) if r.startswith("line_index"))
+    lines_csv.write_text("".join(rows[:data_at + 101]))
+    proc = _sisa("process", cut, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert "segment_000.bil: its lines file lists 100 of its" in proc.stderr
+    assert "have no time and are not georeferenced" in proc.stderr
+    summary = json.loads((cut / "process" / "georef_summary.json").read_text())
+    assert any("lists 100 of its" in w for w in summary["warnings"])

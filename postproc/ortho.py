@@ -801,6 +801,11 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     of that side (default: windows sized by WINDOW_BYTES); `workers`: windows computed at once
     (the products do not depend on it). `on_total` is told how many cells the swath can reach
     (the windows to map), `progress` how many of them each finished window held."""
+    out_tif = Path(out_tif)
+    glt_files = () if glt_stem is None else (Path(f"{glt_stem}.bil"), Path(f"{glt_stem}.hdr"))
+    for path in (out_tif, *glt_files):  # found at the end: a traceback beside finished products
+        if path.is_dir():
+            raise InputError(f"{path} is a folder, in the way of a product")
     index = igm if isinstance(igm, SwathIndex) else SwathIndex.build(Path(igm))
     raw = image if isinstance(image, EnviRaster) else EnviRaster.open(Path(image))
     index, raw = common_lines(index, raw)
@@ -812,7 +817,6 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
                          f"the image's ground ({w:.0f}, {s:.0f}, {e:.0f}, {n:.0f}): nothing "
                          "to map")
     nodata = output_nodata(raw)
-    out_tif = Path(out_tif)
     desc = (f"SISA ortho of {raw.path.name}: each cell holds the input pixel whose "
             "pixel-centre ground position (IGM) is nearest to the cell centre")
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):

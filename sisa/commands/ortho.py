@@ -61,11 +61,6 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out}: name the GeoTIFF (.tif)")
     if not out.parent.is_dir():
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
-    products = [out] + ([] if args.no_glt else [out.with_name(f"{out.stem}_glt{ext}")
-                                                 for ext in (".bil", ".hdr")])
-    for path in products:  # found at the end, it was a traceback beside finished products
-        if path.is_dir():
-            raise InputError(f"--out {out}: {path} is a folder, in the way of a product")
     epsg = igm_epsg(args.igm)
     if epsg is None:
         if args.crs is None:

@@ -191,8 +191,7 @@ def _open(path: Path, what: str) -> Any:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             ds = rasterio.open(path)
     except RasterioError as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"{path}: not a readable {what} raster ({reason})") from None
+        raise InputError(f"{path}: not a readable {what} raster ({_reason(exc)})") from None
     if ds.count < 1:
         ds.close()
         raise InputError(f"{path}: {what} raster has no band")
@@ -288,11 +287,15 @@ def _read(ds: Any, **kwargs: Any) -> np.ma.MaskedArray[Any, Any]:
     try:
         band: np.ma.MaskedArray[Any, Any] = ds.read(1, masked=True, **kwargs)
     except (RasterioError, MemoryError) as exc:
-        said = exc.__cause__ or exc  # rasterio's "Read failed" points at GDAL's own error
-        reason = str(said).splitlines()[0] if str(said) else type(exc).__name__
-        raise InputError(f"{ds.name}: cannot read band 1 ({reason}): a damaged or "
-                         "incomplete file?") from None
+        # rasterio's "Read failed" names GDAL's own error as its cause
+        raise InputError(f"{ds.name}: cannot read band 1 ({_reason(exc.__cause__ or exc)}): "
+                         "a damaged or incomplete file?") from None
     return band
+
+
+def _reason(exc: BaseException) -> str:
+    """An error's first line (its type when it says nothing), for a one-line message."""
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 def _voids_to_nan(data: np.ma.MaskedArray[Any, Any]) -> tuple[F32, F64]:

@@ -1,22 +1,35 @@
 """The flight recorder as the rest of SISA uses it: channels and schemas, LocationFix, metadata,
 never overwriting, splitting, timed flushes, and the documented topics."""
 
+import base64
+import dataclasses
 import json
+import math
 import os
 import re
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from recorder.messages import LOGGED_TYPES, GpsFix, RawBytes, Topic, json_schema
+from recorder.messages import (
+    LOGGED_TYPES,
+    GpsFix,
+    InsRecordLog,
+    RawBytes,
+    StreamHealth,
+    Topic,
+    json_schema,
+)
 from recorder.reader import read_log, read_messages, scan_log
 from recorder.writer import (
     LOCATION_FIX_SCHEMA_NAME,
     RECORDER_ID,
     TOPIC_TYPES,
     FlightRecorder,
+    encode_message,
     part_path,
     split_parts,
     topics_markdown,
@@ -186,3 +199,33 @@ def test_the_doc_lists_every_topic_with_the_generated_tables():
         "`python -c 'from recorder.writer import topics_markdown; print(topics_markdown())'`")
     for topic in Topic:
         assert f"`{topic}`" in text
+
+
+def _reference_json(msg):
+    """What the json module makes of a message, with the log's conventions: bytes base64,
+    non-finite floats as "NaN"/"Infinity"/"-Infinity", numpy scalars as plain numbers."""
+    def plain(v):
+        if isinstance(v, bytes):
+            return base64.b64encode(v).decode("ascii")
+        if isinstance(v, list | tuple):
+            return [plain(x) for x in v]
+        if isinstance(v, float) and not math.isfinite(v):
+            return "NaN" if math.isnan(v) else ("Infinity" if v > 0 else "-Infinity")
+        return v.item() if isinstance(v, np.generic) else v
+    return {k: plain(v) for k, v in msg.__dict__.items()}
+
+
+@pytest.mark.parametrize("text", ["ins", "null", "a null here", "é°", 'quo"te'])
+@pytest.mark.parametrize("value", [0.25, -0.0, 1e16, float("nan"), float("inf"), -float("inf"),
+                                   np.float64(2.5)])
+def test_messages_encode_as_the_json_module_reads_them(text, value):
+    """orjson writes the log (NaN as null there): every awkward value, and the text "null"
+    in a field, reads back as the json module's own encoding of the same message."""
+    msgs = [InsRecordLog(T0_NS, 3, 7, value, 0.1, 1.2, value, 0.0, 0.0, 1.0, 2.0, 3.0, 5,
+                         True, 6),
+            RawBytes(T0_NS, text, b"\x00null\xff" + text.encode()),
+            StreamHealth(T0_NS, text, 4, value, value, 1, 2, 3, 4, 5, 6, text)]
+    for msg in msgs:
+        data = encode_message(msg)
+        assert json.loads(data) == _reference_json(msg)
+        assert list(json.loads(data)) == [f.name for f in dataclasses.fields(msg)]

@@ -229,3 +229,33 @@ def test_messages_encode_as_the_json_module_reads_them(text, value):
         data = encode_message(msg)
         assert json.loads(data) == _reference_json(msg)
         assert list(json.loads(data)) == [f.name for f in dataclasses.fields(msg)]
+
+
+def test_the_fast_message_path_writes_what_mcap_writes(tmp_path):
+    """message_appender packs records on the mcap Writer's own state: with the mcap version
+    installed it must be in use (not the fallback) and make the very bytes add_message makes,
+    across chunks and channels, times out of order included."""
+    from mcap.writer import CompressionType, Writer
+
+    from recorder.writer import message_appender
+
+    def write(path, fast):
+        with path.open("wb") as fh:
+            w = Writer(fh, chunk_size=4096, compression=CompressionType.NONE)
+            w.start(profile="", library="test")
+            schema = w.register_schema("s", "jsonschema", b"{}")
+            channels = [w.register_channel(f"/t{i}", "json", schema) for i in range(3)]
+            add = message_appender(w) if fast else w.add_message
+            if fast:
+                assert add != w.add_message, "mcap's writer changed: the fast path is off"
+            rng = np.random.default_rng(5)
+            for i in range(3000):
+                t = T0_NS + int(rng.integers(-10**6, 10**9))
+                add(channels[i % 3], t, bytes(rng.integers(0, 256, i % 97, dtype=np.uint8)),
+                    t + 1, i)
+                if i == 1500:
+                    w.flush()  # a chunk closed early, as the recorder's timed flush does
+            w.finish()
+        return path.read_bytes()
+
+    assert write(tmp_path / "fast.mcap", True) == write(tmp_path / "slow.mcap", False)

@@ -100,6 +100,9 @@ class EnviRaster:
                     wl = tuple(_wavelength_nm(ds.tags(b), envi) for b in range(1, ds.count + 1))
         except RasterioIOError as exc:
             raise InputError(f"{path}: unreadable raster: {exc}") from None
+        if "data_type" not in envi:  # GDAL then reads bytes, whatever the file holds
+            raise InputError(f"{path}: the ENVI header gives no data type (the kind of number "
+                             "the file holds)")
         interleave = envi.get("interleave", "bsq").strip().lower()
         if interleave not in _INTERLEAVES:
             raise InputError(f"{path}: ENVI interleave {interleave!r} is not bil, bsq or bip")

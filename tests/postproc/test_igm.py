@@ -324,3 +324,16 @@ def test_a_header_offset_that_is_not_a_whole_number_of_bytes_is_named(
     with pytest.raises(InputError, match=rf"a\.bil: ENVI header offset '{re.escape(offset)}' "
                                          "is not a whole number of bytes"):
         EnviRaster.open(tmp_path / "a.bil")
+
+
+def test_a_header_without_a_data_type_is_refused(tmp_path: Path) -> None:
+    """GDAL reads such a file as bytes: a uint16 image was mapped as two bytes a pixel (found
+    by a bad-input sweep of `sisa ortho`)."""
+    write_raw(tmp_path / "a.bil", 40, 9)
+    hdr = tmp_path / "a.hdr"
+    text = hdr.read_text()
+    assert "data type = " in text
+    hdr.write_text("\n".join(line for line in text.splitlines()
+                             if not line.startswith("data type")) + "\n")
+    with pytest.raises(InputError, match=r"a\.bil: the ENVI header gives no data type"):
+        EnviRaster.open(tmp_path / "a.bil")

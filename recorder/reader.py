@@ -95,6 +95,7 @@ _JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, Recursion
 _RECORD_HEAD: Final = 9  # opcode u8, length u64
 _FOOTER_BODY: Final = 20  # summary_start u64, summary_offset_start u64, summary_crc u32
 _KNOWN_OPCODES: Final = frozenset(int(op) for op in Opcode)
+ZEROED_OPCODE: Final = 0x00  # no MCAP record type: what zero-filled storage frames as
 # a Chunk's fixed fields: start and end time, uncompressed size u64; CRC u32; compression name
 # length u32; records length u64
 _CHUNK_FIXED: Final = 40
@@ -192,11 +193,14 @@ def damage_notes(fs: FileStats) -> list[str]:
                 else "")
         notes.append(f"{fs.path}: cut short (no footer, as after a power cut or a kill): "
                      f"read to its last complete chunk{rest}")
-    if fs.chunks_skipped or fs.bytes_skipped:
+    if fs.chunks_skipped:
         chunks = f"{fs.chunks_skipped} damaged chunk{'s' if fs.chunks_skipped != 1 else ''}"
         notes.append(f"{fs.path}: {chunks} skipped ({fs.bytes_skipped} bytes): the messages in "
                      f"{'it' if fs.chunks_skipped == 1 else 'them'} are missing "
                      f"(`sisa log info {fs.path}` shows the gaps)")
+    elif fs.bytes_skipped:  # a stretch inside chunks the summary indexes, no chunk start in it
+        notes.append(f"{fs.path}: {fs.bytes_skipped} damaged bytes skipped: the messages in "
+                     f"them are missing (`sisa log info {fs.path}` shows the gaps)")
     return notes
 
 
@@ -510,6 +514,18 @@ class _FileScan:
             body = source.read(length)
             if len(body) != length:
                 return  # the file shrank as it was read
+            if head[0] == ZEROED_OPCODE:  # storage gone to zeros (a power cut on some file
+                # systems): every 9 zero bytes frame as an empty record, and unknown records
+                # are passed over, so without this the stretch went uncounted
+                resume = self._resume_at(fh, start, None)
+                if resume is None:
+                    self._problem(f"zeros from byte {start} to the end (a power cut?)")
+                    return
+                self._skip(fh, start, resume, None, head[0],
+                           f"zeros at byte {start}")
+                source.seek(resume)
+                previous = None
+                continue
             if head[0] not in _KNOWN_OPCODES:  # a record type from a later MCAP version:
                 previous = start  # skipped, as the spec says; unless the summary knows better
                 if self._indexes_chunk(start):

@@ -271,3 +271,36 @@ def test_replay_finds_the_raw_channels_of_a_log_damaged_at_its_start(log, tmp_pa
     survey = survey_log(path)
     raw = [k for k in log.expected(log.touched(200, 500)) if k[0] == Topic.SCANNER_RAW]
     assert survey.counts == {Wire.SCANNER: len(raw)}
+
+
+@pytest.mark.parametrize("where", ["inside a mid-file chunk", "a mid-file chunk's header",
+                                   "across a chunk boundary", "over four chunks"])
+def test_zeroed_storage_counts_every_chunk_and_byte_it_took(log, tmp_path, where):
+    """Zeros frame as empty records of opcode 0, which no MCAP record has: every 9 bytes one.
+    They were passed over as unknown records, so a zeroed stretch counted only the chunks
+    whose start happened to fall on a 9-byte step, and a few bytes (a bad-input sweep found
+    '0 damaged chunks skipped (28741 bytes)' for 1 MB of zeros)."""
+    start, stop = DAMAGE[where](log)
+    lost = log.touched(start, stop)
+    data = bytearray(log.data)
+    data[start:stop] = bytes(stop - start)
+    path = tmp_path / "zeroed.mcap"
+    path.write_bytes(bytes(data))
+    assert _keys(path) == log.expected(lost)
+    fs = scan_log(path).files[0]
+    assert fs.complete
+    assert fs.chunks_skipped == len(lost)
+    assert fs.bytes_skipped >= stop - start
+
+
+def test_a_log_whose_tail_went_to_zeros_reads_to_its_last_chunk(log, tmp_path):
+    """A power cut can leave a file's last blocks allocated but zero: read as cut short there."""
+    cut_at = log.chunks[35].offset
+    data = log.data[:cut_at] + bytes(len(log.data) - cut_at)
+    path = tmp_path / "zero_tail.mcap"
+    path.write_bytes(data)
+    assert _keys(path) == log.expected(set(), upto=cut_at)
+    fs = scan_log(path).files[0]
+    assert fs.truncated
+    assert fs.chunks_read == 35
+    assert any("zeros from byte" in p for p in fs.problems)

@@ -6,7 +6,8 @@ Why it is built this way:
   half-written tail ends the file instead of becoming garbage; each record is parsed (by mcap)
   from its own bytes only, so a damaged inner length is skipped with its record and cannot eat
   the records after it. Each chunk is checked (length, CRC) before any of its messages is used;
-  a bad chunk is skipped and counted, unknown records are skipped. A length beyond
+  a bad chunk is skipped and counted, unknown records are skipped (but zeros, which frame as
+  records of opcode 0, are damage). A length beyond
   `record_size_limit` is never allocated (nor may a compressed chunk inflate past its declared
   size).
 - Damage does not end the file. After a record that cannot be framed (a length beyond the limit

@@ -15,7 +15,7 @@ import threading
 import warnings
 from collections.abc import Callable, Sequence
 from types import FrameType
-from typing import Final, TextIO
+from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
 from sisa.errors import InputError, SisaError
@@ -39,19 +39,28 @@ EPILOG = """examples:
                                      the three devices in real time on virtual ports
   sisa sync runs/bench/flight.mcap --scanner runs/bench/scanner --out runs/bench/sync
                                      every INS record and scan line on GPS time
-  sisa georef runs/bench/flight.mcap --scanner runs/bench/scanner \
+  sisa georef runs/bench/flight.mcap --scanner runs/bench/scanner \\
        --dem runs/bench/terrain/dem.tif --out runs/bench/georef
                                      every pixel on the DEM: IGM, ortho, mosaic, footprints
-  sisa ortho runs/bench/process/segment_000_igm.bil runs/bench/scanner/segment_000.bil \
+  sisa ortho runs/bench/process/segment_000_igm.bil runs/bench/scanner/segment_000.bil \\
        --cell 2 --out seg0_2m.tif    one segment mapped again, here at 2 m cells
   sisa process runs/bench            sync + georeference + report with accuracy vs truth
   sisa <command> --help              every command shows an example
 """
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse, with a usage error in one line, as every other error (argparse printed its
+    whole usage block first); the subcommands' parsers are of this class too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (`{self.prog} --help` shows the usage)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from sisa.commands import (
         Formatter,
+        SubParsers,
         bench,
         calibrate,
         emulate,
@@ -67,12 +76,14 @@ def build_parser() -> argparse.ArgumentParser:
         truth,
     )
 
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="sisa", formatter_class=Formatter, epilog=EPILOG,
         description="SISA: emulate, record, synchronise and georeference an airborne "
                     "pushbroom scanner with its INS and GPS receiver.")
     parser.add_argument("--version", action="version", version=f"sisa {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    # subcommands' parsers are Parsers (argparse makes them of the parent's class)
+    sub: SubParsers[argparse.ArgumentParser] = parser.add_subparsers(  # type: ignore[assignment]
+        dest="command", metavar="COMMAND")
     scenario.register(sub)
     truth.register(sub)
     simulate.register(sub)

@@ -49,6 +49,31 @@ def test_bad_scenario_file_is_one_line_and_exit_2(tmp_path):
     assert "less than 100" in lines[0]
 
 
+@pytest.mark.parametrize(("argv", "said"), [
+    (["ortho", "a.bil", "b.bil", "--out", "o.tif", "--crs", "abc"],
+     "sisa ortho: error: argument --crs: invalid int value: 'abc'"),
+    (["ortho"], "sisa ortho: error: the following arguments are required: IGM, IMAGE, --out"),
+    (["frob"], "sisa: error: argument COMMAND: invalid choice: 'frob'"),
+])
+def test_a_usage_error_is_one_line_and_exit_2(argv, said, capsys):
+    """As every other error: argparse's usage block came first (found by a bad-input sweep)."""
+    with pytest.raises(SystemExit) as bad:
+        main(argv)
+    assert bad.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(said)
+    assert "--help` shows the usage" in err
+
+
+def test_the_examples_in_the_help_keep_their_line_breaks(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "--scanner runs/bench/scanner \\\n" in out
+    assert "seg0_2m.tif" in out.split("segment_000.bil \\\n")[1].splitlines()[0]
+
+
 @pytest.mark.parametrize(("table", "field"), [
     ('[block]\nground_speed_kmh = -5\n', "block.ground_speed_kmh"),
     ('[flight]\nbank = 3\n', "unknown field 'flight.bank'"),

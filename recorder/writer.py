@@ -186,7 +186,10 @@ def _dumps(obj: object) -> bytes:
     recorder's own CPU; it writes a non-finite float as null, and no message field is ever
     None, so a null sends the message down the exact slow path (rare: a "null" inside a text
     or base64 field takes it too, with the same result)."""
-    data = orjson.dumps(obj, default=_json_default)
+    try:
+        data = orjson.dumps(obj, default=_json_default)
+    except orjson.JSONEncodeError:  # what orjson does not take (an int beyond 64 bits, a type
+        data = b"null"  # nothing converts): the json module's verdict, on the slow path
     if b"null" not in data:
         return data
     fields = obj if isinstance(obj, Mapping) else obj.__dict__
@@ -276,9 +279,10 @@ def message_appender(mcap: Writer) -> AddMessage:
         stats = mcap._Writer__statistics  # type: ignore[attr-defined]
         chunk = mcap._Writer__chunk_builder  # type: ignore[attr-defined]
         close_if_full = mcap._Writer__maybe_finalize_chunk  # type: ignore[attr-defined]
-        chunk.record_writer._buffer.write  # noqa: B018 (the record stream it writes into)
         counts, indices = stats.channel_message_counts, chunk.message_indices
     except AttributeError:
+        return mcap.add_message
+    if not hasattr(chunk.record_writer, "_buffer"):  # the record stream it writes into
         return mcap.add_message
     pack = _MESSAGE_HEAD.pack
     opcode = int(Opcode.MESSAGE)

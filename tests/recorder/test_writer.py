@@ -231,6 +231,14 @@ def test_messages_encode_as_the_json_module_reads_them(text, value):
         assert list(json.loads(data)) == [f.name for f in dataclasses.fields(msg)]
 
 
+def test_what_orjson_refuses_is_left_to_the_json_module():
+    """An int beyond 64 bits is JSON all the same; a value no rule converts is an EncodeError."""
+    big = StreamHealth(T0_NS, "ins", 2**70, 1.0, 1.0, 1, 2, 3, 4, 5, 6)
+    assert json.loads(encode_message(big))["messages"] == 2**70
+    with pytest.raises(EncodeError, match="object is not JSON serialisable"):
+        encode_message(StreamHealth(T0_NS, "ins", object(), 1.0, 1.0, 1, 2, 3, 4, 5, 6))
+
+
 def test_the_fast_message_path_writes_what_mcap_writes(tmp_path):
     """message_appender packs records on the mcap Writer's own state: with the mcap version
     installed it must be in use (not the fallback) and make the very bytes add_message makes,

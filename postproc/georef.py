@@ -27,6 +27,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 from pyproj import CRS, Proj, Transformer
+from pyproj.transformer import AreaOfInterest
 
 from postproc.dem import Dem, dem_extent, height_range
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
@@ -206,8 +207,9 @@ class GeorefJob:
         crs = check_output_crs(self.epsg)
         self._to_out = (None if self.epsg == self.dem_epsg else
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        note = grid_scale_note(crs, self.dem_epsg, self.dem_bounds)
-        self.warnings: list[str] = [] if note is None else [note]
+        notes = (grid_scale_note(crs, self.dem_epsg, self.dem_bounds),
+                 datum_shift_note(crs, self.dem_epsg, self.dem_bounds))
+        self.warnings: list[str] = [note for note in notes if note is not None]
         self.trajectory_info: dict[str, Any] = {}
 
     # -- the steps ---------------------------------------------------------------------------
@@ -566,27 +568,54 @@ def check_output_crs(epsg: int) -> CRS:
 GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
 
 
+def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, float]
+                        ) -> tuple[float, float]:
+    w, s, e, n = dem_bounds
+    lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
+        (w + e) / 2, (s + n) / 2)
+    return float(lon), float(lat)
+
+
+def _utm_epsg(lon: float, lat: float) -> int:
+    zone = int((lon + 180) // 6) % 60 + 1
+    return (32600 if lat >= 0 else 32700) + zone
+
+
 def grid_scale_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, float, float]
                     ) -> str | None:
     """A warning when a metre of the output grid is not a metre on the ground at the DEM's
     centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
     Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
     distances are grid metres, which users take for ground metres."""
-    w, s, e, n = dem_bounds
-    lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
-        (w + e) / 2, (s + n) / 2)
+    lon, lat = _dem_centre_lon_lat(dem_epsg, dem_bounds)
     factors = Proj(crs).get_factors(lon, lat)
     scales = (factors.meridional_scale, factors.parallel_scale)
     if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
             math.isfinite(k) and k > 0 for k in scales):
         return None
     k = max(scales, key=lambda v: abs(v - 1))
-    zone = int((lon + 180) // 6) % 60 + 1
-    utm = (32600 if lat >= 0 else 32700) + zone
     return (f"EPSG:{crs.to_epsg()} ({crs.name}): a metre of its grid is {1 / k:.3f} m on the "
             f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
-            f"distances in the products are grid metres; UTM there (--crs {utm}) keeps them "
-            "within 0.1 %")
+            f"distances in the products are grid metres; UTM there (--crs {_utm_epsg(lon, lat)}) "
+            "keeps them within 0.1 %")
+
+
+def datum_shift_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, float, float]
+                     ) -> str | None:
+    """A warning when PROJ knows no shift between WGS 84 (the GPS's datum) and the output
+    CRS's datum at the DEM's centre, a CRS used far outside its area of use (OSGB36's British
+    grid over Catalonia): PROJ then takes the two datums for one (its "ballpark" offset), and
+    the products can be metres to hundreds of metres off; else None."""
+    lon, lat = _dem_centre_lon_lat(dem_epsg, dem_bounds)
+    near = AreaOfInterest(lon - 0.01, lat - 0.01, lon + 0.01, lat + 0.01)
+    shift = Transformer.from_crs(4326, crs, always_xy=True, area_of_interest=near)
+    if "ballpark" not in shift.description.lower():
+        return None
+    datum = crs.datum.name if crs.datum is not None else "its datum"
+    return (f"EPSG:{crs.to_epsg()} ({crs.name}): PROJ knows no shift from WGS 84 to {datum} "
+            f"at the DEM's centre ({lat:.2f}°, {lon:.2f}°), far from where this CRS is used, "
+            f"and takes the two datums for one: the products can be metres to hundreds of "
+            f"metres off; UTM there (--crs {_utm_epsg(lon, lat)}) needs no shift")
 
 
 def _median(parts: list[F64]) -> float:

@@ -740,7 +740,15 @@ def common_lines(index: SwathIndex, raw: EnviRaster) -> tuple[SwathIndex, EnviRa
     (or both) is cut short (a copy or a recording interrupted): the lines past the cut are
     left out with a warning naming them. Otherwise the pair as given (check_pair judges it)."""
     g = index.raster
-    if g.lines == raw.lines or g.pixels != raw.pixels or g.header_lines != raw.header_lines:
+    if g.lines == raw.lines and g.pixels == raw.pixels:  # nothing to leave out; one header
+        for cut, other in ((g, raw), (raw, g)):  # may still declare lines neither file holds
+            if cut.cut_short and cut.header_lines != other.header_lines:
+                warnings.warn(CutShortWarning(
+                    f"{cut.path} is cut short: {cut.lines} of its header's {cut.header_lines} "
+                    f"lines are in the file (a copy or a recording interrupted?); {other.path} "
+                    f"holds as many, and all of them are mapped"), stacklevel=3)
+        return index, raw
+    if g.pixels != raw.pixels or g.header_lines != raw.header_lines:
         return index, raw
     lines = min(g.lines, raw.lines)
     for cut in (g, raw):

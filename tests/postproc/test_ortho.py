@@ -515,6 +515,22 @@ def test_a_file_cut_short_maps_the_lines_both_hold(made: Made, tmp_path: Path,
     np.testing.assert_array_equal(tif[:, before], full_tif[:, before])
 
 
+def test_a_header_declaring_lines_its_file_lacks_is_said(made: Made, tmp_path: Path) -> None:
+    """The IGM's header says 10 000 lines, its file and the image hold 600: every line is
+    mapped, and the IGM is said to be cut short (was silent; found by a bad-input sweep)."""
+    igm = tmp_path / "long_igm.bil"
+    shutil.copy(made.folder / "seg_igm.bil", igm)
+    hdr = (made.folder / "seg_igm.hdr").read_text()
+    assert "lines = 600" in hdr
+    igm.with_suffix(".hdr").write_text(hdr.replace("lines = 600", "lines = 10000"))
+    with pytest.warns(CutShortWarning, match=r"long_igm\.bil is cut short: 600 of its header's "
+                                             r"10000 lines .* all of them are mapped"):
+        orthorectify(igm, made.folder / "seg.bil", made.grid, tmp_path / "o.tif",
+                     tmp_path / "g")
+    with rasterio.open(tmp_path / "o.tif") as o:
+        np.testing.assert_array_equal(o.read(), made.read()[0])
+
+
 def test_a_shorter_header_is_still_refused(made: Made, tmp_path: Path) -> None:
     """Files whose headers disagree are a different image, not one cut short."""
     write_raw(tmp_path / "short.bil", 450, 64)

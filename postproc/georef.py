@@ -607,6 +607,8 @@ def datum_shift_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, fl
     grid over Catalonia): PROJ then takes the two datums for one (its "ballpark" offset), and
     the products can be metres to hundreds of metres off; else None."""
     lon, lat = _dem_centre_lon_lat(dem_epsg, dem_bounds)
+    if not (math.isfinite(lon) and math.isfinite(lat)):
+        return None
     near = AreaOfInterest(lon - 0.01, lat - 0.01, lon + 0.01, lat + 0.01)
     shift = Transformer.from_crs(4326, crs, always_xy=True, area_of_interest=near)
     if "ballpark" not in shift.description.lower():

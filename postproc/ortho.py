@@ -738,7 +738,8 @@ class OrthoResult:
 def common_lines(index: SwathIndex, raw: EnviRaster) -> tuple[SwathIndex, EnviRaster]:
     """The IGM and the image over the lines both files hold, when their headers agree and one
     (or both) is cut short (a copy or a recording interrupted): the lines past the cut are
-    left out with a warning naming them. Otherwise the pair as given (check_pair judges it)."""
+    left out with a warning naming them; both holding as many lines, a header that declares
+    more is said cut short too. Otherwise the pair as given (check_pair judges it)."""
     g = index.raster
     if g.lines == raw.lines and g.pixels == raw.pixels:  # nothing to leave out; one header
         for cut, other in ((g, raw), (raw, g)):  # may still declare lines neither file holds

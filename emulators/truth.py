@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import shutil
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, Final
 
@@ -20,6 +20,7 @@ import numpy as np
 from sisa.errors import InputError
 
 SPILL_ROWS: Final = 100_000  # rows held in memory per table before they go to a temporary file
+ROWS_MARK: Final = "# rows: "  # in the commented header: a table cut short is told by its count
 
 
 class TruthTable:
@@ -81,6 +82,7 @@ class TruthTable:
         path = Path(folder) / f"{self.name}.csv"
         with path.open("w", newline="", encoding="utf-8") as fh:
             fh.write(f"# {self.description}\n")
+            fh.write(f"{ROWS_MARK}{len(self)}\n")
             for col, meaning in self.columns.items():
                 fh.write(f"# {col}: {meaning}\n")
             writer = csv.writer(fh)
@@ -97,11 +99,13 @@ class TruthTable:
 def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
     """A truth table back as columns (int64 where every value is an integer); an InputError
     naming the file when it is missing, unreadable, or cut or damaged (a row of another
-    width: were tracebacks in `sisa process` and `calibrate`)."""
+    width: were tracebacks in `sisa process` and `calibrate`; fewer rows than its header's
+    count: a table cut at a row boundary read as a shorter one)."""
     path = Path(path)
+    declared: list[str] = []
     try:
         with path.open(encoding="utf-8") as fh:
-            rows = list(csv.reader(line for line in fh if not line.startswith("#")))
+            rows = list(csv.reader(_data_lines(fh, declared)))
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise InputError(f"{path}: unreadable truth table: {exc}") from None
     if not rows:
@@ -111,6 +115,10 @@ def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
     if short is not None:
         raise InputError(f"{path}: data row {short} has {len(body[short - 1])} values for "
                          f"{len(header)} columns: the truth table is cut or damaged")
+    said = declared[0] if declared else None
+    if said is not None and said != str(len(body)):  # tables written before 2026-11-27: none
+        raise InputError(f"{path}: {len(body)} data rows where its header says {said}: the "
+                         "truth table is cut or damaged")
     out: dict[str, np.ndarray[Any, Any]] = {}
     for i, col in enumerate(header):
         values = [r[i] for r in body]
@@ -122,3 +130,12 @@ def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
             except ValueError:
                 out[col] = np.array(values)
     return out
+
+
+def _data_lines(fh: Iterable[str], declared: list[str]) -> Iterator[str]:
+    """The CSV lines of a truth table; the row count its header declares goes to `declared`."""
+    for line in fh:
+        if line.startswith(ROWS_MARK):
+            declared.append(line[len(ROWS_MARK):].strip())
+        elif not line.startswith("#"):
+            yield line

@@ -53,3 +53,21 @@ def test_a_missing_empty_or_cut_truth_table_is_named(tmp_path: Path, text: str |
         path.write_text(text)
     with pytest.raises(InputError, match=rf"frames\.csv: {says}"):
         read_truth_csv(path)
+
+
+@pytest.mark.parametrize("spill_rows", [1_000_000, 5])
+def test_a_table_cut_at_a_row_boundary_is_told_by_its_row_count(tmp_path: Path,
+                                                                spill_rows: int) -> None:
+    """A copy cut after a whole row read as a shorter table (found by a bad-input sweep): the
+    header now declares the row count. A table without it (written before) reads as it is."""
+    path = _table(spill_rows).write_csv(tmp_path)
+    text = path.read_text()
+    assert "# rows: 25\n" in text
+    assert len(read_truth_csv(path)["i"]) == 25
+    cut = text[:text.index("\n20,") + 1]  # rows 0-19: a whole number of rows
+    path.write_text(cut)
+    with pytest.raises(InputError, match=r"t\.csv: 20 data rows where its header says 25: the "
+                                         r"truth table is cut or damaged"):
+        read_truth_csv(path)
+    path.write_text(cut.replace("# rows: 25\n", ""))
+    assert len(read_truth_csv(path)["i"]) == 20

@@ -115,10 +115,9 @@ def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
     if short is not None:
         raise InputError(f"{path}: data row {short} has {len(body[short - 1])} values for "
                          f"{len(header)} columns: the truth table is cut or damaged")
-    said = declared[0] if declared else None
-    if said is not None and said != str(len(body)):  # tables written before 2026-11-27: none
-        raise InputError(f"{path}: {len(body)} data rows where its header says {said}: the "
-                         "truth table is cut or damaged")
+    if declared and declared[0] != str(len(body)):  # tables written before 2026-11-27: none
+        raise InputError(f"{path}: {len(body)} data rows where its header says {declared[0]}: "
+                         "the truth table is cut or damaged")
     out: dict[str, np.ndarray[Any, Any]] = {}
     for i, col in enumerate(header):
         values = [r[i] for r in body]

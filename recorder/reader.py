@@ -96,7 +96,7 @@ _JSON_ERRORS: Final = (ValueError, KeyError, TypeError, OverflowError, Recursion
 _RECORD_HEAD: Final = 9  # opcode u8, length u64
 _FOOTER_BODY: Final = 20  # summary_start u64, summary_offset_start u64, summary_crc u32
 _KNOWN_OPCODES: Final = frozenset(int(op) for op in Opcode)
-ZEROED_OPCODE: Final = 0x00  # no MCAP record type: what zero-filled storage frames as
+_ZEROED_OPCODE: Final = 0x00  # no MCAP record type: what zero-filled storage frames as
 # a Chunk's fixed fields: start and end time, uncompressed size u64; CRC u32; compression name
 # length u32; records length u64
 _CHUNK_FIXED: Final = 40
@@ -515,15 +515,14 @@ class _FileScan:
             body = source.read(length)
             if len(body) != length:
                 return  # the file shrank as it was read
-            if head[0] == ZEROED_OPCODE:  # storage gone to zeros (a power cut on some file
+            if head[0] == _ZEROED_OPCODE:  # storage gone to zeros (a power cut on some file
                 # systems): every 9 zero bytes frame as an empty record, and unknown records
                 # are passed over, so without this the stretch went uncounted
                 resume = self._resume_at(fh, start, None)
                 if resume is None:
                     self._problem(f"zeros from byte {start} to the end (a power cut?)")
                     return
-                self._skip(fh, start, resume, None, head[0],
-                           f"zeros at byte {start}")
+                self._skip(fh, start, resume, None, head[0], f"zeros at byte {start}")
                 source.seek(resume)
                 previous = None
                 continue

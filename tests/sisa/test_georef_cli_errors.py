@@ -81,6 +81,21 @@ def test_the_job_itself_refuses_them(inputs: Path, epsg: int, says: str) -> None
         GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
 
 
+def _check_note(inputs: Path, epsg: int, kind: str, says: str | None) -> None:
+    """A georef job to `epsg` starts with one warning of `kind` that `says` (and names EPSG:epsg
+    and the UTM zone of the DEM), or with none of that kind when `says` is None."""
+    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", epsg=epsg)
+    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+    said = [w for w in job.warnings if kind in w]
+    if says is None:
+        assert said == []
+        return
+    note, = said
+    assert f"EPSG:{epsg}" in note
+    assert says in note
+    assert "--crs 32631" in note
+
+
 @pytest.mark.parametrize(("epsg", "ground_m"), [(3857, "0.747 m"), (32631, None),
                                                 (25831, None), (2056, None), (32630, None)])
 def test_a_grid_whose_metres_are_not_ground_metres_is_said(
@@ -88,16 +103,8 @@ def test_a_grid_whose_metres_are_not_ground_metres_is_said(
     """EPSG:3857 has metre axes but, at the DEM's 41.6°N, 0.747 ground metres per grid metre:
     accepted (products are right in its coordinates), with a warning that names the UTM zone;
     UTM, a neighbouring zone, ETRS89 and the Swiss grid stay within 1 % there and say nothing."""
-    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", epsg=epsg)
-    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
-    said = [w for w in job.warnings if "a metre of its grid" in w]
-    if ground_m is None:
-        assert said == []
-        return
-    note, = said
-    assert f"EPSG:{epsg}" in note
-    assert f"a metre of its grid is {ground_m} on the ground" in note
-    assert "--crs 32631" in note
+    _check_note(inputs, epsg, "a metre of its grid",
+                None if ground_m is None else f"a metre of its grid is {ground_m} on the ground")
 
 
 @pytest.mark.parametrize(("epsg", "datum"), [(27700, "Ordnance Survey of Great Britain 1936"),
@@ -110,16 +117,7 @@ def test_a_crs_whose_datum_proj_cannot_reach_there_is_said(
     shift from WGS 84 there and takes the datums for one (metres to hundreds of metres off);
     said once, naming the UTM zone. ETRS89 and RGF93 have one, and WGS 84 needs none. (Found
     by a bad-input sweep: --crs 27700 for this flight was taken without a word.)"""
-    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", epsg=epsg)
-    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
-    said = [w for w in job.warnings if "PROJ knows no shift" in w]
-    if datum is None:
-        assert said == []
-        return
-    note, = said
-    assert f"EPSG:{epsg}" in note
-    assert f"to {datum}" in note
-    assert "--crs 32631" in note
+    _check_note(inputs, epsg, "PROJ knows no shift", None if datum is None else f"to {datum}")
 
 
 @pytest.mark.parametrize("command", ["georef", "process"])

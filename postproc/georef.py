@@ -189,10 +189,8 @@ def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
     raw = EnviRaster.open(path)
     if not raw.cut_short:
         return raw, None
-    return raw, (f"segment {segment}: {path.name} is cut short: {raw.lines} of its header's "
-                 f"{raw.header_lines} lines are in the file (a copy or a recording "
-                 f"interrupted?): lines {raw.lines}-{raw.header_lines - 1} are not "
-                 "georeferenced")
+    return raw, (f"segment {segment}: {raw.cut_short_text(path.name)}: lines {raw.lines}-"
+                 f"{raw.header_lines - 1} are not georeferenced")
 
 
 class GeorefJob:
@@ -207,8 +205,8 @@ class GeorefJob:
         crs = check_output_crs(self.epsg)
         self._to_out = (None if self.epsg == self.dem_epsg else
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        notes = (grid_scale_note(crs, self.dem_epsg, self.dem_bounds),
-                 datum_shift_note(crs, self.dem_epsg, self.dem_bounds))
+        centre = _dem_centre_lon_lat(self.dem_epsg, self.dem_bounds)
+        notes = grid_scale_note(crs, *centre), datum_shift_note(crs, *centre)
         self.warnings: list[str] = [note for note in notes if note is not None]
         self.trajectory_info: dict[str, Any] = {}
 
@@ -570,6 +568,7 @@ GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
 
 def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, float]
                         ) -> tuple[float, float]:
+    """Where the notes on the output CRS look: the DEM's centre (lon, lat in degrees)."""
     w, s, e, n = dem_bounds
     lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
         (w + e) / 2, (s + n) / 2)
@@ -581,13 +580,11 @@ def _utm_epsg(lon: float, lat: float) -> int:
     return (32600 if lat >= 0 else 32700) + zone
 
 
-def grid_scale_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, float, float]
-                    ) -> str | None:
+def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
     """A warning when a metre of the output grid is not a metre on the ground at the DEM's
     centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
     Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
     distances are grid metres, which users take for ground metres."""
-    lon, lat = _dem_centre_lon_lat(dem_epsg, dem_bounds)
     factors = Proj(crs).get_factors(lon, lat)
     scales = (factors.meridional_scale, factors.parallel_scale)
     if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
@@ -600,13 +597,11 @@ def grid_scale_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, flo
             "keeps them within 0.1 %")
 
 
-def datum_shift_note(crs: CRS, dem_epsg: int, dem_bounds: tuple[float, float, float, float]
-                     ) -> str | None:
+def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
     """A warning when PROJ knows no shift between WGS 84 (the GPS's datum) and the output
     CRS's datum at the DEM's centre, a CRS used far outside its area of use (OSGB36's British
     grid over Catalonia): PROJ then takes the two datums for one (its "ballpark" offset), and
     the products can be metres to hundreds of metres off; else None."""
-    lon, lat = _dem_centre_lon_lat(dem_epsg, dem_bounds)
     if not (math.isfinite(lon) and math.isfinite(lat)):
         return None
     near = AreaOfInterest(lon - 0.01, lat - 0.01, lon + 0.01, lat + 0.01)

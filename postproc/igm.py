@@ -121,6 +121,11 @@ class EnviRaster:
     def cut_short(self) -> bool:
         return self.lines < self.header_lines
 
+    def cut_short_text(self, name: object) -> str:
+        """The start of every warning about this file being cut short (`name`: how to call it)."""
+        return (f"{name} is cut short: {self.lines} of its header's {self.header_lines} lines "
+                "are in the file (a copy or a recording interrupted?)")
+
     def _whole_lines(self) -> EnviRaster:
         """The raster as far as its file holds whole lines. A BIL or BIP file shorter than its
         header (a copy or a recording interrupted) keeps the lines before the cut (`lines`;

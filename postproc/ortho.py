@@ -745,9 +745,8 @@ def common_lines(index: SwathIndex, raw: EnviRaster) -> tuple[SwathIndex, EnviRa
         for cut, other in ((g, raw), (raw, g)):  # may still declare lines neither file holds
             if cut.cut_short and cut.header_lines != other.header_lines:
                 warnings.warn(CutShortWarning(
-                    f"{cut.path} is cut short: {cut.lines} of its header's {cut.header_lines} "
-                    f"lines are in the file (a copy or a recording interrupted?); {other.path} "
-                    f"holds as many, and all of them are mapped"), stacklevel=3)
+                    f"{cut.cut_short_text(cut.path)}; {other.path} holds as many, and all of "
+                    "them are mapped"), stacklevel=3)
         return index, raw
     if g.pixels != raw.pixels or g.header_lines != raw.header_lines:
         return index, raw
@@ -755,9 +754,8 @@ def common_lines(index: SwathIndex, raw: EnviRaster) -> tuple[SwathIndex, EnviRa
     for cut in (g, raw):
         if cut.cut_short:
             warnings.warn(CutShortWarning(
-                f"{cut.path} is cut short: {cut.lines} of its header's {cut.header_lines} "
-                f"lines are in the file (a copy or a recording interrupted?): lines "
-                f"{lines}-{cut.header_lines - 1} are not mapped"), stacklevel=3)
+                f"{cut.cut_short_text(cut.path)}: lines {lines}-{cut.header_lines - 1} are not "
+                "mapped"), stacklevel=3)
     if g.lines > lines:
         index = SwathIndex.build(g.path, index.block_lines, lines=lines)
     return index, dataclasses.replace(raw, lines=lines)

@@ -196,12 +196,9 @@ def _dumps(obj: object) -> bytes:
     return _JSON_NAN.encode({k: _finite(v) for k, v in fields.items()}).encode()
 
 
-Encoder = Callable[[LoggedMessage], bytes]
-
-
-def _encoder_for(cls: type[LoggedMessage]) -> Encoder:
-    """One JSON encoder per type, after checking its fields against its JSON Schema (the
-    order a message is written in): `bytes` fields base64, as the schema declares."""
+def _check_schema(cls: type[LoggedMessage]) -> None:
+    """A message is written field by field in declaration order: its JSON Schema must list the
+    same fields in that order, base64 exactly for its `bytes` fields (as `_dumps` writes them)."""
     schema = json_schema(cls)["properties"]
     names = tuple(schema)
     if names != tuple(f.name for f in dataclasses.fields(cls)):  # type: ignore[arg-type]
@@ -211,15 +208,17 @@ def _encoder_for(cls: type[LoggedMessage]) -> Encoder:
     if any(kinds[name] not in ("bytes", bytes) for name in b64) or any(
             kinds[name] in ("bytes", bytes) for name in names if name not in b64):
         raise EncodeError(f"{cls.schema_name}: base64 fields and bytes fields disagree")
-    return _dumps
 
-_ENCODERS: Final[dict[type[LoggedMessage], Encoder]] = {cls: _encoder_for(cls)
-                                                        for cls in LOGGED_TYPES}
+
+for _cls in LOGGED_TYPES:
+    _check_schema(_cls)
 
 
 def encode_message(msg: LoggedMessage) -> bytes:
     """The JSON bytes the log holds for `msg` (compact; bytes base64; NaN as "NaN")."""
-    return _ENCODERS[type(msg)](msg)
+    if type(msg) not in LOGGED_TYPES:
+        raise EncodeError(f"{type(msg).__name__} is not a logged message type")
+    return _dumps(msg)
 
 
 def location_fix(fix: GpsFix) -> bytes:
@@ -448,7 +447,7 @@ class FlightRecorder:
         topic = cls.topic if topic is None else topic
         if TOPIC_TYPES.get(topic) is not cls:
             raise EncodeError(f"topic {topic} does not carry {cls.schema_name}")
-        data = _ENCODERS[cls](msg)
+        data = _dumps(msg)  # cls is a logged type: TOPIC_TYPES said so
         extra = location_fix(msg) if isinstance(msg, GpsFix) and msg.quality > 0 else None
         log_ns = _log_time(msg)
         with self._lock:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -45,7 +46,9 @@ PLAUSIBLE_HEIGHTS_M: Final = (-1000.0, 9000.0)
 # added: what the ray caster accepts.
 SURFACE_HEIGHTS_M: Final = (PLAUSIBLE_HEIGHTS_M[0] - 200.0, PLAUSIBLE_HEIGHTS_M[1] + 200.0)
 OVERVIEW_FACTOR: Final = 16  # `height_range` reads a 1/16 overview
-SCAN_ROWS: Final = 1024  # rows read at a time when a whole DEM is scanned for a valid height
+# cells read at a time when a whole DEM (or its overview) is scanned: memory stays ~50 MB
+# however wide the raster (1024 whole rows of a 200 000-column DEM took 3.2 GB)
+SCAN_CELLS: Final = 1 << 22
 SAMPLE_CELLS: Final = 64  # `dem_extent` samples 64 x 64 heights (a whole scan if none is valid)
 
 
@@ -236,12 +239,27 @@ def height_range(path: str | Path, overview: int = OVERVIEW_FACTOR) -> tuple[flo
     `Dem.read`, without the warning); None if no overview sample is valid. What a job needs to
     place a swath on the DEM before it reads a window."""
     path = Path(path)
+    low, high = math.inf, -math.inf
     with _open(path, "DEM") as ds:
-        shape = (max(ds.height // overview, 1), max(ds.width // overview, 1))
-        data = _voids_to_nan(_read(ds, out_shape=shape))[0]
-    if not np.isfinite(data).any():
-        return None
-    return float(np.nanmin(data)), float(np.nanmax(data))
+        for win, shape in _scan_windows(ds, overview):
+            data = _voids_to_nan(_read(ds, window=win, out_shape=shape))[0]
+            if np.isfinite(data).any():
+                low, high = min(low, float(np.nanmin(data))), max(high, float(np.nanmax(data)))
+    return None if low > high else (low, high)
+
+
+def _scan_windows(ds: Any, overview: int = 1) -> Iterator[tuple[Window, tuple[int, int]]]:
+    """The whole raster in windows of whole blocks of the file, each with the shape of its
+    1/`overview` overview: about SCAN_CELLS overview cells a window, so a scan of any DEM runs
+    in bounded memory and reads no block twice."""
+    block_rows, block_cols = ds.block_shapes[0]
+    side = math.isqrt(SCAN_CELLS) * overview
+    cols = min(ds.width, max(1, side // block_cols) * block_cols)
+    rows = max(1, SCAN_CELLS * overview * overview // cols // block_rows) * block_rows
+    for r0 in range(0, ds.height, rows):
+        for c0 in range(0, ds.width, cols):
+            win = Window(c0, r0, min(cols, ds.width - c0), min(rows, ds.height - r0))
+            yield win, (max(win.height // overview, 1), max(win.width // overview, 1))
 
 
 def _window(ds: Any, path: Path, first_e: float, first_n: float, cell_e: float, cell_n: float,
@@ -313,13 +331,10 @@ def _voids_to_nan(data: np.ma.MaskedArray[Any, Any]) -> tuple[F32, F64]:
 
 
 def _has_valid_height(ds: Any) -> bool:
-    """Whether any cell of the whole raster is a valid height (read SCAN_ROWS rows at a time:
-    only on the way to an error)."""
-    for r0 in range(0, ds.height, SCAN_ROWS):
-        win = Window(0, r0, ds.width, min(SCAN_ROWS, ds.height - r0))
-        if np.isfinite(_voids_to_nan(_read(ds, window=win))[0]).any():
-            return True
-    return False
+    """Whether any cell of the whole raster is a valid height (read in windows of about
+    SCAN_CELLS cells: only on the way to an error, or for a DEM whose sample found none)."""
+    return any(np.isfinite(_voids_to_nan(_read(ds, window=win))[0]).any()
+               for win, _ in _scan_windows(ds))
 
 
 def _plausible_text() -> str:

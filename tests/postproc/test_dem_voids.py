@@ -19,6 +19,7 @@ from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
+from postproc import dem as dem_module
 from postproc import raycast
 from postproc.dem import Dem, DemVoidWarning, dem_extent, height_range
 from postproc.raycast import CastStats, GroundPoints, intersect, reference_intersect
@@ -274,3 +275,35 @@ def test_georef_on_a_dem_with_no_valid_height_stops_at_once_with_one_line(
     assert err.count("\n") == 1
     assert f"{dem}: the DEM has no valid height" in err
     assert not (tmp_path / "geo").exists()
+
+
+@pytest.mark.parametrize("overview", [1, 4])
+def test_a_whole_dem_is_scanned_in_bounded_windows_of_whole_blocks(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, overview: int) -> None:
+    """A scan of the whole raster (for a valid height, or its overview's height range) reads
+    windows of whole blocks of about SCAN_CELLS overview cells: every cell once, in memory that
+    does not grow with the raster (1024 whole rows of a 200 000-column DEM once took 3.2 GB)."""
+    monkeypatch.setattr(dem_module, "SCAN_CELLS", 1024)
+    rows, cols = 300, 500
+    data = np.full((rows, cols), np.nan, np.float32)
+    data[251:253, 433:435] = [[200.0, 210.0], [220.0, 299.0]]
+    path = tmp_path / "tiled.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=cols, height=rows, count=1,
+                       dtype="float32", crs=CRS.from_epsg(UTM31N), tiled=True, blockxsize=64,
+                       blockysize=32, transform=Affine(CELL_M, 0.0, WEST_M, 0.0, -CELL_M,
+                                                       NORTH_M)) as ds:
+        ds.write(data, 1)
+    seen = np.zeros((rows, cols), np.int64)
+    with rasterio.open(path) as ds:
+        windows = list(dem_module._scan_windows(ds, overview))
+        # the valid patch lies outside dem_extent's 64 x 64 sample: only the scan finds it
+        assert np.isnan(ds.read(1, out_shape=(64, 64))).all()
+    for win, (out_rows, out_cols) in windows:
+        seen[win.row_off:win.row_off + win.height, win.col_off:win.col_off + win.width] += 1
+        assert win.row_off % 32 == 0
+        assert win.col_off % 64 == 0
+        assert out_rows * out_cols <= 4 * 1024
+    assert len(windows) > 4
+    assert (seen == 1).all()
+    assert dem_extent(path)[0] == UTM31N
+    assert height_range(path, overview=1) == (200.0, 299.0)

@@ -148,9 +148,7 @@ class OrthoGrid:
         if self.width <= 0 or self.height <= 0:
             raise InputError(f"grid must have cells, got {self.width} x {self.height}")
         if self.width * self.height > MAX_GRID_CELLS:
-            raise InputError(f"a grid of {self.width} x {self.height} cells of {self.cell_m:g} "
-                             f"m is too large (more than {MAX_GRID_CELLS:,} cells): check the "
-                             "cell size and the bounds")
+            raise _too_large(self.width, self.height, self.cell_m)
         projected_crs(self.epsg)
 
     @classmethod
@@ -163,6 +161,9 @@ class OrthoGrid:
             raise InputError(f"grid bounds {tuple(bounds_m)} are not (west, south, east, north)")
         if not (math.isfinite(cell_m) and cell_m > 0):
             raise InputError(f"grid cell must be a positive number of metres, got {cell_m}")
+        cols_f, rows_f = (east - west) / cell_m, (north - south) / cell_m  # may overflow to inf
+        if cols_f * rows_f > MAX_GRID_CELLS:
+            raise _too_large(cols_f, rows_f, cell_m)
         c0, c1 = math.floor(west / cell_m), math.ceil(east / cell_m)
         r0, r1 = math.floor(south / cell_m), math.ceil(north / cell_m)
         return cls(c0 * cell_m, r1 * cell_m, float(cell_m), max(c1 - c0, 1), max(r1 - r0, 1),
@@ -210,6 +211,14 @@ class OrthoGrid:
             raise InputError("grids are not aligned (edges are not on common multiples of the "
                              "cell size)")
         return round(row), round(col)
+
+
+def _too_large(cols: float, rows: float, cell_m: float) -> InputError:
+    def count(n: float) -> str:
+        return f"{n:.3g}" if n >= 1e9 else f"{math.ceil(n)}"
+    return InputError(f"a grid of {count(cols)} x {count(rows)} cells of {cell_m:g} m is too "
+                      f"large (more than {MAX_GRID_CELLS:,} cells): check the cell size and the "
+                      "bounds")
 
 
 def nice_cell_m(gsd_m: float) -> float:

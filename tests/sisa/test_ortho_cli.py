@@ -193,6 +193,10 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
           "1e7"), "10000000 x 10000000 cells of 1 m is too large"),
         # a sparse GLT of terabytes before anyone noticed; an empty GeoTIFF with exit 0
         ((igm, image, "--out", tmp_path / "o.tif", "--cell", "0.001"), "is too large"),
+        # a 300-digit cell count printed in full; an OverflowError's traceback
+        ((igm, image, "--out", tmp_path / "o.tif", "--cell", "1e-300"),
+         "cells of 1e-300 m is too large"),
+        ((igm, image, "--out", tmp_path / "o.tif", "--cell", "5e-324"), "is too large"),
         ((igm, image, "--out", tmp_path / "o.tif", "--bounds", "0", "0", "10", "10"),
          "does not overlap the image's ground"),
         # numpy's RuntimeWarnings on stderr before the error (found by a bad-input sweep)
@@ -210,6 +214,7 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
         assert len(lines) == 1, proc.stderr
         assert lines[0].startswith("sisa ortho: error:"), proc.stderr
         assert says in lines[0], (says, lines[0])
+        assert len(lines[0]) < 500, lines[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 

@@ -49,7 +49,13 @@ from postproc.registration import register_strips
 from postproc.sensorfile import SensorModel
 from postproc.sync import LineTimes, SyncResult, synchronise
 from postproc.syncconfig import TimeStatus
-from postproc.syncio import read_scanner_lines, write_ins_times, write_line_times, write_report
+from postproc.syncio import (
+    read_scanner_lines,
+    scanner_images,
+    write_ins_times,
+    write_line_times,
+    write_report,
+)
 from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
 from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
@@ -464,7 +470,7 @@ class GeorefJob:
                 self.warnings.append(cut)
             self.warnings += unlisted_lines(result.lines, s, rasters[s].lines, images[s])
         self.warnings += [f"{p}: its lines file lists no line: not georeferenced"
-                          for p in sorted(self.scanner_dir.glob("segment_*.bil"))
+                          for p in scanner_images(self.scanner_dir)
                           if p not in images.values()]
         if on_total is not None:
             on_total(sum(rasters[s].lines for s in segments))

@@ -22,6 +22,7 @@ from sisa.errors import InputError
 I64 = npt.NDArray[np.int64]
 
 LINES_GLOB: Final = "segment_*.lines.csv"
+IMAGES_GLOB: Final = "segment_*.bil"
 _SEGMENT_RE: Final = re.compile(r"segment_(\d+)\.lines\.csv$")
 # what a frame header can carry (acquisition/scanner_header.py: frame_counter u32, segment u16;
 # postproc reads files, not the codecs: tests/postproc/test_sync.py checks they agree)
@@ -110,7 +111,7 @@ def read_scanner_lines(folder: Path) -> LineTable:
     if not files:
         raise InputError(f"{folder}: no {LINES_GLOB} files (the scanner's line → frame "
                          "counter records)")
-    for image in sorted(folder.glob("segment_*.bil")):
+    for image in scanner_images(folder):
         lines_csv = image.with_suffix(".lines.csv")
         if not lines_csv.is_file():
             raise InputError(f"{image}: no {lines_csv.name} beside it (the scanner's line → "
@@ -127,6 +128,11 @@ def read_scanner_lines(folder: Path) -> LineTable:
         tables.append(_read_lines_csv(path, segment))
     return LineTable(*(np.concatenate([getattr(t, f) for t in tables])
                        for f in ("segment", "line", "frame_counter")))
+
+
+def scanner_images(folder: Path) -> list[Path]:
+    """Every `segment_NNN.bil` image of a scanner recording folder, in segment order."""
+    return sorted(Path(folder).glob(IMAGES_GLOB))
 
 
 def _status_names(status: I64) -> npt.NDArray[np.str_]:

@@ -122,12 +122,19 @@ def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:
     for i, col in enumerate(header):
         values = [r[i] for r in body]
         try:
-            out[col] = np.array([int(v) for v in values], dtype=np.int64)
+            ints = [int(v) for v in values]
         except ValueError:
             try:
                 out[col] = np.array([float(v) for v in values])
             except ValueError:
                 out[col] = np.array(values)
+            continue
+        try:
+            out[col] = np.array(ints, dtype=np.int64)
+        except OverflowError:
+            row = next(n for n, v in enumerate(ints, start=1) if not -2**63 <= v < 2**63)
+            raise InputError(f"{path}: data row {row}: {col} = {values[row - 1][:30]} is "
+                             "beyond a 64-bit integer: the truth table is damaged") from None
     return out
 
 

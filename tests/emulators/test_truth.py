@@ -43,6 +43,9 @@ def test_a_spilled_table_writes_what_a_held_one_does(tmp_path: Path) -> None:
     ("", "empty truth table"),
     ("# only a comment\n", "empty truth table"),
     ("a,b,c\n1,2,3\n4,5\n", "data row 2 has 2 values for 3 columns"),
+    # an OverflowError traceback in `sisa process` (found by a bad-input sweep)
+    ("a,t_ns\n1,2\n2,99999999999999999999\n", "data row 2: t_ns = 99999999999999999999 is "
+     "beyond a 64-bit integer"),
 ])
 def test_a_missing_empty_or_cut_truth_table_is_named(tmp_path: Path, text: str | None,
                                                      says: str) -> None:

@@ -182,6 +182,11 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     _case("emulate --endpoints {d}/folder --out {d}/emu", "--endpoints", "is a folder"),
     _case("replay {d}/flight.mcap --once --endpoints {d}/nodir/ep.json", "--endpoints",
           "{d}/nodir"),
+    # an OverflowError traceback (1e308 s in nanoseconds); a replay that would never end
+    _case("replay {d}/flight.mcap --once --no-wait --start 1e308", "--start 1e+308 s",
+          "beyond the end of the log"),
+    _case("replay {d}/flight.mcap --once --no-wait --rate 1e-300", "--rate 1e-300",
+          "at least 0.001"),
 ]
 
 

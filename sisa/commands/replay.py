@@ -59,6 +59,7 @@ LOOKAHEAD_NS = 1_000_000_000  # items read ahead of the play position
 LOOP_GAP_NS = 1_000_000_000  # log time between the passes of a loop: a quiet second
 REALTIME_PRIORITY = 10  # SCHED_FIFO priority with --realtime (1..99; kernel threads use 50)
 CLIENT_SETTLE_S = 0.2  # after the pulse client connects: its reader thread starts
+MIN_RATE = 0.001  # --rate: slower plays a minute of flight for more than 16 hours
 DRAIN_S = 1.0  # --once: the ports stay this long after the last item (a closed pty loses data)
 
 
@@ -117,20 +118,23 @@ class _Span:
 def _check_numbers(args: argparse.Namespace) -> None:
     """Ranges (sisa.cli has checked that every number is finite)."""
     check_port(args.pulses_port)
-    if args.rate <= 0:
-        raise InputError("--rate must be positive")
+    if not args.rate >= MIN_RATE:
+        raise InputError(f"--rate {args.rate:g}: at least {MIN_RATE:g} (a thousandth of real "
+                         "time, which plays a minute of flight in 16.7 hours)")
     if args.start < 0 or (args.duration is not None and args.duration <= 0):
         raise InputError("--start must be ≥ 0 and --duration > 0")
 
 
 def _span(args: argparse.Namespace, survey: Survey) -> _Span:
-    start = survey.start_ns + round(args.start * 1e9)
-    if start > survey.end_ns:
-        length = (survey.end_ns - survey.start_ns) / 1e9
-        raise InputError(f"--start {args.start:g} s is beyond the end of the log ({length:.1f} s)")
+    length_s = (survey.end_ns - survey.start_ns) / 1e9
+    if args.start > length_s:  # compared in seconds: 1e308 s has no int64 nanoseconds
+        raise InputError(f"--start {args.start:g} s is beyond the end of the log "
+                         f"({length_s:.1f} s)")
+    start = min(survey.end_ns, survey.start_ns + round(args.start * 1e9))
     if args.duration is None:
         return _Span(start, survey.end_ns, limited=False)
-    return _Span(start, min(survey.end_ns, start + round(args.duration * 1e9)), limited=True)
+    until = start + round(min(args.duration, length_s + 1.0) * 1e9)
+    return _Span(start, min(survey.end_ns, until), limited=True)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -273,3 +273,25 @@ def test_gps_clock_carries_the_last_pair_forward():
     assert clock.gps_ns(5_100) == GPS0_NS + 5_000
     assert clock.gps_ns(50) == GPS0_NS - 50  # before the first pair: from the first
     assert GpsClock([]).gps_ns(0) is None
+
+
+@pytest.mark.parametrize(("start_s", "duration_s", "span_ns"), [
+    (0.0, None, (0, 60 * 10**9, False)),
+    (10.0, 1e308, (10 * 10**9, 60 * 10**9, True)),  # was an OverflowError traceback
+    (60.0, 5.0, (60 * 10**9, 60 * 10**9, True)),
+    (59.5, 0.25, (59_500_000_000, 59_750_000_000, True)),
+])
+def test_the_span_to_play_is_clamped_to_the_log_in_seconds(start_s, duration_s, span_ns):
+    """--start and --duration are compared with the log's length in seconds before they become
+    nanoseconds (1e308 s has no int64 nanoseconds; found by a bad-input sweep)."""
+    import argparse
+
+    from recorder.replay import Survey
+    from sisa.commands.replay import _span
+
+    survey = Survey(first_ns={"gps": T0_NS}, last_ns={"gps": T0_NS + 60 * 10**9})
+    got = _span(argparse.Namespace(start=start_s, duration=duration_s), survey)
+    assert (got.from_ns - T0_NS, got.until_ns - T0_NS, got.limited) == span_ns
+    with pytest.raises(InputError, match=r"--start 1e\+308 s is beyond the end of the log "
+                                         r"\(60\.0 s\)"):
+        _span(argparse.Namespace(start=1e308, duration=None), survey)

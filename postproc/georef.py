@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +33,7 @@ from pyproj.transformer import AreaOfInterest
 from postproc.dem import Dem, dem_extent, height_range
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
-from postproc.igm import EnviRaster, IgmWriter, write_geolocation_vrt
+from postproc.igm import CutShortWarning, EnviRaster, IgmWriter, write_geolocation_vrt
 from postproc.jsonio import write_json
 from postproc.mosaic import mosaic
 from postproc.navigation import (
@@ -446,7 +447,9 @@ class GeorefJob:
         index = SwathIndex.build(seg.igm)
         grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
         tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
-        orthorectify(index, seg.image, grid, tif, glt)
+        with warnings.catch_warnings():  # a cut image: said once, by segment_raster's warning
+            warnings.simplefilter("ignore", CutShortWarning)
+            orthorectify(index, seg.image, grid, tif, glt)
         png = Path(f"{stem}_quicklook.png")
         write_quicklook(tif, png)
         seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)

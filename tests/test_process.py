@@ -124,6 +124,23 @@ def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_
         assert acc["pixels"][comp]["max_abs_px"] < 0.01, (comp, acc["pixels"][comp])
 
 
+@pytest.mark.parametrize(("removed", "says"), [
+    ("truth", "no such folder: no accuracy against truth"),
+    ("terrain/ground_points.csv", "no such file: no check points"),
+])
+def test_accuracy_the_run_cannot_give_is_said(processed, tmp_path, removed, says):
+    """Without truth/ (or the ground points) the headline's accuracy lines were left out
+    without a word (found by a bad-input sweep)."""
+    run, _, _ = processed
+    copy = _copy_run(run, tmp_path / "run")
+    shutil.rmtree(copy / removed) if (copy / removed).is_dir() else (copy / removed).unlink()
+    proc = _sisa("process", copy, "--no-products")
+    warning, = proc.stderr.splitlines()
+    assert warning == f"sisa process: warning: {copy / removed}: {says}"
+    assert ("every pixel vs truth" in proc.stdout) == (removed != "truth")
+    assert "check points, RMS" not in proc.stdout
+
+
 def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed, tmp_path):
     """20 kB overwritten in the middle of the log: the run is processed from the rest, and the
     skipped chunk is said once on stderr, in the summary and in the report."""

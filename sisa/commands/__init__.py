@@ -46,6 +46,11 @@ FLIGHT_HELP = ("the flight log (MCAP; the numbered parts of a split recording ar
                "it), or every part in order")
 
 
+def say_warning(command: str, text: str) -> None:
+    """A warning to the user: one line on stderr, named by the command, like its errors."""
+    print(f"sisa {command}: warning: {text}", file=sys.stderr, flush=True)
+
+
 def flight_parts(files: Sequence[Path]) -> list[Path]:
     """The files of a flight log: as given when several; when one, it and the numbered parts of
     a split recording beside it (flight.mcap, flight_001.mcap, ...: `sisa record --split-*`),

@@ -23,12 +23,18 @@ covers; each segment or stretch of lines skipped is one warning line on stderr.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, terminal_progress
+from sisa.commands import (
+    FLIGHT_HELP,
+    SubParsers,
+    add_command,
+    flight_parts,
+    say_warning,
+    terminal_progress,
+)
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -118,7 +124,7 @@ def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOpti
     with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):
         result = job.run(progress=progress, on_total=on_total)
     for warning in result.warnings:
-        print(f"sisa {command}: warning: {warning}", file=sys.stderr, flush=True)
+        say_warning(command, warning)
     return result
 
 

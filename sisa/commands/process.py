@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command, flight_parts
+from sisa.commands import SubParsers, add_command, flight_parts, say_warning
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
@@ -77,6 +77,17 @@ def _headline(result: Any, acc: dict[str, Any] | None) -> list[tuple[str, str]]:
     return rows
 
 
+def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
+    """The accuracy the report cannot give, said rather than left out of the headline."""
+    if acc is None:
+        say_warning("process", f"{run / 'truth'}: no such folder: no accuracy against truth")
+    elif not (run / "terrain" / "ground_points.csv").is_file():
+        say_warning("process", f"{run / 'terrain' / 'ground_points.csv'}: no such file: no "
+                    "check points")
+    elif not acc["check_points"].get("points"):
+        say_warning("process", "no check point lies on a georeferenced line: no check points")
+
+
 def _run(args: argparse.Namespace) -> int:
     from emulators.scenario import load_scenario
     from postproc.jsonio import write_json
@@ -97,6 +108,7 @@ def _run(args: argparse.Namespace) -> int:
         result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
                             command="process")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
+        _say_what_is_not_judged(run, acc)
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
             write_json(tmp / "accuracy.json", public)

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 
 import numpy as np
+import numpy.typing as npt
 
 from acquisition.nmea import (
     FixQuality,
@@ -41,7 +42,7 @@ from acquisition.pulses import Edge, PulseLine
 from emulators.localplane import LocalPlane
 from emulators.runtime import Device, Output, Port
 from emulators.scenario import GpsSolution, Scenario
-from emulators.trajectory import TruthTrajectory
+from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
 from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.timescale import NS_PER_S
@@ -50,6 +51,17 @@ PTT_LATENCY_NS = 25_000_000
 TTT_LATENCY_NS = 30_000_000
 SENTENCE_SPACING_NS = 5_000_000  # one sentence after another on the serial line
 FIX_CHUNK_S = 60.0
+
+
+def antenna_fix_ecef_m(st: TrajectoryState, antenna_offset_m: Sequence[float],
+                       error_ned_m: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """(N, 3) ECEF of the antenna phase centre at the states `st` (body-frame offset from the
+    INS centre), moved by a fix's error (N, 3, local north/east/down): what each fix reports,
+    before NMEA's rounding."""
+    r_bn = body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
+    r_ne = ned_to_ecef_matrix(np.radians(st.lat_deg), np.radians(st.lon_deg))
+    lever_ned = r_bn @ np.asarray(antenna_offset_m, np.float64)
+    return np.asarray(st.ecef_m + np.einsum("nij,nj->ni", r_ne, lever_ned + error_ned_m))
 
 
 class _Schedule:
@@ -222,12 +234,9 @@ class GpsReceiver(Device):
         t = first_ns + self._epoch_ns * np.arange(n, dtype=np.int64)
         t = np.clip(t, self.traj.t_start_ns, self.traj.t_end_ns)
         st = self.traj.state(t)
-        r_bn = body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
-        r_ne = ned_to_ecef_matrix(np.radians(st.lat_deg), np.radians(st.lon_deg))
-        lever_ned = r_bn @ np.asarray(self.scn.mounting.antenna_offset_m)
         err_ned = self._position_errors(n)
-        ant_ecef = st.ecef_m + np.einsum("nij,nj->ni", r_ne, lever_ned + err_ned)
-        lat, lon, h = self.plane.ecef_to_geodetic(ant_ecef)
+        lat, lon, h = self.plane.ecef_to_geodetic(
+            antenna_fix_ecef_m(st, self.scn.mounting.antenna_offset_m, err_ned))
         vn, ve = st.vel_ned_mps[:, 0], st.vel_ned_mps[:, 1]
         speed = np.hypot(vn, ve)
         course = np.mod(np.degrees(np.arctan2(ve, vn)), 360.0)

@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Transformer
 
+from emulators.gps import antenna_fix_ecef_m
 from emulators.render import GroundIntersector, camera_pose_ecef
 from emulators.scenario import Scenario
 from emulators.terrain import Terrain
@@ -30,7 +31,9 @@ from emulators.truth import read_truth_csv
 from postproc.calib_data import read_ground_points
 from postproc.georef import GeorefResult, SegmentResult
 from postproc.igm import open_igm
-from postproc.navigation import ecef_to_geodetic
+from postproc.navigation import ecef_to_geodetic, fixes_from_columns
+from recorder.messages import Topic
+from recorder.reader import read_topics
 from sisa.errors import InputError
 from sisa.timescale import gps_span_label
 
@@ -38,6 +41,8 @@ F64 = npt.NDArray[np.float64]
 BLOCK_LINES: Final = 2048
 SAMPLE_PER_BLOCK: Final = 4000  # pixels kept per block for the report's histograms
 COMPONENTS: Final = ("along", "across", "height")
+FIX_FIELDS: Final = ("t_gps_ns", "lat_deg", "lon_deg", "height_m", "quality")
+FIX_AGREEMENT_M: Final = 0.05  # a fix against its truth: NMEA rounds to ~2 mm, far from this
 
 
 @dataclass
@@ -119,7 +124,37 @@ def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int
                          f"({gps_span_label(traj.t_start_ns, traj.t_end_ns)}) does not hold the "
                          f"run's truth frames ({gps_span_label(int(t.min()), int(t.max()))}): "
                          "not the scenario this run was made from")
+    _check_against_fixes(run, scn, traj)
     return traj
+
+
+def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory) -> None:
+    """The flight a scenario.toml rebuilds against the run's own log: each logged GPS fix less
+    the error the emulator recorded adding to it (truth/gps_fixes.csv) is where the rebuilt
+    flight puts the antenna, to NMEA's rounding. A scenario edited after the run (another
+    place, another seed: the same times) rebuilds another flight, and every error judged
+    against it would be that flight's (found by a bad-input sweep: 8 px for a changed seed)."""
+    from sisa.commands import flight_parts
+
+    truth_csv = run / "truth" / "gps_fixes.csv"
+    if not truth_csv.is_file():
+        return  # a run without it cannot be checked; the frames' times were
+    errors = read_truth_csv(truth_csv)
+    fixes = fixes_from_columns(read_topics(flight_parts([run / "flight.mcap"]),
+                                           {Topic.GPS_FIX: FIX_FIELDS}, notes=[]))
+    t, at_log, at_truth = np.intersect1d(fixes.t_gps_ns, errors["t_gps_ns"],
+                                         return_indices=True)
+    if t.size == 0:
+        return  # no fix (an outage, a log without GPS): nothing to compare
+    error_ned_m = np.stack([errors[f"error_{c}_m"] for c in "ned"], axis=1)[at_truth]
+    truth_m = antenna_fix_ecef_m(traj.state(np.clip(t, traj.t_start_ns, traj.t_end_ns)),
+                                 scn.mounting.antenna_offset_m, error_ned_m)
+    apart_m = float(np.median(np.linalg.norm(fixes.ecef_m[at_log] - truth_m, axis=1)))
+    if not apart_m <= FIX_AGREEMENT_M:
+        raise InputError(f"{run / 'scenario.toml'}: the flight it describes passes "
+                         f"{apart_m:.3g} m (median over {t.size} fixes) from the run's GPS "
+                         "fixes less their recorded errors: not the scenario this run was made "
+                         "from (edited after the run?)")
 
 
 class TruthGround:

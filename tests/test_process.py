@@ -141,6 +141,25 @@ def test_accuracy_the_run_cannot_give_is_said(processed, tmp_path, removed, says
     assert "check points, RMS" not in proc.stdout
 
 
+def test_a_scenario_edited_after_the_run_is_refused(processed, tmp_path):
+    """The truth is rebuilt from RUN/scenario.toml: one that no longer describes the run (here
+    moved 11 m north) judged the run against another flight, silently (found by a bad-input
+    sweep: 8 px for another seed, 393 278 px for another latitude)."""
+    run, _, _ = processed
+    copy = _copy_run(run, tmp_path / "run")
+    toml = copy / "scenario.toml"
+    text = toml.read_text()
+    assert "centre_lat_deg = 41.6\n" in text
+    toml.write_text(text.replace("centre_lat_deg = 41.6\n", "centre_lat_deg = 41.6001\n"))
+    proc = _sisa("process", copy, "--no-products", check=False)
+    assert proc.returncode == 2, proc.stderr
+    error, = proc.stderr.splitlines()
+    assert error.startswith(f"sisa process: error: {toml}: the flight it describes passes 11.1 m "
+                            "(median over ")
+    assert error.endswith("not the scenario this run was made from (edited after the run?)")
+    assert not (copy / "process").exists()
+
+
 def test_a_damaged_log_is_processed_and_the_damage_said_in_the_report(processed, tmp_path):
     """20 kB overwritten in the middle of the log: the run is processed from the rest, and the
     skipped chunk is said once on stderr, in the summary and in the report."""

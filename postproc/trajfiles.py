@@ -30,7 +30,7 @@ import math
 import re
 import warnings
 from collections import Counter
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -73,18 +73,40 @@ I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 
 RTK_Q_ALL: Final = (1, 2, 3, 4, 5, 6)  # fix, float, sbas, dgps, single, ppp
+RTK_NS_MAX: Final = 255  # RTKLIB holds the satellite count in a byte
+WEEK_S: Final = NS_PER_WEEK // NS_PER_S
 JST_OFFSET_NS: Final = 9 * 3600 * NS_PER_S
 SBET_FIELDS: Final = (
     "time_s", "lat_rad", "lon_rad", "height_m", "vel_x_mps", "vel_y_mps", "vel_z_mps",
     "roll_rad", "pitch_rad", "platform_heading_rad", "wander_rad",
     "acc_x_mps2", "acc_y_mps2", "acc_z_mps2", "rate_x_rps", "rate_y_rps", "rate_z_rps")
 SBET_DTYPE: Final = np.dtype([(name, "<f8") for name in SBET_FIELDS])
+# the fields as Applanix's SBET documentation names them, and their units, for messages
+_SBET_LABELS: Final = (
+    ("time", "s of week"), ("latitude", "rad"), ("longitude", "rad"),
+    ("ellipsoidal height", "m"), ("x velocity", "m/s"), ("y velocity", "m/s"),
+    ("z velocity", "m/s"), ("roll", "rad"), ("pitch", "rad"), ("platform heading", "rad"),
+    ("wander angle", "rad"), ("x acceleration", "m/s^2"), ("y acceleration", "m/s^2"),
+    ("z acceleration", "m/s^2"), ("x angular rate", "rad/s"), ("y angular rate", "rad/s"),
+    ("z angular rate", "rad/s"))
 SBET_RECORD_BYTES: Final = SBET_DTYPE.itemsize  # 136
 SBET_MAX_GAP_S: Final = 0.25
 # ellipsoidal heights an airborne trajectory can hold; beyond them a value is damage (1e300 m
 # overflowed the Earth-centred coordinates into a spline's traceback)
 TRAJECTORY_HEIGHTS_M: Final = (-10_000.0, 100_000.0)
 _EARTH_RADII_M: Final = (6_356_752.3, 6_378_137.0)  # polar, equatorial (WGS 84)
+# (field index, low, high) of the SBET fields used: beyond them a value is damage (a heading of
+# 1e300 rad gave a wrong IGM without a word)
+_SBET_RANGES: Final = (
+    (0, 0.0, float(WEEK_S)), (1, -np.pi / 2, np.pi / 2), (2, -2 * np.pi, 2 * np.pi),
+    (3, *TRAJECTORY_HEIGHTS_M), (7, -np.pi, np.pi), (8, -np.pi / 2, np.pi / 2),
+    (9, -2 * np.pi, 2 * np.pi), (10, -2 * np.pi, 2 * np.pi))
+# the fastest any aircraft flies between two fixes, plus what a fix may be off: beyond, a fix is
+# bad (one wrong digit moved the images by kilometres without a word)
+MAX_GROUND_SPEED_MPS: Final = 400.0  # jets cruise at ~250 m/s, survey aircraft at ~60-100
+MAX_VERTICAL_SPEED_MPS: Final = 100.0  # climb or descent; airliners < 30 m/s
+POS_FIX_ERROR_M: Final = 100.0  # a single-point (Q 5) solution can be tens of metres off
+SBET_STEP_ERROR_M: Final = 10.0  # a smoothed solution: no record steps off its neighbours more
 LEAP_SECONDS_RANGE: Final = (0, 60)  # GPS − UTC: 0 in 1980, 18 since 2017
 LEAP_HINT: Final = "--leap-seconds N: GPS - UTC, 18 s since 2017"
 TIME_SCALES: Final = ("GPST", "UTC", "JST")
@@ -104,6 +126,7 @@ _LAYOUTS: Final = (("latitude(d'\")", "dms"), ("latitude(deg)", "deg"), ("x-ecef
 _DATE: Final = re.compile(r"(\d{2,4})/(\d{1,2})/(\d{1,2})")
 _CLOCK: Final = re.compile(r"(\d{1,2}):(\d{1,2}):(\d{1,2})(?:\.(\d{0,9}))?")
 _SECONDS: Final = re.compile(r"(\d+)(?:\.(\d{0,9}))?")
+_COUNT: Final = re.compile(r"\d{1,3}")  # Q and ns: RTKLIB prints them %3d
 
 
 # --- RTKLIB .pos ------------------------------------------------------------------------------
@@ -141,10 +164,16 @@ def _time_ns(date_or_week: str, clock_or_tow: str) -> int:
     if day is None:
         if not date_or_week.isdigit():
             raise ValueError(f"not a date or GPS week {date_or_week!r}")
-        return int(date_or_week) * NS_PER_WEEK + _seconds_ns(clock_or_tow)
+        tow_ns = _seconds_ns(clock_or_tow)
+        if tow_ns >= NS_PER_WEEK:  # else it would fall in the next week, and be blamed there
+            raise ValueError(f"time of week {clock_or_tow} s is not 0 to {WEEK_S} s")
+        return int(date_or_week) * NS_PER_WEEK + tow_ns
     m = _CLOCK.fullmatch(clock_or_tow)
     if m is None:
         raise ValueError(f"not a time of day {clock_or_tow!r}")
+    if int(m.group(3)) >= 60:  # else it runs into the next minute, and the next line is blamed
+        raise ValueError(f"time of day {clock_or_tow!r}: second {m.group(3)} is not 0 to 59 "
+                         "(RTKLIB never writes a leap second :60)")
     year, month, mday = (int(x) for x in day.groups())
     year += 0 if year >= 100 else (2000 if year < 80 else 1900)  # as RTKLIB reads 2-digit years
     hour, minute = int(m.group(1)), int(m.group(2))
@@ -218,6 +247,14 @@ def _dms_deg(d: str, m: str, s: str) -> float:
     return sign * (abs(float(d)) + float(m) / 60.0 + float(s) / 3600.0)
 
 
+def _count(text: str, name: str, low: int, high: int) -> int:
+    """A Q or ns column: a whole number in range (a 20-digit one overflowed int64 into a
+    traceback; Q 9 would be dropped as if of a quality not accepted)."""
+    if _COUNT.fullmatch(text) is None or not low <= int(text) <= high:
+        raise ValueError(f"{name} {text!r} is not a whole number {low} to {high}")
+    return int(text)
+
+
 def _solution(fmt: _PosFormat, text: str) -> tuple[int, list[float], int, int, list[float]]:
     """(time ns on GPST, position values, Q, ns, sigmas) of one data line; ValueError if bad."""
     fields = [text] if fmt.sep == " " else text.split(fmt.sep)
@@ -232,8 +269,8 @@ def _solution(fmt: _PosFormat, text: str) -> tuple[int, list[float], int, int, l
     vals = [float(x) for x in tok[2:2 + n_pos]]
     if fmt.layout == "dms":
         vals = [_dms_deg(*tok[2:5]), _dms_deg(*tok[5:8]), vals[6]]
-    q = int(tok[2 + n_pos])
-    ns = int(tok[3 + n_pos]) if len(tok) > 3 + n_pos else -1
+    q = _count(tok[2 + n_pos], "Q (solution quality)", RTK_Q_ALL[0], RTK_Q_ALL[-1])
+    ns = _count(tok[3 + n_pos], "ns (satellites)", 0, RTK_NS_MAX) if len(tok) > 3 + n_pos else -1
     sig = [float(x) for x in tok[4 + n_pos:7 + n_pos]]
     return t_ns, vals, q, ns, sig + [np.nan] * (3 - len(sig))
 
@@ -252,6 +289,43 @@ def _check_position(layout: str, vals: list[float]) -> None:
         raise ValueError(f"latitude/longitude out of range: {vals[0]}, {vals[1]}")
     if not low <= vals[2] <= high:
         raise ValueError(f"ellipsoidal height {vals[2]:g} m outside {low:g} to {high:g} m")
+
+
+def _check_motion(t_ns: I64, ecef_m: F64, error_m: float, where: Callable[[int], str]) -> None:
+    """InputError at the first step between consecutive fixes (times strictly increasing) that
+    no aircraft flies: over MAX_GROUND_SPEED_MPS across or MAX_VERTICAL_SPEED_MPS up or down,
+    plus `error_m` the fixes may be off. Across and up split at the WGS 84 normal midway; a
+    gap in time allows a longer step. `where(i)`: the file and line or record of fix i.
+    Vectorised: a trajectory holds 10^5-10^6 fixes."""
+    if t_ns.size < 2:
+        return
+    step_m = np.diff(ecef_m, axis=0)
+    dt_s = np.diff(t_ns).astype(np.float64) / NS_PER_S
+    polar, equatorial = _EARTH_RADII_M
+    up = (ecef_m[1:] + ecef_m[:-1]) / np.array([equatorial**2, equatorial**2, polar**2])
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    rise_m = np.abs(np.einsum("ij,ij->i", step_m, up))
+    across_m = np.sqrt(np.maximum(np.einsum("ij,ij->i", step_m, step_m) - rise_m**2, 0.0))
+    too_far = across_m > MAX_GROUND_SPEED_MPS * dt_s + error_m
+    too_steep = rise_m > MAX_VERTICAL_SPEED_MPS * dt_s + error_m
+    bad = np.flatnonzero(too_far | too_steep)
+    if not bad.size:
+        return
+    k = int(bad[0])
+    if too_far[k]:
+        what, dist_m = "the position jumps", float(across_m[k])
+        limit = f"an aircraft flies < {MAX_GROUND_SPEED_MPS:g} m/s"
+    else:
+        what, dist_m = "the height changes", float(rise_m[k])
+        limit = f"an aircraft climbs or descends < {MAX_VERTICAL_SPEED_MPS:g} m/s"
+    dist = f"{_figure(dist_m / 1000)} km" if dist_m >= 1000 else f"{_figure(dist_m)} m"
+    raise InputError(f"{where(k + 1)}: {what} {dist} in {_figure(dt_s[k])} s from the fix "
+                     f"before ({dist_m / dt_s[k]:,.0f} m/s; {limit}): a bad fix?")
+
+
+def _figure(value: float) -> str:
+    """3 significant digits, a large value in full (12,000 km, not 1.2e+04)."""
+    return f"{value:.3g}" if abs(value) < 1000 else f"{value:,.0f}"
 
 
 def read_rtklib_pos(path: Path | str, *, leap_seconds: int | None = None) -> RtkPos:
@@ -285,11 +359,12 @@ def read_rtklib_pos(path: Path | str, *, leap_seconds: int | None = None) -> Rtk
         raise InputError(f"{path}: no solution lines")
     pos = np.array([r[1] for r in rows], dtype=np.float64)
     ecef = pos if fmt.layout == "xyz" else geodetic_to_ecef(pos[:, 0], pos[:, 1], pos[:, 2])
-    return RtkPos(np.array([r[0] for r in rows], dtype=np.int64), ecef,
-                  np.array([r[2] for r in rows], dtype=np.int64),
+    times_ns = np.array([r[0] for r in rows], dtype=np.int64)
+    numbers = np.array([r[5] for r in rows], dtype=np.int64)
+    _check_motion(times_ns, ecef, POS_FIX_ERROR_M, lambda i: f"{path}:{numbers[i]}")
+    return RtkPos(times_ns, ecef, np.array([r[2] for r in rows], dtype=np.int64),
                   np.array([r[3] for r in rows], dtype=np.int64),
-                  np.array([r[4] for r in rows], dtype=np.float64),
-                  np.array([r[5] for r in rows], dtype=np.int64))
+                  np.array([r[4] for r in rows], dtype=np.float64), numbers)
 
 
 def rtklib_trajectory(path: Path | str, columns: dict[str, Columns], ins_times: InsTimes, *,
@@ -320,38 +395,43 @@ class Sbet:
     cut_note: str | None = None  # said when the file ends in part of a record (left out)
 
 
+def _sbet_name(path: Path) -> str:
+    """The file as SBET messages name it: one named `.pos` but binary (or empty) says how it
+    was read, else its messages of SBET records puzzle."""
+    if path.suffix.lower() == ".pos":
+        return f"{path} (read as an Applanix SBET: binary, not RTKLIB text)"
+    return str(path)
+
+
 def _sbet_values(path: Path) -> tuple[npt.NDArray[np.void], str | None]:
+    name = _sbet_name(path)
     try:
         size = path.stat().st_size
     except OSError as exc:
-        raise InputError(f"{path}: unreadable: {exc}") from None
+        raise InputError(f"{name}: unreadable: {exc}") from None
     whole, rest = divmod(size, SBET_RECORD_BYTES)
     if whole == 0:
-        raise InputError(f"{path}: {size} bytes is not a whole number of {SBET_RECORD_BYTES}-byte"
+        raise InputError(f"{name}: {size} bytes is not a whole number of {SBET_RECORD_BYTES}-byte"
                          " SBET records (17 little-endian float64)")
     note = None  # a file cut while written: its whole records are still good
     if rest:
-        note = (f"{path}: the last {rest} bytes are not a whole {SBET_RECORD_BYTES}-byte SBET "
+        note = (f"{name}: the last {rest} bytes are not a whole {SBET_RECORD_BYTES}-byte SBET "
                 f"record (a file cut while written?): read the {whole} records before them")
     rec = np.fromfile(path, dtype=SBET_DTYPE, count=whole)
     values = rec.view("<f8").reshape(-1, len(SBET_FIELDS))
     bad = np.argwhere(~np.isfinite(values))
     if bad.size:
         i, j = (int(x) for x in bad[0])
-        raise InputError(f"{path}: record {i} (byte {i * SBET_RECORD_BYTES}): "
-                         f"{SBET_FIELDS[j]} is not finite")
-    out = np.flatnonzero((values[:, 0] < 0) | (values[:, 0] >= NS_PER_WEEK / NS_PER_S)
-                         | (np.abs(values[:, 1]) > np.pi / 2) | (np.abs(values[:, 2]) > 2 * np.pi))
-    if out.size:
-        i = int(out[0])
-        raise InputError(f"{path}: record {i}: time or latitude/longitude out of range "
-                         "(seconds of week; radians)")
-    low, high = TRAJECTORY_HEIGHTS_M
-    out = np.flatnonzero((values[:, 3] < low) | (values[:, 3] > high))
-    if out.size:
-        i = int(out[0])
-        raise InputError(f"{path}: record {i}: ellipsoidal height {values[i, 3]:g} m outside "
-                         f"{low:g} to {high:g} m")
+        label, unit = _SBET_LABELS[j]
+        raise InputError(f"{name}: record {i} (byte {i * SBET_RECORD_BYTES}): "
+                         f"{label} ({unit}) is not finite")
+    for j, low, high in _SBET_RANGES:
+        out = np.flatnonzero((values[:, j] < low) | (values[:, j] > high))
+        if out.size:
+            i = int(out[0])
+            label, unit = _SBET_LABELS[j]
+            raise InputError(f"{name}: record {i}: {label} {values[i, j]:g} {unit} outside "
+                             f"{low:g} to {high:g} {unit}")
     return rec, note
 
 
@@ -368,15 +448,20 @@ def sbet_times_ns(tow_s: F64, reference_gps_ns: int) -> I64:
 
 
 def read_sbet(path: Path | str, reference_gps_ns: int) -> Sbet:
-    """An SBET file, checked: size, finite values, ranges, strictly increasing times."""
+    """An SBET file, checked: size, finite values, ranges, strictly increasing times, steps an
+    aircraft can fly (`_check_motion`)."""
     path = Path(path)
+    name = _sbet_name(path)
     rec, note = _sbet_values(path)
     t = sbet_times_ns(np.asarray(rec["time_s"], np.float64), reference_gps_ns)
     back = np.flatnonzero(np.diff(t) <= 0)
     if back.size:
         i = int(back[0]) + 1
-        raise InputError(f"{path}: record {i}: time {float(rec['time_s'][i]):.6f} s of week does"
+        raise InputError(f"{name}: record {i}: time {float(rec['time_s'][i]):.6f} s of week does"
                          " not increase")
+    ecef = geodetic_to_ecef(np.degrees(rec["lat_rad"]), np.degrees(rec["lon_rad"]),
+                            rec["height_m"])
+    _check_motion(t, ecef, SBET_STEP_ERROR_M, lambda i: f"{name}: record {i}")
     return Sbet(t, rec, note)
 
 
@@ -414,10 +499,10 @@ def sbet_trajectory(path: Path | str, reference_gps_ns: int, *,
               for lo, hi in runs(sb.t_gps_ns, max_gap_s) if hi - lo >= MIN_RECORDS]
     if not pieces:
         rate = _median_rate_hz(sb.t_gps_ns)
-        raise InputError(f"{path}: no {MIN_RECORDS} records without a gap over {max_gap_s:g} s "
-                         f"(records at {rate:.3g} Hz): is it decimated? An SBET should keep its "
-                         "native rate (>= 50 Hz); --max-gap-s S bridges longer gaps, less "
-                         "accurately")
+        raise InputError(f"{_sbet_name(Path(path))}: no {MIN_RECORDS} records without a gap "
+                         f"over {max_gap_s:g} s (records at {rate:.3g} Hz): is it decimated? An "
+                         "SBET should keep its native rate (>= 50 Hz); --max-gap-s S bridges "
+                         "longer gaps, less accurately")
     return PiecewiseTrajectory(epoch, origin, pieces)
 
 

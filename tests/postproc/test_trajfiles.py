@@ -189,7 +189,7 @@ def test_week_tow_ecef_and_dms_variants_read_the_same(tmp_path: Path) -> None:
 def test_dms_signs_west_and_south_of_zero(tmp_path: Path) -> None:
     """−0.5° is printed '  -0 30 00.00000': the sign sits on a zero degree."""
     llh = np.array([[-0.5, -3.25, 10.0], [-33.875, 151.2, 20.0]])
-    t = T_POS[:2]
+    t = T_POS[0] + np.array([0, 86400 * NS_PER_S])  # a day apart: a flight, not a jump
     lines = write_pos(tmp_path / "south.pos", t, llh, np.ones(2, dtype=np.int64), layout="dms")
     assert "  -0 30 00.00000" in lines[0]
     pos = read_rtklib_pos(tmp_path / "south.pos")
@@ -337,7 +337,7 @@ def test_sbet_week_from_a_reference_within_half_a_week() -> None:
     (lambda b: b[:100], r"sbet\.out: 100 bytes is not a whole number of 136-byte"),
     (lambda b: b"", r"sbet\.out: 0 bytes"),
     (lambda b: b[:136 * 2 + 8 * 8] + np.float64(np.nan).tobytes() + b[136 * 2 + 8 * 9:],
-     r"sbet\.out: record 2 \(byte 272\): pitch_rad is not finite"),
+     r"sbet\.out: record 2 \(byte 272\): pitch \(rad\) is not finite"),
     (lambda b: b[:136] + b[272:408] + b[136:272], r"sbet\.out: record 2: time .* not increase"),
     (lambda b: b[:136 + 3 * 8] + np.float64(1e300).tobytes() + b[136 + 4 * 8:],
      r"sbet\.out: record 1: ellipsoidal height 1e\+300 m outside -10000 to 100000 m"),

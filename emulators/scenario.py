@@ -23,7 +23,15 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, field_validator, model_validator
 
 from sisa.errors import ConfigError
-from sisa.sensor import Mounting, ScannerGeometry, StrictModel, Vec3, first_non_finite
+from sisa.sensor import (
+    Mounting,
+    ScannerGeometry,
+    StrictModel,
+    first_non_finite,
+    one_line_text_problem,
+    shown_value,
+    toml_location,
+)
 from sisa.timescale import parse_gps_datetime
 
 PRESETS = ("bench", "garrotxa", "bellmunt")
@@ -65,6 +73,11 @@ MAX_SCENE_CELLS = 250_000_000
 # 1 GB; a 65 536 × 288 line would need ~24 GB a block.
 MAX_LINE_SAMPLES = 2**19
 MAX_GROUND_POINTS = 10_000  # each of control and check points; Garrotxa has 111 and 96
+# INS attitude errors (σ per axis): a navigation-grade INS is good to arcseconds to arcminutes.
+# With at most 1° of bias and of noise, and a drift that adds at most 1° over the longest flight,
+# even a 5σ draw leaves the attitude well inside what the INS records carry (pitch ±90°).
+MAX_ATTITUDE_SIGMA_ARCSEC = 3600.0
+MAX_ATTITUDE_DRIFT_ARCSEC_PER_H = MAX_ATTITUDE_SIGMA_ARCSEC / MAX_FLIGHT_H  # 150″/h
 
 
 class GpsSolution(StrEnum):
@@ -99,6 +112,14 @@ class BlockSettings(StrictModel):
     first_strip_heading_deg: float = Field(
         0.0, ge=0, lt=360, description="true heading of the first strip (0 = flown north)"
     )
+
+    @field_validator("name")
+    @classmethod
+    def _name_one_line(cls, name: str) -> str:
+        """The name goes into messages and the sensor file's name (sisa.commands.process)."""
+        if (problem := one_line_text_problem(name)) is not None:
+            raise ValueError(problem)
+        return name
 
     @field_validator("ground_speed_kmh")
     @classmethod
@@ -208,6 +229,10 @@ class ScannerSettings(ScannerGeometry):
         return self
 
 
+_AttitudeSigmaArcsec = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_SIGMA_ARCSEC)]
+_AttitudeDriftArcsecPerH = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_DRIFT_ARCSEC_PER_H)]
+
+
 class InsSettings(StrictModel):
     """The navigation-grade INS: its record stream, its clock and its attitude errors."""
 
@@ -217,9 +242,17 @@ class InsSettings(StrictModel):
     clock_drift_ppm: float = Field(35.0, ge=-1000, le=1000)
     clock_resolution_ns: int = Field(1000, ge=1, le=1_000_000, description="clock/latch tick")
     output_delay_ms: float = Field(55.0, ge=0, le=1000, description="measurement → output")
-    attitude_bias_arcsec: Vec3 = Field((10.0, 10.0, 30.0), description="σ roll, pitch, heading")
-    attitude_drift_arcsec_per_h: Vec3 = Field((5.0, 5.0, 15.0), description="σ of linear drift")
-    attitude_noise_arcsec: Vec3 = Field((2.0, 2.0, 3.0), description="white noise σ")
+    attitude_bias_arcsec: tuple[
+        _AttitudeSigmaArcsec, _AttitudeSigmaArcsec, _AttitudeSigmaArcsec] = Field(
+        (10.0, 10.0, 30.0), description=f"σ roll, pitch, heading (each ≤ "
+        f"{MAX_ATTITUDE_SIGMA_ARCSEC:g}″ = 1°)")
+    attitude_drift_arcsec_per_h: tuple[
+        _AttitudeDriftArcsecPerH, _AttitudeDriftArcsecPerH, _AttitudeDriftArcsecPerH] = Field(
+        (5.0, 5.0, 15.0), description=f"σ of linear drift (each ≤ "
+        f"{MAX_ATTITUDE_DRIFT_ARCSEC_PER_H:g}″/h: 1° over a {MAX_FLIGHT_H:g} h flight)")
+    attitude_noise_arcsec: tuple[
+        _AttitudeSigmaArcsec, _AttitudeSigmaArcsec, _AttitudeSigmaArcsec] = Field(
+        (2.0, 2.0, 3.0), description=f"white noise σ (each ≤ {MAX_ATTITUDE_SIGMA_ARCSEC:g}″)")
     rate_noise_rps: float = Field(5e-6, ge=0, le=1.0, description="white body-rate noise σ")
     velocity_noise_mps: float = Field(2e-3, ge=0, le=10.0, description="white NED velocity noise σ")
 
@@ -500,13 +533,13 @@ def _preset_table(name: str) -> dict[str, Any]:
 
 def _format_validation_error(source: str, exc: ValidationError) -> str:
     err = exc.errors()[0]
-    loc = ".".join(str(p) for p in err["loc"])
+    loc = toml_location(err["loc"])
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
     if err["type"] == "extra_forbidden":
         return f"{source}: unknown field {loc!r}{more}"  # repr: a key may hold a newline
     msg = err["msg"].removeprefix("Value error, ")
     got = err.get("input")
-    shown = "" if isinstance(got, dict) else f" (got {got!r})"
+    shown = "" if isinstance(got, dict) else f" (got {shown_value(got)})"
     return f"{source}: {loc + ': ' if loc else ''}{msg}{shown}{more}"
 
 

@@ -19,14 +19,32 @@ fall back to a default.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import tomli_w
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from sisa.errors import InputError
-from sisa.sensor import Mounting, ScannerGeometry, StrictModel, first_non_finite
+from sisa.sensor import (
+    Mounting,
+    ScannerGeometry,
+    StrictModel,
+    first_non_finite,
+    one_line_text_problem,
+    shown_value,
+    toml_location,
+)
+
+# A name is a label for messages and reports: one line, and short enough to read in them.
+# `sisa calibrate` names its output after its input plus CALIBRATED_SUFFIX, which a name at the
+# limit must still take (postproc.calibrate.calibrated_sensor).
+MAX_NAME_CHARS = 200
+CALIBRATED_SUFFIX = " (calibrated)"
+# pydantic's range errors: NaN fails every bound, and says so as "should be less than ..."
+_BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
 
 
 class SensorModel(StrictModel):
@@ -37,6 +55,16 @@ class SensorModel(StrictModel):
                                  description="true exposure − tagged line time")
     scanner: ScannerGeometry = ScannerGeometry()
     mounting: Mounting = Mounting()
+
+    @field_validator("name")
+    @classmethod
+    def _name_one_short_line(cls, name: str) -> str:
+        """The name goes into one-line messages: no newline or control character, no essay."""
+        if (problem := one_line_text_problem(name)) is not None:
+            raise ValueError(problem)
+        if len(name.removesuffix(CALIBRATED_SUFFIX)) > MAX_NAME_CHARS:
+            raise ValueError(f"at most {MAX_NAME_CHARS} characters (this one has {len(name)})")
+        return name
 
     @property
     def time_delay_ns(self) -> int:
@@ -51,14 +79,22 @@ class SensorModel(StrictModel):
             raise InputError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
         except ValueError as exc:  # TOMLDecodeError, bad UTF-8, an integer of > 4300 digits
             raise InputError(f"{path}: not a TOML sensor file: {exc}") from None
+        if not _has_a_field(data):  # else every value would silently be the nominal one
+            raise InputError(f"{path}: empty sensor file (no fields): for the nominal sensor, "
+                             "leave out --sensor")
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
             err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
+            where = toml_location(err["loc"])
             if "\n" in where:  # a quoted TOML key may hold a newline: keep the error one line
                 where = repr(where)
             msg = str(err["msg"]).removeprefix("Value error, ")
+            got = err.get("input")
+            if err["type"] in _BOUND_ERRORS and isinstance(got, float) and not math.isfinite(got):
+                msg = "must be a finite number (not NaN or infinity)"
+            elif isinstance(got, int | float) and not isinstance(got, bool):
+                msg += f" (got {shown_value(got)})"
             raise InputError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
 
     def to_toml(self) -> str:
@@ -75,4 +111,10 @@ class SensorModel(StrictModel):
         """A sensor file for another instrument must not be applied to this recording."""
         if pixels != self.scanner.pixels:
             raise InputError(f"{where}: {pixels} pixels per line, but the sensor file "
-                             f"'{self.name}' describes {self.scanner.pixels}: wrong sensor file?")
+                             f"{shown_value(self.name)} describes {self.scanner.pixels}: wrong "
+                             "sensor file?")
+
+
+def _has_a_field(table: dict[str, Any]) -> bool:
+    """Whether a TOML document sets any value, not only (empty) tables."""
+    return any(not isinstance(v, dict) or _has_a_field(v) for v in table.values())

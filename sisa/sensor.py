@@ -15,16 +15,33 @@ Conventions (docs/conventions.md):
 from __future__ import annotations
 
 import math
+import unicodedata
 from typing import Annotated, Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 ARCSEC_RAD = np.pi / (180.0 * 3600.0)
 R_NOMINAL_C_TO_B = np.diag([1.0, -1.0, -1.0])
 
-Vec3 = Annotated[tuple[float, float, float], Field(description="x, y, z")]
+# --- physical ranges: a file outside them is a typo, and the numbers it makes overflow ----------
+
+# Lever arm and antenna offset: the largest aircraft (An-225: 84 m long, 88 m span) fits in a
+# 100 m box, so no point of one airframe is farther than this from its INS along any axis.
+MAX_MOUNT_OFFSET_M = 100.0
+# Boresight: ±180° about each axis covers every rotation (beyond, an angle repeats).
+MAX_BORESIGHT_ARCSEC = 180.0 * 3600.0
+# Interior geometry: the shortest focal lengths (phone and endoscope lenses) are ~1 mm and the
+# finest detector pixels ~0.5 µm, both well above these minima; a principal point (or its
+# correction) lies on the detector, and 10 cm is more than half the width of any real one.
+MIN_FOCAL_LENGTH_MM = 0.1
+MIN_PIXEL_PITCH_UM = 0.1
+MAX_PRINCIPAL_POINT_UM = 1e5
+
+_OffsetM = Annotated[float, Field(ge=-MAX_MOUNT_OFFSET_M, le=MAX_MOUNT_OFFSET_M)]
+_BoresightArcsec = Annotated[float, Field(ge=-MAX_BORESIGHT_ARCSEC, le=MAX_BORESIGHT_ARCSEC)]
+_FocalPlaneUm = Annotated[float, Field(ge=-MAX_PRINCIPAL_POINT_UM, le=MAX_PRINCIPAL_POINT_UM)]
 
 
 class StrictModel(BaseModel):
@@ -37,15 +54,28 @@ class ScannerGeometry(StrictModel):
     """Interior geometry of the line scanner, with the self-calibration terms."""
 
     pixels: int = Field(512, ge=2, le=65_536, description="spatial pixels per line")
-    pixel_pitch_um: float = Field(15.0, gt=0, le=1000, description="detector pixel pitch")
-    focal_length_mm: float = Field(9.33, gt=0, le=10_000, description="nominal focal length")
-    principal_point_um: tuple[float, float] = Field(
+    pixel_pitch_um: float = Field(15.0, ge=MIN_PIXEL_PITCH_UM, le=1000,
+                                  description="detector pixel pitch")
+    focal_length_mm: float = Field(9.33, ge=MIN_FOCAL_LENGTH_MM, le=10_000,
+                                   description="nominal focal length")
+    principal_point_um: tuple[_FocalPlaneUm, _FocalPlaneUm] = Field(
         (0.0, 0.0), description="x0 (along track), y0 (across track) on the focal plane"
     )
     delta_focal_mm: float = Field(0.0, ge=-100, le=100, description="self-calibration δf")
-    delta_principal_point_um: tuple[float, float] = Field(
+    delta_principal_point_um: tuple[_FocalPlaneUm, _FocalPlaneUm] = Field(
         (0.0, 0.0), description="self-calibration δx0, δy0"
     )
+
+    @model_validator(mode="after")
+    def _focal_length_positive(self) -> ScannerGeometry:
+        """δf may not cancel f: the pixels would look up, or along the focal plane."""
+        focal_mm = self.focal_length_mm + self.delta_focal_mm
+        if not focal_mm >= MIN_FOCAL_LENGTH_MM:
+            raise ValueError(
+                f"focal_length_mm + delta_focal_mm = {self.focal_length_mm:g} + "
+                f"({self.delta_focal_mm:g}) = {focal_mm:g} mm: the effective focal length must "
+                f"be at least {MIN_FOCAL_LENGTH_MM:g} mm")
+        return self
 
     @property
     def centre_pixel(self) -> float:
@@ -75,9 +105,11 @@ class ScannerGeometry(StrictModel):
 class Mounting(StrictModel):
     """Where the scanner and the GPS antenna sit relative to the INS (body frame, metres)."""
 
-    lever_arm_m: Vec3 = Field((0.0, 0.0, 0.3), description="INS centre → perspective centre")
-    antenna_offset_m: Vec3 = Field((0.0, 0.0, -1.5), description="INS centre → antenna")
-    boresight_arcsec: Vec3 = Field(
+    lever_arm_m: tuple[_OffsetM, _OffsetM, _OffsetM] = Field(
+        (0.0, 0.0, 0.3), description="INS centre → perspective centre")
+    antenna_offset_m: tuple[_OffsetM, _OffsetM, _OffsetM] = Field(
+        (0.0, 0.0, -1.5), description="INS centre → antenna")
+    boresight_arcsec: tuple[_BoresightArcsec, _BoresightArcsec, _BoresightArcsec] = Field(
         (0.0, 0.0, 0.0), description="misalignment ω, φ, κ about camera x, y, z"
     )
 
@@ -113,3 +145,35 @@ def first_non_finite(value: Any, where: str = "") -> str | None:
     else:
         return None
     return next((bad for name, v in children if (bad := first_non_finite(v, name))), None)
+
+
+def toml_location(loc: tuple[int | str, ...]) -> str:
+    """A pydantic error location as the TOML spells it: `mounting.lever_arm_m[0]`."""
+    where = ""
+    for part in loc:
+        where += f"[{part}]" if isinstance(part, int) else (f".{part}" if where else str(part))
+    return where
+
+
+def shown_value(value: Any, max_chars: int = 60) -> str:
+    """A value for a one-line message: numbers with :.12g (a 300-digit integer would flood it),
+    text as a repr cut to max_chars."""
+    if isinstance(value, bool):
+        return str(value)
+    if isinstance(value, int | float):
+        try:
+            return f"{value:.12g}"
+        except OverflowError:  # an int past float range (TOML integers go to 4300 digits)
+            return "an integer too large for a float"
+    text = repr(value)
+    return text if len(text) <= max_chars else text[:max_chars - 1] + "…"
+
+
+def one_line_text_problem(text: str) -> str | None:
+    """What keeps text from printing as part of one line: a control, format (e.g. bidi
+    override) or line/paragraph separator character, or None."""
+    for i, ch in enumerate(text):
+        if unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Zl", "Zp"):
+            return (f"must be printable text on one line: character {i + 1} is {ch!r} "
+                    "(a control or formatting character)")
+    return None

@@ -39,7 +39,7 @@ BAD = {
     "airfield-1e12": ("[flight]\nairfield_offset_m = [1e12, 1e12]\n",
                       "flight.airfield_offset_m"),
     "airfield-north": ("[flight]\nairfield_offset_m = [0.0, -200001.0]\n",
-                       "flight.airfield_offset_m.1"),
+                       "flight.airfield_offset_m[1]"),
     "speed-0.001": ("[block]\nground_speed_kmh = 0.001\n", "block.ground_speed_kmh"),
     "speed-9.9": ("[block]\nground_speed_kmh = 9.9\n", "block.ground_speed_kmh"),
     "speed-1001": ("[block]\nground_speed_kmh = 1001\n", "block.ground_speed_kmh"),
@@ -62,6 +62,34 @@ BAD = {
                  "km a side"),
     "line-samples": ("[scanner]\npixels = 65536\nbands = 288\n", "scanner: pixels × bands"),
     "control-points": ("[terrain]\ncontrol_points = 10001\n", "terrain.control_points"),
+    # INS attitude errors: `simulate` failed on them with "roll_rad = -5.8e+302 rad is outside"
+    "ins-bias-1e308": ("[ins]\nattitude_bias_arcsec = [1e308, 10, 30]\n",
+                       "ins.attitude_bias_arcsec[0]"),
+    "ins-bias-300-digits": ("[ins]\nattitude_bias_arcsec = [10, " + "9" * 300 + ", 30]\n",
+                            "ins.attitude_bias_arcsec[1]"),
+    "ins-bias-2-deg": ("[ins]\nattitude_bias_arcsec = [10, 10, 7200]\n",
+                       "ins.attitude_bias_arcsec[2]"),
+    "ins-noise-1e300": ("[ins]\nattitude_noise_arcsec = [2, 1e300, 3]\n",
+                        "ins.attitude_noise_arcsec[1]"),
+    "ins-noise-negative": ("[ins]\nattitude_noise_arcsec = [2, 2, -3]\n",
+                           "ins.attitude_noise_arcsec[2]"),
+    "ins-drift-1e308": ("[ins]\nattitude_drift_arcsec_per_h = [1e308, 5, 15]\n",
+                        "ins.attitude_drift_arcsec_per_h[0]"),
+    "ins-drift-negative": ("[ins]\nattitude_drift_arcsec_per_h = [5, -5, 15]\n",
+                           "ins.attitude_drift_arcsec_per_h[1]"),
+    # the mounting and the sensor geometry: they failed deep in navigation or georeferencing
+    "antenna-1e308": ("[mounting]\nantenna_offset_m = [1e308, 0.0, -1.5]\n",
+                      "mounting.antenna_offset_m[0]"),
+    "lever-1e7": ("[mounting]\nlever_arm_m = [0.0, 0.0, 1e7]\n", "mounting.lever_arm_m[2]"),
+    "boresight-1e300": ("[mounting]\nboresight_arcsec = [0.0, 1e300, 0.0]\n",
+                        "mounting.boresight_arcsec[1]"),
+    "effective-focal": ("[scanner]\nfocal_length_mm = 1.0\ndelta_focal_mm = -50\n",
+                        "scanner: focal_length_mm + delta_focal_mm"),
+    "focal-1e-300": ("[scanner]\nfocal_length_mm = 1e-300\n", "scanner.focal_length_mm"),
+    "principal-point": ("[scanner]\nprincipal_point_um = [1e300, 0.0]\n",
+                        "scanner.principal_point_um[0]"),
+    # the block name becomes the simulated run's sensor name (sisa.commands.process.sensor_of)
+    "block-name-newline": ('[block]\nname = "two\\nlines"\n', "block.name"),
 }
 
 # Just inside each bound: (overrides of bench, the bound it sits at)
@@ -83,6 +111,13 @@ GOOD: dict[str, dict[str, Any]] = {
     "turn-rate": {"block": {"ground_speed_kmh": 36.0}, "flight": {"turn_bank_deg": 28.0}},
     "line-samples": {"scanner": {"pixels": 2048, "bands": 256}},
     "points": {"terrain": {"control_points": 10_000, "check_points": 10_000}},
+    "ins-errors": {"ins": {"attitude_bias_arcsec": [3600.0, 0.0, 3600.0],
+                           "attitude_noise_arcsec": [0.0, 3600.0, 3600.0],
+                           "attitude_drift_arcsec_per_h": [150.0, 150.0, 0.0]}},
+    "mounting": {"mounting": {"lever_arm_m": [100.0, -100.0, 100.0],
+                              "antenna_offset_m": [-100.0, 100.0, -100.0],
+                              "boresight_arcsec": [648_000.0, -648_000.0, 0.0]}},
+    "effective-focal": {"scanner": {"focal_length_mm": 50.0, "delta_focal_mm": -49.9}},
 }
 
 
@@ -102,6 +137,7 @@ def test_bad_value_is_one_line_naming_the_field_and_exit_2(tmp_path, capsys, bod
     assert "Traceback" not in err
     assert str(path) in err
     assert field in err
+    assert not re.search(r"\d{20}", err), err  # no 300-digit numbers
 
 
 @pytest.mark.parametrize("table", list(GOOD.values()), ids=list(GOOD))
@@ -120,7 +156,7 @@ def test_boundary_values_show(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name", ["start-2300", "start-1970", "airfield-1e12", "speed-0.001",
-                                  "dem-1e-9"])
+                                  "dem-1e-9", "ins-bias-1e308"])
 def test_emulate_refuses_before_any_port_or_folder(tmp_path, name):
     body, field = BAD[name]
     out = tmp_path / "run"

@@ -1,6 +1,15 @@
 import numpy as np
+import pytest
+from pydantic import ValidationError
 
-from sisa.sensor import ARCSEC_RAD, Mounting, ScannerGeometry
+from sisa.sensor import (
+    ARCSEC_RAD,
+    Mounting,
+    ScannerGeometry,
+    one_line_text_problem,
+    shown_value,
+    toml_location,
+)
 
 
 def test_pixel_zero_looks_right_and_last_pixel_left_in_body_frame():
@@ -31,3 +40,32 @@ def test_boresight_is_a_small_rotation_after_the_nominal_mounting():
     nadir_b = r @ [0, 0, -1]
     angle = np.arctan2(nadir_b[1], nadir_b[2])
     np.testing.assert_allclose(abs(angle), 3600 * ARCSEC_RAD, rtol=1e-12)
+
+
+def test_error_locations_read_as_the_toml_spells_them() -> None:
+    assert toml_location(("mounting", "antenna_offset_m", 0)) == "mounting.antenna_offset_m[0]"
+    assert toml_location(("faults", "pps_outages", 1, "at_s")) == "faults.pps_outages[1].at_s"
+    assert toml_location(()) == ""
+
+
+def test_shown_values_stay_short() -> None:
+    assert shown_value(10**299) == "1e+299"
+    assert shown_value(10**400) == "an integer too large for a float"
+    assert shown_value(100.00000001) == "100.00000001"
+    assert shown_value(True) == "True"
+    assert shown_value("a\nb") == "'a\\nb'"
+    long = shown_value("x" * 5000)
+    assert len(long) == 60
+    assert long.endswith("…")
+
+
+def test_one_line_text_refuses_controls_and_separators() -> None:
+    assert one_line_text_problem("CASI-501 #2 on EC-FXX (calibrated) é ✓") is None
+    for bad in ("a\nb", "a\rb", "a\x1b[31m", "a\u2028b", "a\u202eb", "a\x00"):
+        assert one_line_text_problem(bad) is not None, repr(bad)
+
+
+def test_delta_focal_may_not_cancel_the_focal_length() -> None:
+    ScannerGeometry(focal_length_mm=50.0, delta_focal_mm=-49.9)  # 0.1 mm left: allowed
+    with pytest.raises(ValidationError, match="focal_length_mm \\+ delta_focal_mm"):
+        ScannerGeometry(focal_length_mm=9.33, delta_focal_mm=-9.33)

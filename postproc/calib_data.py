@@ -23,12 +23,16 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from pyproj import Transformer
+from pyproj import CRS, Transformer
+from pyproj.exceptions import CRSError
 
+from postproc.dem import PLAUSIBLE_HEIGHTS_M
 from postproc.navigation import ecef_to_geodetic, geodetic_to_ecef
 from postproc.sync import LineTimes
 from postproc.syncconfig import TimeStatus
+from postproc.syncio import FRAME_COUNTER_MAX, SEGMENT_MAX
 from sisa.errors import InputError
+from sisa.sensor import one_line_text_problem
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -42,6 +46,16 @@ OBS_HEADER: Final = (
     "# line: 0-based image line of the segment, fractional (line k = mid-exposure of line k)\n"
     "# pixel: 0-based pixel across track, fractional (pixel j = centre of element j)\n"
     "# sigma_px: stated precision of both coordinates, pixels\n")
+# A measurement's σ: below 1/1000 px no image measurement is that good (and the weights 1/σ²
+# overflow the normal equations); above 100 px it does not say where in the line the point is.
+SIGMA_PX_RANGE: Final = (1e-3, 100.0)
+# |pixel|: sisa.sensor allows at most 65 536 pixels a line; beyond this no sensor file can fit.
+PIXEL_LIMIT: Final = 100_000.0
+# |line|: a segment has at most as many lines as the frame counter counts (u32).
+LINE_LIMIT: Final = float(FRAME_COUNTER_MAX)
+LAT_LIMIT_DEG: Final = 90.0
+LON_LIMIT_DEG: Final = 180.0
+EPSG_DIGITS_MAX: Final = 9  # no EPSG code has more; int() of thousands of digits is refused
 
 
 @dataclass(frozen=True)
@@ -118,53 +132,112 @@ def _rows(path: Path, what: str) -> tuple[list[str], list[list[str]], str]:
 
 
 def _floats(path: Path, header: list[str], data: list[list[str]], name: str,
-            may_be_nan: npt.NDArray[np.bool_] | None = None) -> F64:
-    """A numeric column; every value finite except where may_be_nan (tie points)."""
+            may_be_nan: npt.NDArray[np.bool_] | None = None,
+            limits: tuple[float, float] | None = None, why: str = "") -> F64:
+    """A numeric column; every value finite and within limits (the error says why), except
+    where may_be_nan (tie points, whose coordinates are not used)."""
     col = header.index(name)
-    try:
-        values = np.array([float(r[col]) for r in data], dtype=np.float64)
-    except ValueError:
-        raise InputError(f"{path}: column {name} holds a value that is not a number") from None
-    bad = ~np.isfinite(values) & (True if may_be_nan is None else ~may_be_nan)
+    values = np.empty(len(data), dtype=np.float64)
+    for k, r in enumerate(data):
+        try:
+            values[k] = float(r[col])
+        except ValueError:
+            raise InputError(f"{path}: column {name}, row {k + 1}: {r[col].strip()[:40]!r} is "
+                             "not a number") from None
+    checked = np.ones(values.size, dtype=np.bool_) if may_be_nan is None else ~may_be_nan
+    bad = ~np.isfinite(values) & checked
     if np.any(bad):
         raise InputError(f"{path}: column {name}, row {int(np.argmax(bad)) + 1}: not a finite "
                          "number")
+    if limits is not None:
+        lo, hi = limits
+        out = checked & ~((values >= lo) & (values <= hi))
+        if np.any(out):
+            k = int(np.argmax(out))
+            raise InputError(f"{path}: column {name}, row {k + 1}: {values[k]:g} is outside "
+                             f"{lo:g}..{hi:g}" + (f" ({why})" if why else ""))
     return values
+
+
+def _ids(path: Path, header: list[str], data: list[list[str]], name: str) -> Str:
+    """An id column, stripped. An empty id or one with a control character is refused: it
+    could not be told apart or shown in messages and outputs."""
+    col = header.index(name)
+    ids = [r[col].strip() for r in data]
+    for k, i in enumerate(ids):
+        if not i:
+            raise InputError(f"{path}: column {name}, row {k + 1}: empty")
+        if (problem := one_line_text_problem(i)) is not None:
+            raise InputError(f"{path}: column {name}, row {k + 1}: {i[:40]!r} {problem}")
+    return np.array(ids, dtype=np.str_)
+
+
+def _projected_crs(path: Path, digits: str) -> int:
+    """The EPSG code of the file's `#` comment, for easting_m/northing_m: a projected CRS in
+    metres, since a geographic one would take metres for degrees and a foot one be 3.3× off."""
+    said = f"{path}: EPSG:{digits[:EPSG_DIGITS_MAX + 3]} (from its # comment)"
+    if len(digits) > EPSG_DIGITS_MAX:
+        raise InputError(f"{said} is not a known CRS")
+    try:
+        crs = CRS.from_epsg(int(digits))
+    except CRSError:
+        raise InputError(f"{said} is not a known CRS") from None
+    if not crs.is_projected:
+        raise InputError(f"{said} is {crs.name}, not a projected CRS: easting_m and northing_m "
+                         "need one (or give lat_deg and lon_deg)")
+    units = {a.unit_name for a in crs.axis_info if a.unit_conversion_factor != 1.0}
+    if units:
+        raise InputError(f"{said} has axes in {', '.join(sorted(units))}: easting_m and "
+                         "northing_m are metres")
+    return int(digits)
 
 
 def read_ground_points(path: Path) -> GroundPoints:
     """Columns id, kind and either lat_deg, lon_deg, height_m (WGS84, ellipsoidal) or
-    easting_m, northing_m, height_m with 'EPSG:nnnnn' in a `#` comment."""
+    easting_m, northing_m, height_m with 'EPSG:nnnnn' (projected, metres) in a `#` comment.
+    Surveyed values outside what the Earth has are refused with their row (a point at
+    height 1e300 was silently never measured)."""
     header, data, comments = _rows(path, "ground points file")
     for need in ("id", "kind", "height_m"):
         if need not in header:
             raise InputError(f"{path}: no column '{need}' (need id, kind, lat_deg, lon_deg, "
                              "height_m)")
     m = re.search(r"EPSG:(\d+)", comments)
-    epsg = int(m.group(1)) if m else None
-    ids = np.array([r[header.index("id")].strip() for r in data])
+    ids = _ids(path, header, data, "id")
     kind = np.array([r[header.index("kind")].strip().lower() for r in data])
-    bad_kind = [k for k in kind.tolist() if k not in KINDS]
+    bad_kind = [k for k, x in enumerate(kind.tolist()) if x not in KINDS]
     if bad_kind:
-        raise InputError(f"{path}: kind '{bad_kind[0]}' is not one of {', '.join(KINDS)}")
-    if len(set(ids.tolist())) != ids.size:
-        raise InputError(f"{path}: a point id appears twice")
+        raise InputError(f"{path}: column kind, row {bad_kind[0] + 1}: kind "
+                         f"{kind[bad_kind[0]][:40]!r} is not one of {', '.join(KINDS)}")
+    first: dict[str, int] = {}
+    for k, i in enumerate(ids.tolist()):
+        if i in first:
+            raise InputError(f"{path}: column id, rows {first[i] + 1} and {k + 1}: point "
+                             f"'{i}' appears twice")
+        first[i] = k
     tie = kind == "tie"
-    h = _floats(path, header, data, "height_m", tie)
+    h = _floats(path, header, data, "height_m", tie, PLAUSIBLE_HEIGHTS_M,
+                "heights the Earth's surface has")
+    epsg = None
     if "lat_deg" in header and "lon_deg" in header:
-        lat = _floats(path, header, data, "lat_deg", tie)
-        lon = _floats(path, header, data, "lon_deg", tie)
-    elif "easting_m" in header and "northing_m" in header and epsg is not None:
+        lat = _floats(path, header, data, "lat_deg", tie, (-LAT_LIMIT_DEG, LAT_LIMIT_DEG))
+        lon = _floats(path, header, data, "lon_deg", tie, (-LON_LIMIT_DEG, LON_LIMIT_DEG))
+        epsg = int(m.group(1)) if m and len(m.group(1)) <= EPSG_DIGITS_MAX else None
+    elif "easting_m" in header and "northing_m" in header and m is not None:
+        epsg = _projected_crs(path, m.group(1))
         to_geo = Transformer.from_crs(epsg, 4326, always_xy=True)
-        lon, lat = (np.asarray(v) for v in to_geo.transform(
+        lon, lat = (np.asarray(v, np.float64) for v in to_geo.transform(
             _floats(path, header, data, "easting_m", tie),
             _floats(path, header, data, "northing_m", tie)))
+        off = ~tie & ~(np.isfinite(lat) & np.isfinite(lon))
+        if np.any(off):
+            raise InputError(f"{path}: columns easting_m, northing_m, row {int(np.argmax(off)) + 1}"
+                             f": not a place in EPSG:{epsg}")
     else:
         raise InputError(f"{path}: need lat_deg and lon_deg, or easting_m and northing_m with "
                          "'EPSG:nnnnn' in a # comment")
-    if np.any(np.abs(lat[~tie]) > 90.0):
-        raise InputError(f"{path}: a latitude is outside ±90°")
-    ecef = geodetic_to_ecef(lat, lon, h)
+    ecef = geodetic_to_ecef(np.where(tie, 0.0, lat), np.where(tie, 0.0, lon),
+                            np.where(tie, 0.0, h))
     ecef[tie] = np.nan  # a tie point's coordinates are unknowns, whatever the file says
     return GroundPoints(ids, kind, ecef, epsg)
 
@@ -185,20 +258,35 @@ def write_ground_points(path: Path, points: GroundPoints) -> None:
 
 
 def read_observations(path: Path) -> ImageObservations:
-    """The observations CSV (OBS_COLUMNS); sigma_px must be > 0."""
+    """The observations CSV (OBS_COLUMNS), each value checked with its row: a segment a frame
+    header can hold, line and pixel of a possible image, σ in SIGMA_PX_RANGE, and one
+    measurement of a point per segment (a repeated row would silently double its weight)."""
     header, data, _ = _rows(path, "observations file")
     missing = [c for c in OBS_COLUMNS if c not in header]
     if missing:
         raise InputError(f"{path}: no column '{missing[0]}' (need {', '.join(OBS_COLUMNS)})")
+    ids = _ids(path, header, data, "id")
     seg = _floats(path, header, data, "segment")
-    if np.any(seg != np.round(seg)) or np.any(seg < 0):
-        raise InputError(f"{path}: segment must be a whole number ≥ 0")
-    sigma = _floats(path, header, data, "sigma_px")
-    if np.any(sigma <= 0):
-        raise InputError(f"{path}: sigma_px must be > 0")
-    return ImageObservations(np.array([r[header.index("id")].strip() for r in data]),
-                             seg.astype(np.int64), _floats(path, header, data, "line"),
-                             _floats(path, header, data, "pixel"), sigma)
+    bad = (seg != np.round(seg)) | (seg < 0) | (seg > SEGMENT_MAX)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputError(f"{path}: column segment, row {k + 1}: {seg[k]:g} is not a whole "
+                         f"number in 0..{SEGMENT_MAX} (what a frame header holds)")
+    segment = seg.astype(np.int64)
+    line = _floats(path, header, data, "line", limits=(-LINE_LIMIT, LINE_LIMIT),
+                   why="a segment has no more lines than a frame counter counts")
+    pixel = _floats(path, header, data, "pixel", limits=(-PIXEL_LIMIT, PIXEL_LIMIT),
+                    why="no line scanner has that many pixels")
+    sigma = _floats(path, header, data, "sigma_px", limits=SIGMA_PX_RANGE,
+                    why="pixels: below, the weights overflow; above, it is no measurement")
+    first: dict[tuple[str, int], int] = {}
+    for k, key in enumerate(zip(ids.tolist(), segment.tolist(), strict=True)):
+        if key in first:
+            raise InputError(f"{path}: rows {first[key] + 1} and {k + 1} both measure point "
+                             f"'{key[0]}' in segment {key[1]}: give one row (the mean of "
+                             "repeated measurements); two would count as independent")
+        first[key] = k
+    return ImageObservations(ids, segment, line, pixel, sigma)
 
 
 def write_observations(path: Path, obs: ImageObservations) -> None:

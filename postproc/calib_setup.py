@@ -32,15 +32,32 @@ I64 = npt.NDArray[np.int64]
 Bool = npt.NDArray[np.bool_]
 
 HEIGHT_ONLY_SIGMA_M = 1e9  # a check point's horizontal "observation": no weight at all
+SENSOR_FIT_MARGIN_PX = 3.0  # measurements this far past the detector's ends are noise
+
+
+NOTE_EXAMPLES = 3  # items a note names; the count says how many more there are
 
 
 @dataclass
 class Notes:
+    """What was left out and why, one line per reason (calibration.json's notes, and the
+    command's warnings)."""
+
     lines: list[str] = field(default_factory=list)
 
-    def add(self, count: int, text: str) -> None:
-        if count:
-            self.lines.append(f"{count} {text}")
+    def add(self, count: int, text: str, examples: list[str] | None = None) -> None:
+        """`count` items, naming the first few of `examples` so they can be found."""
+        if not count:
+            return
+        named = (examples or [])[:NOTE_EXAMPLES]
+        more = f", and {count - len(named)} more" if named and count > len(named) else ""
+        self.lines.append(f"{count} {text}" + (f" ({', '.join(named)}{more})" if named else ""))
+
+
+def observation_names(obs: ImageObservations, which: Bool) -> list[str]:
+    """The first few observations of a note, as their file gives them."""
+    return [f"{obs.point_id[k]} in segment {obs.segment[k]} at line {obs.line[k]:g}"
+            for k in np.flatnonzero(which)[:NOTE_EXAMPLES].tolist()]
 
 
 def line_geometry(obs: ImageObservations, clock: SegmentClock, point_row: I64,
@@ -65,16 +82,17 @@ def usable_observations(obs: ImageObservations, points: GroundPoints, clock: Seg
     points.index_of(obs.point_id, "observations")
     known_seg = np.array([int(s) in clock.t_by_segment for s in obs.segment.tolist()],
                          dtype=np.bool_)
-    notes.add(int((~known_seg).sum()), "observations in a segment the recording does not have")
+    notes.add(int((~known_seg).sum()), "observations in a segment the recording does not have",
+              observation_names(obs, ~known_seg))
     t = clock.time_of(obs.segment, obs.line)
     timed = known_seg & (t >= 0)
     notes.add(int((known_seg & ~timed).sum()), "observations on an untimed line or off the "
-              "image: left out")
+              "image: left out", observation_names(obs, known_seg & ~timed))
     posed = np.zeros(len(obs), dtype=np.bool_)
     if timed.any():
         posed[timed] = traj.pose_at(t[timed] + np.int64(round(delay_ms * 1e6))).valid
     notes.add(int((timed & ~posed).sum()), "observations outside the navigation solution: "
-              "left out")
+              "left out", observation_names(obs, timed & ~posed))
     return obs.select(posed)
 
 
@@ -88,10 +106,12 @@ def split_points(obs: ImageObservations, points: GroundPoints, notes: Notes,
     ctl = (points.kind == "control") & (n_obs >= 1)
     tie = (points.kind == "tie") & (n_seg >= 2)
     chk = (points.kind == "check") & (n_obs >= 1)
-    notes.add(int(((points.kind == "control") & (n_obs == 0)).sum()),
-              "control points without an observation: not used")
-    notes.add(int(((points.kind == "tie") & (n_seg < 2)).sum()),
-              "tie points seen in fewer than two segments: left out")
+    unseen = (points.kind == "control") & (n_obs == 0)
+    notes.add(int(unseen.sum()), "control points without an observation: not used",
+              points.ids[unseen].tolist())
+    lone = (points.kind == "tie") & (n_seg < 2)
+    notes.add(int(lone.sum()), "tie points seen in fewer than two segments: left out",
+              points.ids[lone].tolist())
     if not ctl.any():
         why = f" ({'; '.join(notes.lines)})" if notes.lines else ""
         raise InputError(f"no control point is observed: calibration needs ground control{why}")
@@ -138,12 +158,12 @@ def mean_height(points: GroundPoints) -> float:
 
 
 def check_sensor_fits(sensor: SensorModel, obs: ImageObservations,
-                      margin_px: float = 3.0) -> None:
+                      margin_px: float = SENSOR_FIT_MARGIN_PX) -> None:
     """Measurements beyond the detector's ends (more than a few pixels of noise) mean a
     sensor file for another instrument."""
     px = sensor.scanner.pixels
     off = (obs.pixel < -0.5 - margin_px) | (obs.pixel > px - 0.5 + margin_px)
     if off.any():
         k = int(np.argmax(off))
-        raise InputError(f"observation of {obs.point_id[k]} at pixel {obs.pixel[k]:.1f}, but the "
+        raise InputError(f"observation of {obs.point_id[k]} at pixel {obs.pixel[k]:g}, but the "
                          f"sensor file '{sensor.name}' has {px} pixels: wrong sensor file?")

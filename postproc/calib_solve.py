@@ -29,6 +29,8 @@ SINGULAR_RCOND: Final = 1e-7  # |r| ≳ 1 − 1e-7: the data do not separate the
 MAX_ITERATIONS: Final = 30
 MAX_HALVINGS: Final = 8
 STEP_TOL: Final = 1e-4  # converged when every step is below this fraction of its σ
+OVERFLOW: Final = ("the normal equations overflow: a stated σ (sigma_px, --gcp-sigma-m, "
+                   "--dem-sigma-m, a prior) is too small for double precision")
 
 
 @dataclass
@@ -53,17 +55,20 @@ class Covariance:
 
 def normal_equations(lin: Linear, n_points: int) -> Normal:
     g = lin.jg.shape[1]
-    ngg = lin.jg.T @ lin.jg
-    bg = -lin.jg.T @ lin.r
     has_p = lin.pidx >= 0
     pid = lin.pidx[has_p]
     jg, jp, r = lin.jg[has_p], lin.jp[has_p], lin.r[has_p]
     ngp = np.zeros((n_points, g, 3))
     npp = np.zeros((n_points, 3, 3))
     bp = np.zeros((n_points, 3))
-    np.add.at(ngp, pid, np.einsum("mg,mk->mgk", jg, jp))
-    np.add.at(npp, pid, np.einsum("mi,mk->mik", jp, jp))
-    np.add.at(bp, pid, -jp * r[:, None])
+    with np.errstate(over="ignore", invalid="ignore"):  # checked below, said in one line
+        ngg = lin.jg.T @ lin.jg
+        bg = -lin.jg.T @ lin.r
+        np.add.at(ngp, pid, np.einsum("mg,mk->mgk", jg, jp))
+        np.add.at(npp, pid, np.einsum("mi,mk->mik", jp, jp))
+        np.add.at(bp, pid, -jp * r[:, None])
+    if not all(np.isfinite(a).all() for a in (ngg, bg, ngp, npp, bp)):
+        raise InputError(OVERFLOW)
     npp[np.bincount(pid, minlength=n_points) == 0] = np.eye(3)  # points left out: inert
     det = np.linalg.det(npp)
     if np.any(~(np.abs(det) > 0)):
@@ -138,6 +143,16 @@ def leverages(lin: Linear, cov: Covariance) -> F64:
     return np.asarray(np.clip(h, 0.0, 1.0), np.float64)
 
 
+def _cost(lin: Linear) -> float:
+    """Σ r² of the weighted residuals; InputError if it overflows (weights of a σ ~1e-300
+    gave numpy warnings, then an error that blamed the points)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        cost = float(lin.r @ lin.r)
+    if not math.isfinite(cost):
+        raise InputError(OVERFLOW)
+    return cost
+
+
 @dataclass
 class Solution:
     theta: F64
@@ -158,12 +173,13 @@ def gauss_newton(problem: Problem, theta: F64, x_m: F64) -> Solution:
         iterations += 1
         problem.update_rates(theta, x_m)
         lin = problem.linearise(theta, x_m)
-        cost = float(lin.r @ lin.r)
+        cost = _cost(lin)
         norm = normal_equations(lin, n_points)
         dg, dp, sig = solve_step(norm, labels)
         p_sig = np.sqrt(np.maximum(np.einsum("pii->pi", norm.npp_inv), 1e-30))
         for _ in range(MAX_HALVINGS):
-            new_cost = problem.cost(theta + dg, x_m + dp)
+            with np.errstate(over="ignore", invalid="ignore"):  # an inf cost: halve the step
+                new_cost = problem.cost(theta + dg, x_m + dp)
             if new_cost <= cost * (1.0 + 1e-9) or not math.isfinite(cost):
                 break
             dg, dp = dg / 2.0, dp / 2.0
@@ -174,5 +190,4 @@ def gauss_newton(problem: Problem, theta: F64, x_m: F64) -> Solution:
             break
     problem.update_rates(theta, x_m)
     lin = problem.linearise(theta, x_m)
-    return Solution(theta, x_m, lin, normal_equations(lin, n_points), iterations,
-                    float(lin.r @ lin.r))
+    return Solution(theta, x_m, lin, normal_equations(lin, n_points), iterations, _cost(lin))

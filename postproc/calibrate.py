@@ -23,6 +23,7 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
 
 from postproc.calib_check import (
     CheckSetup,
@@ -48,6 +49,7 @@ from postproc.calib_setup import (
     check_sensor_fits,
     line_geometry,
     mean_height,
+    observation_names,
     point_set,
     split_points,
     start_coordinates,
@@ -57,9 +59,9 @@ from postproc.calib_solve import Solution, covariance, gauss_newton, leverages
 from postproc.calib_surface import DemSurface, Surface
 from postproc.dem import Dem
 from postproc.navigation import Trajectory
-from postproc.sensorfile import SensorModel
-from sisa.errors import ConfigError
-from sisa.sensor import Mounting
+from postproc.sensorfile import CALIBRATED_SUFFIX, SensorModel
+from sisa.errors import ConfigError, InputError
+from sisa.sensor import shown_value, toml_location
 
 F64 = npt.NDArray[np.float64]
 MAD_TO_SIGMA: Final = 1.4826
@@ -152,14 +154,16 @@ def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:
     if surface is not None and ps.dem_control.any():
         _, hs = surface.heights(x0[ps.dem_control] + origin)
         off = ~np.isfinite(hs)
-        notes.add(int(off.sum()), "tie points off the DEM: no surface control for them")
+        notes.add(int(off.sum()), "tie points off the DEM: no surface control for them",
+                  ps.ids[ps.dem_control][off].tolist())
         dem_ctl = ps.dem_control.copy()
         dem_ctl[np.flatnonzero(ps.dem_control)[off]] = False
         ps = replace(ps, dem_control=dem_ctl)
     problem = Problem(model, layout, ps, surface, opt.dem_sigma_m)
     c_obs = obs.select(in_chk & np.isin(obs.segment, segments))
-    notes.add(int((in_chk & ~np.isin(obs.segment, segments)).sum()),
-              "check observations in a segment without control: not checked")
+    unchecked = in_chk & ~np.isin(obs.segment, segments)
+    notes.add(int(unchecked.sum()), "check observations in a segment without control: not "
+              "checked", observation_names(obs, unchecked))
     check = None
     if len(c_obs):
         cgeom = line_geometry(c_obs, inp.clock, np.zeros(len(c_obs), np.int64),
@@ -238,17 +242,28 @@ def adjust(adj: Adjustment, opt: CalibrationOptions) -> tuple[Solution, list[dic
 
 
 def calibrated_sensor(sensor: SensorModel, st: State) -> SensorModel:
-    """The sensor file with the estimated values (antenna offset = file's + Δg)."""
+    """The sensor file with the estimated values (antenna offset = file's + Δg), checked as a
+    sensor file is read: an adjustment gone astray (a boresight beyond 180°, a focal length
+    below zero) is an error naming the value, not a file `sisa georef` would refuse."""
     g = np.asarray(sensor.mounting.antenna_offset_m) + st.antenna_delta_m
-    mounting = Mounting(lever_arm_m=sensor.mounting.lever_arm_m,
-                        antenna_offset_m=(float(g[0]), float(g[1]), float(g[2])),
-                        boresight_arcsec=tuple(float(a) for a in st.boresight_arcsec))
-    scanner = sensor.scanner.model_copy(update={
-        "delta_focal_mm": float(st.selfcal[0]),
-        "delta_principal_point_um": (float(st.selfcal[1]), float(st.selfcal[2]))})
-    name = sensor.name if sensor.name.endswith("(calibrated)") else f"{sensor.name} (calibrated)"
-    return SensorModel(name=name, time_delay_ms=float(st.delay_ms), scanner=scanner,
-                       mounting=mounting)
+    table = sensor.model_dump(mode="json")
+    table["mounting"].update(antenna_offset_m=[float(v) for v in g],
+                             boresight_arcsec=[float(a) for a in st.boresight_arcsec])
+    table["scanner"].update(delta_focal_mm=float(st.selfcal[0]),
+                            delta_principal_point_um=[float(st.selfcal[1]),
+                                                      float(st.selfcal[2])])
+    table["time_delay_ms"] = float(st.delay_ms)
+    if not sensor.name.endswith(CALIBRATED_SUFFIX):
+        table["name"] = sensor.name + CALIBRATED_SUFFIX
+    try:
+        return SensorModel.model_validate(table)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise InputError(f"the adjustment's {toml_location(err['loc'])} = "
+                         f"{shown_value(err.get('input'))} is no sensor's "
+                         f"({str(err['msg']).removeprefix('Value error, ')}): it did not "
+                         "converge to a plausible sensor; look for blunders among the "
+                         "observations, or leave that group out of --estimate") from None
 
 
 def calibrate(inp: CalibrationInput, opt: CalibrationOptions | None = None

@@ -264,3 +264,80 @@ def test_a_dem_beside_the_flight_leaves_no_check_point_and_valid_json(
     text = (out / "calibration.json").read_text()
     assert "NaN" not in text
     assert json.loads(text)["check_points"]["rms_along_m"] is None
+
+
+def test_left_out_measurements_are_warnings_on_stderr(cal: Path, run: Path,
+                                                      capsys: pytest.CaptureFixture[str]
+                                                      ) -> None:
+    """Rows off the image, on an untimed line or in a segment the log lacks were dropped with
+    only a note in calibration.json: exit 0 and nothing said."""
+    from postproc.calib_data import read_observations
+
+    obs = read_observations(cal / "observations.csv")
+    taken = set(zip(obs.point_id.tolist(), obs.segment.tolist(), strict=True))
+    segments = sorted(set(obs.segment.tolist()))
+    ctl = sorted({i for i in obs.point_id.tolist() if i.startswith("C")})
+    free = [(i, s) for i in ctl for s in segments if (i, s) not in taken]
+    (i1, s1), (i2, s2) = free[:2]
+    path = run.parent / "obs-off.csv"
+    path.write_text((cal / "observations.csv").read_text()
+                    + f"{i1},{s1},99999,100,0.3\n{i2},{s2},-5,100,0.3\n{ctl[0]},7,10,100,0.3\n")
+    out = run.parent / "cal-off"
+    assert main(["calibrate", str(run), "--out", str(out), "--obs", str(path), "--gcp",
+                 str(cal / "points.csv"), "--gcp-sigma-m", "0.05,0.05"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert (f"sisa calibrate: warning: 2 observations on an untimed line or off the image: "
+            f"left out ({i1} in segment {s1} at line 99999, {i2} in segment {s2} at line -5)"
+            in err)
+    assert (f"sisa calibrate: warning: 1 observations in a segment the recording does not have "
+            f"({ctl[0]} in segment 7 at line 10)" in err)
+    assert all(line.startswith("sisa calibrate: warning: ") for line in err)
+    assert len(json.loads((out / "calibration.json").read_text())["notes"]) == len(err)
+
+
+@pytest.mark.parametrize(("option", "expected"), [
+    (["--noise-px", "1e300"], "--noise-px 1e+300: must be 0 to 1 (pixels: 3σ must stay within"),
+    (["--noise-px", "-0.1"], "--noise-px -0.1: must be 0 to 1"),
+    (["--gcp-sigma-m", "1e-300,0.5"], "--gcp-sigma-m 1e-300: must be 0.001 to 100"),
+    (["--gcp-sigma-m", "0.5,1e300"], "--gcp-sigma-m 1e+300: must be 0.001 to 100"),
+    (["--dem-sigma-m", "1e300"], "--dem-sigma-m 1e+300: must be 0.001 to 1000"),
+    (["--prior-attitude-arcsec", "1e-300"], "--prior-attitude-arcsec 1e-300: must be 0 (no "
+     "prior) or ≥ 0.001"),
+    (["--sweep-delay-ms", "1e300"], "--sweep-delay-ms 1e+300: must be ±5 to ±1000"),
+    (["--sweep-delay-ms", "0"], "--sweep-delay-ms 0: must be ±5 to ±1000"),
+    (["--sim-delay-ms=-1e300"], "--sim-delay-ms -1e+300: must be within ±1000"),
+    (["--sim-gcp-noise-m", "1e300,0"], "--sim-gcp-noise-m 1e+300: must be 0 to 100"),
+])
+def test_options_out_of_range_are_one_line_errors(run: Path, capsys: pytest.CaptureFixture[str],
+                                                  option: list[str], expected: str) -> None:
+    """Each was a traceback (sweep 1e300: numpy's array size; prior 1e-300: eigenvalues;
+    sim delay 1e300: int overflow), numpy warnings, or an error blaming the sensor file in a
+    300-digit pixel number (--noise-px 1e300)."""
+    out = run.parent / "bad-option"
+    assert main(["calibrate", str(run), "--out", str(out), *option]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert err.startswith(f"sisa calibrate: error: {expected}"), err
+    assert "\n" not in err
+    assert len(err) < 300
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("# EPSG:99999\nid,kind,easting_m,northing_m,height_m\nC001,control,416959.6,4605321.6,"
+     "271.4\n", "g.csv: EPSG:99999 (from its # comment) is not a known CRS"),
+    ("id,kind,lat_deg,lon_deg,height_m\nC001,control,41.6,2.0,271.4\nC002,check,41.6,2.0,"
+     "1e300\n", "g.csv: column height_m, row 2: 1e+300 is outside -1000..9000"),
+])
+def test_bad_ground_points_are_one_line_errors(run: Path, capsys: pytest.CaptureFixture[str],
+                                               text: str, expected: str) -> None:
+    """An unknown EPSG was pyproj's CRSError traceback; a point at height 1e300 was left out
+    with nothing said."""
+    (run.parent / "g.csv").write_text(text)
+    out = run.parent / "bad-gcp"
+    assert main(["calibrate", str(run), "--out", str(out), "--gcp",
+                 str(run.parent / "g.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"sisa calibrate: error: {run.parent / expected}"), err
+    assert "\n" not in err
+    assert not out.exists()

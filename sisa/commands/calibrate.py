@@ -29,9 +29,9 @@ import argparse
 import math
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
-from sisa.commands import SubParsers, add_command, check_seed, flight_parts
+from sisa.commands import SubParsers, add_command, check_seed, flight_parts, say_warning
 from sisa.errors import InputError
 from sisa.outdir import staged_output_dir
 
@@ -39,6 +39,15 @@ if TYPE_CHECKING:
     from postproc.calib_data import GroundPoints, ImageObservations
     from postproc.calibrate import CalibrationInput, CalibrationOptions, CalibrationResult
     from postproc.sensorfile import SensorModel
+
+
+# What the numeric options may be; outside, a one-line error says why.
+GCP_SIGMA_M_RANGE: Final = (1e-3, 100.0)  # < 1 mm overflows the weights; > 100 m is no control
+DEM_SIGMA_M_RANGE: Final = (1e-3, 1000.0)  # likewise for a DEM height
+PRIOR_MIN: Final = 1e-3  # µm or arcsec: a tighter prior holds the value; leave its group out
+SWEEP_SPAN_MS: Final = (5.0, 1000.0)  # ≥ 3 trial delays (5 ms steps); each is one adjustment
+SIM_DELAY_MS_MAX: Final = 1000.0  # a scanner's delay is milliseconds; 1 s is ~70 m of flight
+SIM_GCP_NOISE_M_MAX: Final = 100.0  # a survey error beyond 100 m makes the points other places
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -100,7 +109,8 @@ def _add_weights(parser: argparse.ArgumentParser) -> None:
 
 def _add_simulation(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("simulated measurements (run folder, no --obs)")
-    g.add_argument("--noise-px", type=float, default=0.3, help="σ of the measurements (0.3)")
+    g.add_argument("--noise-px", type=float, default=0.3,
+                   help="σ of the measurements, pixels (0.3; at most 1)")
     g.add_argument("--tie-points", type=int, default=0, metavar="N",
                    help="tie points in strip overlaps (default 0)")
     g.add_argument("--max-views", type=int, default=2, help="segments a point is measured in")
@@ -113,6 +123,16 @@ def _add_simulation(parser: argparse.ArgumentParser) -> None:
                    help="survey error added to control/check coordinates (default 0,0)")
     g.add_argument("--blunders", type=int, default=0, help="gross errors to inject (default 0)")
     g.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+
+
+def _within(flag: str, value: float, limits: tuple[float, float], why: str,
+            either_sign: bool = False) -> None:
+    """InputError unless lo ≤ value ≤ hi (|value|, either_sign)."""
+    lo, hi = limits
+    if not lo <= (abs(value) if either_sign else value) <= hi:
+        span = f"±{lo:g} to ±{hi:g}" if either_sign and lo > 0 else (
+            f"within ±{hi:g}" if either_sign else f"{lo:g} to {hi:g}")
+        raise InputError(f"{flag} {value:g}: must be {span} ({why})")
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -186,19 +206,51 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
     from postproc.calibrate import CalibrationOptions
 
     for flag in ("--prior-x0-um", "--prior-y0-um", "--prior-attitude-arcsec"):
-        if getattr(args, flag[2:].replace("-", "_")) < 0:  # it meant "none", silently
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value < 0:  # it meant "none", silently
             raise InputError(f"{flag} must be ≥ 0 (0: no prior)")
+        if 0 < value < PRIOR_MIN:  # the eigen-solver failed on 1e-300
+            raise InputError(f"{flag} {value:g}: must be 0 (no prior) or ≥ {PRIOR_MIN:g} (a "
+                             "tighter prior holds the value: leave its group out of --estimate)")
+    gcp_sigma_m = _pair(args.gcp_sigma_m, "--gcp-sigma-m")
+    for v in gcp_sigma_m:
+        _within("--gcp-sigma-m", v, GCP_SIGMA_M_RANGE, "metres: below 1 mm the weights "
+                "overflow, above 100 m a point is no control")
+    _within("--dem-sigma-m", args.dem_sigma_m, DEM_SIGMA_M_RANGE, "metres")
+    if args.sweep_delay_ms is not None:
+        _within("--sweep-delay-ms", args.sweep_delay_ms, SWEEP_SPAN_MS, "ms either side: the "
+                "sweep needs three 5 ms steps, and each is an adjustment", either_sign=True)
 
     def prior(v: float) -> float | None:
         return v if v > 0 else None
 
     return CalibrationOptions(
-        groups=parse_groups(args.estimate), gcp_sigma_m=_pair(args.gcp_sigma_m, "--gcp-sigma-m"),
+        groups=parse_groups(args.estimate), gcp_sigma_m=gcp_sigma_m,
         dem_sigma_m=args.dem_sigma_m, snooping_k=args.snooping_k,
         check_heights=args.check_heights,
         priors=PriorSigmas(principal_point_x_um=prior(args.prior_x0_um),
                            principal_point_y_um=prior(args.prior_y0_um),
                            attitude_arcsec=prior(args.prior_attitude_arcsec)))
+
+
+def _check_simulation(args: argparse.Namespace) -> None:
+    """The simulation options, checked with the others (before any work). --noise-px at most
+    a third of the margin past the detector's ends that calibration allows (3σ stays inside):
+    1e300 was blamed on the sensor file in a 300-digit pixel number."""
+    from postproc.calib_setup import SENSOR_FIT_MARGIN_PX
+
+    check_seed(args.seed)
+    if (args.tie_points < 0 or args.blunders < 0 or args.max_views < 1
+            or args.single_view_control < 0):
+        raise InputError("--tie-points, --blunders and --single-view-control must be ≥ 0, "
+                         "--max-views ≥ 1")
+    _within("--noise-px", args.noise_px, (0.0, SENSOR_FIT_MARGIN_PX / 3.0),
+            f"pixels: 3σ must stay within the {SENSOR_FIT_MARGIN_PX:g} px past the detector's "
+            "ends that the sensor check allows")
+    _within("--sim-delay-ms", args.sim_delay_ms, (0.0, SIM_DELAY_MS_MAX),
+            "a scanner's delay is milliseconds", either_sign=True)
+    for v in _pair(args.sim_gcp_noise_m, "--sim-gcp-noise-m"):
+        _within("--sim-gcp-noise-m", v, (0.0, SIM_GCP_NOISE_M_MAX), "metres")
 
 
 def _observations(args: argparse.Namespace, points: GroundPoints
@@ -212,11 +264,6 @@ def _observations(args: argparse.Namespace, points: GroundPoints
         raise InputError("a flight log needs --obs (image measurements of the ground points)")
     from sisa.gcpsim import SimSettings, simulate_observations
 
-    check_seed(args.seed)
-    if (args.noise_px < 0 or args.tie_points < 0 or args.blunders < 0 or args.max_views < 1
-            or args.single_view_control < 0):
-        raise InputError("--noise-px, --tie-points, --blunders and --single-view-control must "
-                         "be ≥ 0, --max-views ≥ 1")
     settings = SimSettings(noise_px=args.noise_px, max_views=args.max_views,
                            single_view_control=args.single_view_control,
                            tie_points=args.tie_points, delay_ms=args.sim_delay_ms,
@@ -384,10 +431,13 @@ def _run(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     opt = _options(args)
+    _check_simulation(args)
     runs = _several_runs(args)
     with staged_output_dir(args.out) as out:
         inp, info = build_input(args) if runs is None else build_joint_input(args, runs)
         res = calibrate(inp, opt)
+        for note in res.notes:  # in calibration.json alone, a dropped row went unnoticed
+            say_warning(args.command, note)
         if args.sweep_delay_ms is not None:
             span = abs(args.sweep_delay_ms)
             info["delay_sweep"] = sweep_delay(inp, opt, np.arange(-span, span + 1e-9, 5.0))

@@ -11,6 +11,7 @@ that to mean something.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -556,7 +557,7 @@ def test_ground_points_and_observations_files(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="kind 'survey'"):
         read_ground_points(gp)
     gp.write_text("id,kind,lat_deg,lon_deg,height_m\nA,control,42.0,x,1.0\n")
-    with pytest.raises(InputError, match="lon_deg holds a value that is not a number"):
+    with pytest.raises(InputError, match="column lon_deg, row 1: 'x' is not a number"):
         read_ground_points(gp)
     obs = ImageObservations(np.array(["A", "B"]), np.array([0, 3]), np.array([1.25, 7.5]),
                             np.array([100.125, 3.5]), np.array([0.3, 0.5]))
@@ -570,8 +571,22 @@ def test_ground_points_and_observations_files(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="no column 'sigma_px'"):
         read_observations(path)
     path.write_text("id,segment,line,pixel,sigma_px\nA,0,1,2,0\n")
-    with pytest.raises(InputError, match="sigma_px must be > 0"):
+    with pytest.raises(InputError, match="column sigma_px, row 1: 0 is outside"):
         read_observations(path)
+
+
+def test_weights_beyond_double_precision_are_one_line_errors(plain: Scene) -> None:
+    """σ = 1e-300 (past the file reader's floor) made the normal equations overflow: numpy
+    RuntimeWarnings, then 'not determined', which blamed the points."""
+    obs = plain.obs
+    tiny = ImageObservations(obs.point_id, obs.segment, obs.line, obs.pixel,
+                             np.full(len(obs), 1e-300))
+    inp = CalibrationInput(NavTrajectory(plain.block), plain.clock, plain.points, tiny,
+                           nominal_sensor())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match="the normal equations overflow: a stated σ"):
+            calibrate(inp, CalibrationOptions(groups=parse_groups("boresight")))
 
 
 def test_a_sensor_file_for_another_scanner_is_refused(plain: Scene) -> None:

@@ -274,7 +274,7 @@ def test_space_pauses_and_resumes_and_q_stops(tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["missing.mcap"], "no such file"),
     (["notmcap.mcap"], "not an MCAP file"),
-    (["kb.mcap", "--rate", "0"], "--rate must be positive"),
+    (["kb.mcap", "--rate", "0"], "--rate 0: at least 0.001"),
     (["kb.mcap", "--rate", "nan"], "--rate nan: must be a finite number"),
     (["kb.mcap", "--start", "30"], "beyond the end of the log"),
     (["noraw.mcap"], "no raw channel to replay"),

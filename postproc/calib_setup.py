@@ -26,6 +26,7 @@ from postproc.calib_surface import GivenHeights, Surface, intersect_rays
 from postproc.navigation import Trajectory, ecef_to_geodetic
 from postproc.sensorfile import SensorModel
 from sisa.errors import InputError
+from sisa.sensor import shown_value
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -33,8 +34,6 @@ Bool = npt.NDArray[np.bool_]
 
 HEIGHT_ONLY_SIGMA_M = 1e9  # a check point's horizontal "observation": no weight at all
 SENSOR_FIT_MARGIN_PX = 3.0  # measurements this far past the detector's ends are noise
-
-
 NOTE_EXAMPLES = 3  # items a note names; the count says how many more there are
 
 
@@ -166,4 +165,5 @@ def check_sensor_fits(sensor: SensorModel, obs: ImageObservations,
     if off.any():
         k = int(np.argmax(off))
         raise InputError(f"observation of {obs.point_id[k]} at pixel {obs.pixel[k]:g}, but the "
-                         f"sensor file '{sensor.name}' has {px} pixels: wrong sensor file?")
+                         f"sensor file {shown_value(sensor.name)} has {px} pixels: wrong sensor "
+                         "file?")

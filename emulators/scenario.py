@@ -29,8 +29,7 @@ from sisa.sensor import (
     StrictModel,
     first_non_finite,
     one_line_text_problem,
-    shown_value,
-    toml_location,
+    validation_text,
 )
 from sisa.timescale import parse_gps_datetime
 
@@ -531,18 +530,6 @@ def _preset_table(name: str) -> dict[str, Any]:
     return tomllib.loads(text)
 
 
-def _format_validation_error(source: str, exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    loc = toml_location(err["loc"])
-    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
-    if err["type"] == "extra_forbidden":
-        return f"{source}: unknown field {loc!r}{more}"  # repr: a key may hold a newline
-    msg = err["msg"].removeprefix("Value error, ")
-    got = err.get("input")
-    shown = "" if isinstance(got, dict) else f" (got {shown_value(got)})"
-    return f"{source}: {loc + ': ' if loc else ''}{msg}{shown}{more}"
-
-
 def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scenario:
     """Validate a TOML-shaped table, resolving `base = PRESET` first."""
     table = dict(table)
@@ -554,7 +541,7 @@ def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scen
     try:
         return Scenario.model_validate(table)
     except ValidationError as exc:
-        raise ConfigError(_format_validation_error(source, exc)) from None
+        raise ConfigError(f"{source}: {validation_text(exc)}") from None
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:

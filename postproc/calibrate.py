@@ -61,7 +61,7 @@ from postproc.dem import Dem
 from postproc.navigation import Trajectory
 from postproc.sensorfile import CALIBRATED_SUFFIX, SensorModel
 from sisa.errors import ConfigError, InputError
-from sisa.sensor import shown_value, toml_location
+from sisa.sensor import validation_text
 
 F64 = npt.NDArray[np.float64]
 MAD_TO_SIGMA: Final = 1.4826
@@ -258,11 +258,8 @@ def calibrated_sensor(sensor: SensorModel, st: State) -> SensorModel:
     try:
         return SensorModel.model_validate(table)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        raise InputError(f"the adjustment's {toml_location(err['loc'])} = "
-                         f"{shown_value(err.get('input'))} is no sensor's "
-                         f"({str(err['msg']).removeprefix('Value error, ')}): it did not "
-                         "converge to a plausible sensor; look for blunders among the "
+        raise InputError(f"the adjustment's sensor is no sensor: {validation_text(exc)}: it "
+                         "did not converge to a plausible sensor; look for blunders among the "
                          "observations, or leave that group out of --estimate") from None
 
 

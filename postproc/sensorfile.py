@@ -19,7 +19,6 @@ fall back to a default.
 
 from __future__ import annotations
 
-import math
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -35,7 +34,7 @@ from sisa.sensor import (
     first_non_finite,
     one_line_text_problem,
     shown_value,
-    toml_location,
+    validation_text,
 )
 
 # A name is a label for messages and reports: one line, and short enough to read in them.
@@ -43,8 +42,6 @@ from sisa.sensor import (
 # limit must still take (postproc.calibrate.calibrated_sensor).
 MAX_NAME_CHARS = 200
 CALIBRATED_SUFFIX = " (calibrated)"
-# pydantic's range errors: NaN fails every bound, and says so as "should be less than ..."
-_BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
 
 
 class SensorModel(StrictModel):
@@ -85,17 +82,7 @@ class SensorModel(StrictModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            where = toml_location(err["loc"])
-            if "\n" in where:  # a quoted TOML key may hold a newline: keep the error one line
-                where = repr(where)
-            msg = str(err["msg"]).removeprefix("Value error, ")
-            got = err.get("input")
-            if err["type"] in _BOUND_ERRORS and isinstance(got, float) and not math.isfinite(got):
-                msg = "must be a finite number (not NaN or infinity)"
-            elif isinstance(got, int | float) and not isinstance(got, bool):
-                msg += f" (got {shown_value(got)})"
-            raise InputError(f"{path}: {where}: {msg}" if where else f"{path}: {msg}") from None
+            raise InputError(f"{path}: {validation_text(exc)}") from None
 
     def to_toml(self) -> str:
         return tomli_w.dumps(self.model_dump(mode="json"))

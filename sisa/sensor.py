@@ -20,7 +20,7 @@ from typing import Annotated, Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 ARCSEC_RAD = np.pi / (180.0 * 3600.0)
 R_NOMINAL_C_TO_B = np.diag([1.0, -1.0, -1.0])
@@ -145,6 +145,29 @@ def first_non_finite(value: Any, where: str = "") -> str | None:
     else:
         return None
     return next((bad for name, v in children if (bad := first_non_finite(v, name))), None)
+
+
+# pydantic's range errors: NaN fails every bound, and says so as "should be less than ..."
+_BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
+
+
+def validation_text(exc: ValidationError) -> str:
+    """A configuration's first problem in one line: the field as the TOML spells it, what is
+    wrong, the value given, and how many more problems there are."""
+    err = exc.errors()[0]
+    where = toml_location(err["loc"])
+    if "\n" in where:  # a quoted TOML key may hold a newline: keep the message one line
+        where = repr(where)
+    more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
+    if err["type"] == "extra_forbidden":
+        return f"unknown field {where!r}{more}"
+    msg = str(err["msg"]).removeprefix("Value error, ")
+    got = err.get("input")
+    if err["type"] in _BOUND_ERRORS and isinstance(got, float) and not math.isfinite(got):
+        msg = "must be a finite number (not NaN or infinity)"
+    elif not isinstance(got, dict):
+        msg += f" (got {shown_value(got)})"
+    return f"{where}: {msg}{more}" if where else f"{msg}{more}"
 
 
 def toml_location(loc: tuple[int | str, ...]) -> str:

@@ -164,8 +164,9 @@ def test_an_adjustment_gone_astray_is_no_sensor_file() -> None:
     assert good.mounting.antenna_offset_m == (0.1, 0.0, -1.5)
     assert calibrated_sensor(good, st).name == "CASI (calibrated)"
     st.boresight_arcsec[0] = 7e6
-    with pytest.raises(InputError, match=r"^the adjustment's mounting\.boresight_arcsec\[0\] = "
-                                         r"7000000 is no sensor's .*did not converge"):
+    with pytest.raises(InputError, match=r"^the adjustment's sensor is no sensor: "
+                                         r"mounting\.boresight_arcsec\[0\]: .*\(got 7000000\)"
+                                         r": it did not converge"):
         calibrated_sensor(sensor, st)
     st.boresight_arcsec[0] = 0.0
     st.selfcal[0] = -9.5  # f = 9.33 mm: the effective focal length below zero

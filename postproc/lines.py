@@ -85,11 +85,17 @@ def unwrap_headers(hdr: HeaderColumns, modulus: int, period_s: float) -> I64:
 
 
 def header_period_s(hdr: HeaderColumns, modulus: int) -> float:
-    """Median host-time interval of headers one frame apart (coarse: host jitter)."""
+    """Host-time interval of headers one frame apart (coarse: host jitter): their median, or
+    their mean when a read holds several headers (a line period below the recorder's read
+    clock: most intervals are 0, and a 0 period divided the wrap count by zero)."""
     same = hdr.segment[1:] == hdr.segment[:-1]
     one = same & (_steps(hdr.frame_counter, modulus) == 1)
     dt = np.diff(hdr.t_host_ns)[one]
-    return float(np.median(dt)) * 1e-9 if dt.size else 1.0
+    if dt.size == 0:
+        return 1.0
+    median_ns = float(np.median(dt))
+    mean_ns = float(dt.mean())
+    return (median_ns if median_ns > 0 else mean_ns if mean_ns > 0 else 1e9) * 1e-9
 
 
 def place_forwards(pulses: SisaPulses, hdr: HeaderColumns, u_hdr: I64, hdr_gps_ns: I64,

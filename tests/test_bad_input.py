@@ -113,6 +113,9 @@ IN_PROCESS = [
     _case("process {d}/folder", "{d}/folder", "not a run folder"),
     _case("process {d}/missing", "{d}/missing", "not a run folder"),
     _case("process {d}/notes.txt", "{d}/notes.txt", "not a run folder"),
+    # a run of `simulate --no-images` (here: a folder with a log only) said "no such scanner
+    # folder" (found by a bad-input sweep)
+    _case("process {d}", "{d}: no scanner/ folder", "--no-images"),
 ]
 
 IN_A_CHILD = [  # what changes the process (signal handlers, switch interval) runs apart

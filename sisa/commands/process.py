@@ -99,6 +99,10 @@ def _run(args: argparse.Namespace) -> int:
     if not (run / "flight.mcap").is_file():
         raise InputError(f"{run}: not a run folder of `sisa simulate` or `sisa bench` (no "
                          "flight.mcap)")
+    if not (run / "scanner").is_dir():
+        raise InputError(f"{run}: no scanner/ folder, so no image to georeference (a run of "
+                         "`sisa simulate --no-images`? `sisa sync` times its lines without "
+                         "images)")
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),

@@ -531,8 +531,12 @@ def _preset_table(name: str) -> dict[str, Any]:
 
 
 def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scenario:
-    """Validate a TOML-shaped table, resolving `base = PRESET` first."""
+    """Validate a TOML-shaped table, resolving `base = PRESET` first. A `[derived]` table (the
+    figures `sisa scenario show` prints after the settings) is output, not settings: left out,
+    so that the printed scenario can be saved and flown again."""
     table = dict(table)
+    if isinstance(table.get("derived"), dict):
+        del table["derived"]
     base = table.pop("base", None)
     if base is not None:
         if base not in PRESETS:

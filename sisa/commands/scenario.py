@@ -95,7 +95,8 @@ def _show(args: argparse.Namespace) -> int:
     derived = derived_figures(scn)
     print(f"# resolved scenario: {args.scenario}")
     print(scenario_toml(scn))
-    print("# derived figures (flat terrain at the mean height; planning uses the nominal focal)")
+    print("# derived figures (flat terrain at the mean height; planning uses the nominal focal;"
+          " computed from the settings above, not read back: edit the settings)")
     for note in _notes(scn, derived):
         print(f"# note: {note}")
     print(tomli_w.dumps({"derived": derived}), end="")

@@ -129,6 +129,20 @@ def test_show_bench_is_short(capsys):
     assert table["derived"]["flight_duration_s"] <= 600
 
 
+@pytest.mark.parametrize("name", ["bench", "garrotxa", "bellmunt"])
+def test_a_shown_scenario_is_a_scenario_file_of_the_same_flight(name, tmp_path, capsys):
+    """`sisa scenario show X > my.toml`, edited and flown, is what users do: its [derived]
+    figures made the file 'unknown field derived' (found by a bad-input sweep)."""
+    from emulators.scenario import load_scenario
+
+    _, out = _show(name, capsys)
+    saved = tmp_path / "mine.toml"
+    saved.write_text(out, encoding="utf-8")
+    assert load_scenario(saved) == load_scenario(name)
+    assert main(["scenario", "show", str(saved)]) == 0
+    assert capsys.readouterr().out.split("\n", 1)[1] == out.split("\n", 1)[1]
+
+
 def test_truth_writes_a_whole_run_and_never_overwrites(tmp_path, capsys):
     import rasterio
 

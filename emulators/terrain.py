@@ -972,6 +972,32 @@ class _Spacing:
 _Sampler = Callable[[int], tuple[F64, F64]]
 
 
+def _target_reach_m(scn: Scenario) -> float:
+    """From a ground point to its target's farthest corner."""
+    return TARGET_SQUARE_HALF * _marker_unit_m(scn) * math.sqrt(2.0)
+
+
+def _point_inset_m(scn: Scenario) -> float:
+    """How far inside the block's edge a ground point must lie: its target, and a margin from
+    the swath's edge."""
+    return 0.05 * block_figures(scn).swath_width_m + _target_reach_m(scn)
+
+
+def ground_point_room_problem(scn: Scenario) -> str | None:
+    """Why the block has no room for the scenario's ground points (None: it has, or it asks
+    for none)."""
+    if scn.terrain.control_points + scn.terrain.check_points == 0:
+        return None
+    fig = block_figures(scn)
+    inset_m = _point_inset_m(scn)
+    if fig.block_length_m > 2.0 * inset_m and fig.block_width_m > 2.0 * inset_m:
+        return None
+    return (f"terrain: ground points need {2 * inset_m:.0f} m of margin (their targets and the "
+            f"swath's edge) but the block is {fig.block_length_m:.0f} x "
+            f"{fig.block_width_m:.0f} m: use a finer terrain.texture_cell_m, a larger block, or "
+            "no control and check points")
+
+
 class _Placer:
     """Draws candidate points in the block frame (u along the first strip heading, v to its
     right, origin at the block centre) and keeps those imaged often enough and far enough
@@ -989,18 +1015,13 @@ class _Placer:
         self.terrain = terrain
         self.rng = rng
         self.cover = _StripCover.from_scenario(scn)
-        unit = _marker_unit_m(scn)
-        target_m = TARGET_SQUARE_HALF * unit * math.sqrt(2.0)
-        self.inset_m = 0.05 * fig.swath_width_m + target_m
+        self.inset_m = _point_inset_m(scn)
         self.band_m = 0.3 * fig.swath_width_m
         self.half_u = fig.block_length_m / 2.0 - self.inset_m
         self.half_v = fig.block_width_m / 2.0 - self.inset_m
-        if self.half_u <= 0 or self.half_v <= 0:
-            raise ConfigError(f"terrain: ground points need {2 * self.inset_m:.0f} m of margin "
-                              f"(their targets, {target_m:.0f} m, and the swath's edge) but the "
-                              f"block is {fig.block_length_m:.0f} x {fig.block_width_m:.0f} m: "
-                              "use a finer terrain.texture_cell_m or a larger block")
-        self.spacing = _Spacing(3.0 * target_m)
+        if (problem := ground_point_room_problem(scn)) is not None:
+            raise ConfigError(problem)
+        self.spacing = _Spacing(3.0 * _target_reach_m(scn))
         self.overlap = 2 if len(strip_lines(scn)) > 1 else 1
 
     def ring(self, m: int) -> tuple[F64, F64]:
@@ -1067,9 +1088,11 @@ def ground_points(scn: Scenario, terrain: Terrain) -> npt.NDArray[np.void]:
     """Control points ('C001'…) mostly along the block borders, the rest inside it where strips
     overlap, and check points ('K001'…) spread uniformly over the block (seed 000 §6). Every
     point lies inside at least one strip's swath and carries its DEM height (ellipsoidal)."""
+    n_ctrl, n_chk = scn.terrain.control_points, scn.terrain.check_points
+    if n_ctrl + n_chk == 0:  # a block too small for points can still be flown without them
+        return np.zeros(0, GROUND_POINT_DTYPE)
     rng = np.random.default_rng([scn.seed, _TAG_POINTS])
     placer = _Placer(scn, terrain, rng)
-    n_ctrl, n_chk = scn.terrain.control_points, scn.terrain.check_points
     n_border = round(n_ctrl * CONTROL_BORDER_FRACTION)
     parts = [placer.place(n_border, placer.ring, 1, "border control"),
              placer.place(n_ctrl - n_border, placer.inner, placer.overlap, "inner control"),

@@ -67,6 +67,8 @@ def derived_figures(scn: Any) -> dict[str, Any]:
 
 
 def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
+    from emulators.terrain import ground_point_room_problem
+
     notes = []
     across, along = derived["gsd_across_nadir_m"], derived["line_spacing_along_m"]
     if abs(along / across - 1.0) > 0.10:
@@ -85,6 +87,8 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
                      "ms after its frame ends (scanner.header_latency_ms + "
                      "sisa.read_interval_ms), past the end of sisa.header_window_ms: such "
                      "headers are not tied to their pulses")
+    if (problem := ground_point_room_problem(scn)) is not None:
+        notes.append(f"{problem} (sisa truth and sisa simulate refuse this scenario)")
     return notes
 
 

@@ -334,3 +334,21 @@ def test_own_warnings_are_one_line_and_others_keep_their_form(
     err = capsys.readouterr().err
     assert "/x/lib.py:7: RuntimeWarning: overflow" in err
     assert "f()" in err
+
+
+def test_a_block_too_small_for_ground_points_is_said_and_flies_without_them(tmp_path, capsys):
+    """A 50 m strip has no room for ground points: `scenario show` took it without a word and
+    `truth` refused it even with no points asked for (found by a bad-input sweep)."""
+    small = tmp_path / "small.toml"
+    small.write_text('base = "bench"\n[block]\nstrip_length_m = 50.0\n', encoding="utf-8")
+    _, out = _show(str(small), capsys)
+    assert "# note: terrain: ground points need 81 m of margin" in out
+    assert "(sisa truth and sisa simulate refuse this scenario)" in out
+    assert main(["truth", "--scenario", str(small), "--out", str(tmp_path / "refused")]) == 2
+    assert "ground points need 81 m of margin" in capsys.readouterr().err
+    small.write_text(small.read_text() + "[terrain]\ncontrol_points = 0\ncheck_points = 0\n",
+                     encoding="utf-8")
+    _, out = _show(str(small), capsys)
+    assert "# note: terrain" not in out
+    assert main(["truth", "--scenario", str(small), "--out", str(tmp_path / "run")]) == 0
+    assert "0 ground points" in capsys.readouterr().out

@@ -41,8 +41,10 @@ import struct
 import warnings
 import zlib
 from array import array
+from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 from pathlib import Path
 from typing import Any, BinaryIO, Final, TypeVar
 
@@ -69,11 +71,13 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import (
     MESSAGE_ENCODING,
+    METADATA_NAME,
     SCHEMA_BYTES,
     SCHEMA_ENCODING,
     SCHEMAS,
     TOPIC_SCHEMAS,
     TOPIC_TYPES,
+    part_path,
 )
 from sisa.errors import DecodeError, InputError
 
@@ -104,6 +108,13 @@ _COMPRESSIONS: Final = frozenset({b"", b"lz4", b"zstd"})
 _CHUNK_PEEK: Final = _RECORD_HEAD + _CHUNK_FIXED + 4  # enough of a chunk to judge its framing
 _SCAN_BLOCK: Final = 2**20
 _DECLARATION_MAX: Final = 2**16  # the longest Schema or Channel record salvaged from damage
+_METADATA_MAX: Final = 2**20  # the longest metadata record read to place a part in its recording
+_HEAD_RECORDS: Final = 64  # records looked at before the first chunk for the part's metadata
+# how far a part recorded without a recording id may reach back before the previous part's last
+# message: threads stamp their messages before they take the recorder's lock, so the first
+# messages of a part can be older than the last of the one before by that wait (a slow disk)
+PART_OVERLAP_TOLERANCE_NS: Final = 2_000_000_000
+_NAMES_SHOWN: Final = 4  # missing parts named in a note; more are elided
 
 PathArg = Path | str
 Paths = PathArg | Sequence[PathArg]
@@ -186,6 +197,11 @@ class DamagedLogWarning(UserWarning):
     read, and post-processing goes on with it."""
 
 
+class MissingPartWarning(UserWarning):
+    """A split recording is read without some of its parts (one not given, or deleted): what
+    they held is missing, and post-processing goes on with the rest."""
+
+
 def damage_notes(fs: FileStats) -> list[str]:
     """What a pass could not read of one file, in words (nothing for a sound file)."""
     notes = []
@@ -212,6 +228,7 @@ class LogStats:
     files: list[FileStats] = field(default_factory=list)
     topics: dict[str, TopicStats] = field(default_factory=dict)
     undecodable: int = 0
+    part_notes: list[str] = field(default_factory=list)  # parts of the recording not given
 
     @property
     def messages(self) -> int:
@@ -334,6 +351,165 @@ def first_data_key(path: Path) -> bytes | None:
     return None
 
 
+# --- the parts of a split recording -------------------------------------------------------------
+
+def recording_metadata(path: Path) -> dict[str, str]:
+    """A log's `sisa.recording` metadata ({} if it has none, or is no MCAP): from the records
+    before its first chunk, where the recorder writes it (so a part cut short has it too), else
+    through the summary's metadata index (a recovered copy has it at its end). A damaged length
+    ends the look: the reader says what is wrong with the file."""
+    try:
+        fh = open_log(path)
+    except InputError:  # the reader says what is wrong with it
+        return {}
+    with fh:
+        size = fh.seek(0, io.SEEK_END)
+        fh.seek(len(MCAP_MAGIC))
+        for _ in range(_HEAD_RECORDS):
+            head = fh.read(_RECORD_HEAD)
+            length = int.from_bytes(head[1:], "little")
+            if len(head) < _RECORD_HEAD or length > size - fh.tell() or head[0] in (
+                    Opcode.CHUNK, Opcode.MESSAGE, Opcode.DATA_END, Opcode.FOOTER):
+                break
+            if head[0] == Opcode.METADATA and length <= _METADATA_MAX:
+                found = _recording_record(head + fh.read(length))
+                if found is not None:
+                    return found
+            else:
+                fh.seek(length, io.SEEK_CUR)
+        summary = _read_summary(fh, size, DEFAULT_RECORD_SIZE_LIMIT)
+        for offset in summary.metadata_starts if summary is not None else ():
+            fh.seek(offset)
+            head = fh.read(_RECORD_HEAD)
+            length = int.from_bytes(head[1:], "little")
+            if len(head) == _RECORD_HEAD and length <= _METADATA_MAX:
+                found = _recording_record(head + fh.read(length))
+                if found is not None:
+                    return found
+    return {}
+
+
+def _recording_record(data: bytes) -> dict[str, str] | None:
+    """The `sisa.recording` metadata if the record in `data` is it (None for any other record,
+    or one that does not parse)."""
+    with contextlib.suppress(*_PARSE_ERRORS, _OverLimitError, StopIteration):
+        record = next(_records(data, _METADATA_MAX))
+        if isinstance(record, Metadata) and record.name == METADATA_NAME:
+            return {str(k): str(v) for k, v in record.metadata.items()}
+    return None
+
+
+@dataclass(frozen=True)
+class PartLabel:
+    """Where a file's `sisa.recording` metadata places it: which part of which recording."""
+
+    path: Path
+    index: int  # its `part`: 0, 1, ...
+    first_part: str  # the file name of part 0
+    recording_id: str  # "" in a log recorded before parts carried one
+
+    def same_recording(self, other: PartLabel) -> bool:
+        """By the recording id; without one (an older log), by the first part's name only."""
+        return (self.recording_id, self.first_part) == (other.recording_id, other.first_part)
+
+
+def part_label(path: Path) -> PartLabel | None:
+    """Where `path` sits in its recording; None for a file without SISA's part metadata (not
+    written by SISA's recorder, or damaged there)."""
+    meta = recording_metadata(path)
+    try:
+        index = int(meta["part"])
+    except (KeyError, ValueError):
+        return None
+    if index < 0 or "first_part" not in meta:
+        return None
+    return PartLabel(Path(path), index, meta["first_part"], meta.get("recording_id", ""))
+
+
+@dataclass(frozen=True)
+class SplitSet:
+    """The files of a log as they are to be read, and what is missing of the recording."""
+
+    paths: list[Path]  # in part order when every file says its part, else as given
+    notes: list[str]  # the parts of the recording that are not given, in words
+    check_times: bool  # parts without a recording id: their log times must follow each other
+
+
+def split_set(paths: Sequence[Path]) -> SplitSet:
+    """Check that the files are parts of ONE recording and put them in part order (the order
+    they are given in carries no meaning). InputError names a part of another recording (told
+    by the recording id; in a log recorded before parts carried one, by the first part's name,
+    and while it is read by its log times: `LogReader`) or a part given twice over (a part and
+    its recovered copy). Files without SISA's part metadata are read as given, unchecked."""
+    paths = [Path(p) for p in paths]
+    labels = [part_label(p) for p in paths]
+    known = [label for label in labels if label is not None]
+    _refuse_mixed(known)
+    if len(known) < len(labels):
+        return SplitSet(paths, [], False)
+    known.sort(key=lambda label: label.index)
+    return SplitSet([label.path for label in known], _missing_notes(known),
+                    len(known) > 1 and not known[0].recording_id)
+
+
+def _refuse_mixed(labels: list[PartLabel]) -> None:
+    """InputError for a part of another recording than most of `labels`, or a part twice."""
+    if len(labels) < 2:
+        return
+    in_order = sorted(labels, key=lambda label: label.index)
+    # the recording most parts are of (on a tie, the one with the lowest part), by its first
+    counts = Counter((label.recording_id, label.first_part) for label in in_order)
+    ref = next(label for label in in_order
+               if (label.recording_id, label.first_part) == counts.most_common(1)[0][0])
+    for label in in_order:
+        if not label.same_recording(ref):
+            raise InputError(f"{label.path} is part {label.index} of another recording "
+                             f"({_which(label)}) than {ref.path} ({_which(ref)}): each "
+                             "flight's parts are read together, not mixed")
+    seen: dict[int, PartLabel] = {}
+    for label in labels:
+        other = seen.setdefault(label.index, label)
+        if other is not label:
+            raise InputError(f"{label.path} is part {label.index} of the recording, as is "
+                             f"{other.path} (a copy, or a recovered copy of it?): each part of "
+                             "a flight is read once")
+
+
+def _which(label: PartLabel) -> str:
+    if label.recording_id:
+        return f"id {label.recording_id}"
+    return f"no recording id, first part {label.first_part}"
+
+
+def _missing_notes(labels: list[PartLabel]) -> list[str]:
+    """Words for the parts missing before and between `labels` (in part order); parts after
+    the last cannot be told from the end of the flight."""
+    notes = []
+    first = labels[0]
+    if first.index > 0:
+        what, verb = _parts_phrase(first, 0, first.index)
+        notes.append(f"{first.path} is part {first.index} of a split recording whose {what} "
+                     f"{verb} not given: the log is read from part {first.index} on")
+    for before, after in pairwise(labels):
+        if after.index > before.index + 1:
+            what, verb = _parts_phrase(first, before.index + 1, after.index)
+            notes.append(f"{what} of the split recording {first.first_part} {verb} not given "
+                         f"(between {before.path} and {after.path}): the log is read without "
+                         f"{'it' if verb == 'is' else 'them'}, a hole in the flight")
+    return notes
+
+
+def _parts_phrase(label: PartLabel, start: int, stop: int) -> tuple[str, str]:
+    """('part 2 (flight_002.mcap)', 'is') or ('parts 0-1 (flight.mcap, flight_001.mcap)',
+    'are'): parts start..stop-1 of label's recording, with their file names."""
+    names = [part_path(Path(label.first_part), i).name for i in range(start, stop)]
+    if len(names) > _NAMES_SHOWN:
+        names = [*names[:_NAMES_SHOWN - 1], "...", names[-1]]
+    if stop - start == 1:
+        return f"part {start} ({names[0]})", "is"
+    return f"parts {start}-{stop - 1} ({', '.join(names)})", "are"
+
+
 class LogReader:
     """One pass over a flight log (a file or the parts of a split set, in order).
 
@@ -348,8 +524,11 @@ class LogReader:
             raise InputError("no flight log given")
         for path in self.paths:
             open_log(path).close()
+        parts = split_set(self.paths)  # one recording (else InputError), in part order
+        self.paths = parts.paths
+        self._check_times = parts.check_times
         self.record_size_limit = record_size_limit
-        self.stats = LogStats()
+        self.stats = LogStats(part_notes=parts.notes)
         self._times: dict[str, array[int]] = {}
         self._next_seq: dict[str, int] = {}
 
@@ -364,13 +543,37 @@ class LogReader:
 
     def raw(self) -> Iterator[tuple[ChannelInfo, Message]]:
         """Every readable message, in file order, with its channel."""
+        previous: tuple[Path, int] | None = None  # the last part with messages, its end
         for path in self.paths:
             fstats = FileStats(path, path.stat().st_size)
             self.stats.files.append(fstats)
+            marks = {topic: len(times) for topic, times in self._times.items()}
             for channel, msg in _FileScan(path, fstats, self.record_size_limit).messages():
                 self._account(channel, msg)
                 yield channel, msg
+            if self._check_times:
+                previous = self._check_follows(path, marks, previous)
         self._finish()
+
+    def _check_follows(self, path: Path, marks: Mapping[str, int],
+                       previous: tuple[Path, int] | None) -> tuple[Path, int] | None:
+        """A part recorded without a recording id must begin where the part before it ended
+        (within PART_OVERLAP_TOLERANCE_NS): one that begins earlier is of another flight, and
+        InputError says so. `marks`: each topic's message count before this part. Returns
+        this part and its last log time, or `previous` when it has no messages."""
+        spans = [np.frombuffer(times, dtype=np.uint64)[marks.get(topic, 0):]
+                 for topic, times in self._times.items()]
+        spans = [span for span in spans if span.size]
+        if not spans:
+            return previous
+        first_ns = min(int(span.min()) for span in spans)
+        if previous is not None and first_ns < previous[1] - PART_OVERLAP_TOLERANCE_NS:
+            raise InputError(f"{path} is part of another recording than {previous[0]}: it "
+                             f"begins {(previous[1] - first_ns) / 1e9:.1f} s of log time before "
+                             "that part ends (a log recorded without a recording id; its parts "
+                             "are told apart by time): each flight's parts are read together, "
+                             "not mixed")
+        return path, max(int(span.max()) for span in spans)
 
     def _account(self, channel: ChannelInfo, msg: Message) -> None:
         topic = channel.topic
@@ -754,6 +957,7 @@ class _Summary:
     declarations: list[Schema | Channel]
     chunk_starts: list[int]  # sorted
     resume_points: list[int]  # sorted: chunks, metadata records, the summary, the footer
+    metadata_starts: list[int] = field(default_factory=list)  # the sisa.recording records
 
 
 def _footer(fh: BinaryIO, size: int) -> tuple[int, bytes] | None:
@@ -799,6 +1003,7 @@ def _read_summary(fh: BinaryIO, size: int, limit: int) -> _Summary | None:
         return None
     declarations: list[Schema | Channel] = []
     chunks: set[int] = set()
+    metadata: set[int] = set()
     points = {summary_start, footer_at}
     in_data = range(len(MCAP_MAGIC), summary_start)
     # it ends in EndOfFile (no footer in these bytes); its CRC has checked what came before
@@ -810,7 +1015,9 @@ def _read_summary(fh: BinaryIO, size: int, limit: int) -> _Summary | None:
                 chunks.add(record.chunk_start_offset)
             elif isinstance(record, MetadataIndex) and record.offset in in_data:
                 points.add(record.offset)
-    return _Summary(declarations, sorted(chunks), sorted(points | chunks))
+                if record.name == METADATA_NAME:
+                    metadata.add(record.offset)
+    return _Summary(declarations, sorted(chunks), sorted(points | chunks), sorted(metadata))
 
 
 def _find_chunk(fh: BinaryIO, first: int, last: int, bound: int, limit: int) -> int | None:
@@ -1103,8 +1310,9 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
     seconds): {topic: {field: array}} for the wanted fields (None: all), plus `log_time_ns`.
     A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
     with a value of the wrong type, raises DecodeError. What could not be read (a file cut
-    short, damaged chunks) is said as a DamagedLogWarning, or appended to `notes` if given
-    (for a caller that reports its own warnings)."""
+    short, damaged chunks) is said as a DamagedLogWarning, the parts of a split recording that
+    are not given as a MissingPartWarning, or either appended to `notes` if given (for a
+    caller that reports its own warnings)."""
     batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
     reader = LogReader(path_or_paths)
     topic = ""
@@ -1120,12 +1328,14 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
     except DecodeError as exc:
         where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
         raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
-    for fs in reader.stats.files:
-        for note in damage_notes(fs):
-            if notes is not None:
-                notes.append(note)
-            else:  # said once per file and kind (Python's warning registry)
-                warnings.warn(note, DamagedLogWarning, stacklevel=1)
+    said: list[tuple[str, type[UserWarning]]] = [
+        (note, MissingPartWarning) for note in reader.stats.part_notes]
+    said += [(note, DamagedLogWarning) for fs in reader.stats.files for note in damage_notes(fs)]
+    for note, kind in said:
+        if notes is not None:
+            notes.append(note)
+        else:  # said once per file and kind (Python's warning registry)
+            warnings.warn(note, kind, stacklevel=1)
     return out
 
 

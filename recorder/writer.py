@@ -402,7 +402,9 @@ class FlightRecorder:
     """Writes a flight log; use as a context manager. Thread-safe (one lock per recorder).
 
     `metadata` (scenario name, settings, ...) goes into every part's `sisa.recording` metadata
-    record beside the recorder version. `paths` lists the parts written so far.
+    record beside the recorder version, the part's index, the first part's name and the
+    `recording_id` (random, one per recorder: readers tell this flight's parts from another's
+    by it). `paths` lists the parts written so far.
     """
 
     def __init__(self, path: Path | str, *, split_duration_s: float | None = None,
@@ -424,6 +426,7 @@ class FlightRecorder:
         self._closed = False
         self.paths: list[Path] = []
         self.messages_written = 0
+        self.recording_id = uuid.uuid4().hex  # in every part: readers refuse to mix flights
         try:
             self._part = self._open_part()
         except OSError as exc:
@@ -516,8 +519,9 @@ class FlightRecorder:
     def _open_part(self) -> _Part:
         index = len(self.paths)
         path = part_path(self.path, index)
-        meta = {"recorder": RECORDER_ID, "part": str(index), "first_part": self.path.name,
-                **self._user_metadata}
+        own = {"recorder": RECORDER_ID, "recording_id": self.recording_id, "part": str(index),
+               "first_part": self.path.name}  # readers rely on these: never the caller's
+        meta = own | {k: v for k, v in self._user_metadata.items() if k not in own}
         part = _Part.create(path, self._chunk_size, meta)
         self.paths.append(path)
         return part

@@ -271,6 +271,52 @@ def test_a_log_that_does_not_match_its_schema_names_the_file_and_topic(
     assert _tree(inputs) == before
 
 
+@pytest.fixture(scope="module")
+def two_flights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding parts 0, 1, 3 of one split flight and part 2 of another, all named
+    flight*.mcap (as after copying two flights' cards into one folder), and a scanner folder."""
+    from recorder.messages import RawBytes, Topic
+    from recorder.writer import FlightRecorder, split_parts
+    from tests.recorder import T0_NS
+
+    root = tmp_path_factory.mktemp("flights")
+    parts = []
+    for name, t0_ns in (("a", T0_NS), ("b", T0_NS + 100 * 10**9)):
+        (root / name).mkdir()
+        with FlightRecorder(root / name / "flight.mcap", split_duration_s=10.0) as rec:
+            for i in range(4000):
+                rec.write(RawBytes(t0_ns + i * 10**7, "gps", b"$GPZDA\r\n"), Topic.GPS_RAW)
+        parts.append(split_parts(root / name / "flight.mcap"))
+    mixed = root / "mixed"
+    (mixed / "scanner").mkdir(parents=True)
+    for src in (parts[0][0], parts[0][1], parts[1][2], parts[0][3]):
+        (mixed / src.name).write_bytes(src.read_bytes())
+    return mixed
+
+
+MIXED_FLIGHTS = [  # found by a bad-input sweep: merged silently, exit 0 (georef: 10 minutes of
+    # work, wrong products)
+    "log info {d}/flight.mcap",
+    "log info {d}/flight_003.mcap {d}/flight_002.mcap {d}/flight_001.mcap {d}/flight.mcap",
+    "sync {d}/flight.mcap --out {d}/sync",
+    "georef {d}/flight.mcap --scanner {d}/scanner --dem {d}/dem.tif --out {d}/geo",
+    "replay {d}/flight.mcap --once --no-wait",
+]
+
+
+@pytest.mark.parametrize("argv", MIXED_FLIGHTS)
+def test_a_part_of_another_flight_is_one_line_exit_2(argv: str, two_flights: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    args = argv.replace("{d}", str(two_flights)).split()
+    before = _tree(two_flights)
+    code = main(args)
+    captured = capsys.readouterr()
+    _check(code, captured.out, captured.err, args[0],
+           [f"{two_flights}/flight_002.mcap is part 2 of another recording (id ",
+            f"than {two_flights}/flight.mcap (id ", "each flight's parts are read together"])
+    assert _tree(two_flights) == before
+
+
 # --- the network: loopback only -----------------------------------------------------------------
 
 def _socket_inodes(pid: int) -> set[str]:

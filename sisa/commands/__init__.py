@@ -43,7 +43,7 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
 
 
 FLIGHT_HELP = ("the flight log (MCAP; the numbered parts of a split recording are found beside "
-               "it), or every part in order")
+               "it), or every part (read in part order, whatever the order given)")
 
 
 def say_warning(command: str, text: str) -> None:
@@ -54,9 +54,11 @@ def say_warning(command: str, text: str) -> None:
 def flight_parts(files: Sequence[Path]) -> list[Path]:
     """The files of a flight log: as given when several; when one, it and the numbered parts of
     a split recording beside it (flight.mcap, flight_001.mcap, ...: `sisa record --split-*`),
-    so that naming the first part never reads a flight only in part. A missing file is left
-    for the reader to report."""
-    from recorder.reader import first_data_key
+    so that naming the first part never reads a flight only in part. The parts are put in
+    part order, and a part of another recording is refused here, before any work starts
+    (`recorder.reader.split_set`; the readers check again). A missing file is left for the
+    reader to report."""
+    from recorder.reader import first_data_key, split_set
     from recorder.writer import split_parts
 
     if len(files) != 1:
@@ -74,7 +76,7 @@ def flight_parts(files: Sequence[Path]) -> list[Path]:
                              "it?): each part of a flight is read once")
         if key is not None:
             first[key] = path
-    return parts
+    return split_set(parts).paths
 
 
 MAX_SEED = 2**32 - 1  # numpy's seeds, and the scenario's

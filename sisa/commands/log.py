@@ -11,7 +11,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import FLIGHT_HELP, add_command, flight_parts
+from sisa.commands import FLIGHT_HELP, add_command, flight_parts, say_warning
 
 if TYPE_CHECKING:
     from recorder.reader import FileStats, LogStats
@@ -47,6 +47,8 @@ def _info(args: argparse.Namespace) -> int:
     from recorder.reader import scan_log
 
     stats = scan_log(flight_parts(args.files))
+    for note in stats.part_notes:  # a part not given: said, and the rest is shown
+        say_warning("log", note)
     for fs in stats.files:
         print(_file_line(fs))
     for line in _summary_lines(stats):
@@ -60,10 +62,33 @@ def _info(args: argparse.Namespace) -> int:
 
 def _recover(args: argparse.Namespace) -> int:
     from recorder.recover import recover
+    from recorder.writer import part_path
 
     report = recover(args.input, args.output)
     print(report.summary())
+    further = _further_parts(args.input)
+    if further:
+        names = ", ".join(p.name for p in further)
+        verb = "is a further part" if len(further) == 1 else "are further parts"
+        say_warning("log", f"{names} beside {args.input} {verb} of the same recording, not in "
+                    f"{args.output}: recover each to {args.output.name}'s numbered names (`sisa "
+                    f"log recover {further[0]} {part_path(args.output, 1)}`, ...), and readers "
+                    f"given {args.output} take them together")
     return 0
+
+
+def _further_parts(path: Path) -> list[Path]:
+    """The parts after `path` found beside it when it is part 0 of a split recording: `log
+    recover` copies one file, and without a word its output would pass for the whole flight."""
+    from recorder.reader import part_label
+    from recorder.writer import split_parts
+
+    first = part_label(path)
+    if first is None or first.index != 0:
+        return []
+    labels = (part_label(p) for p in split_parts(path)[1:])
+    return [label.path for label in labels
+            if label is not None and label.index > 0 and label.same_recording(first)]
 
 
 def _file_line(fs: FileStats) -> str:

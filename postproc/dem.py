@@ -13,7 +13,10 @@ Conventions (docs/conventions.md):
   value is not declared (-9999, -32768, ±3.4e38). Undeclared ones are read as voids with a
   DemVoidWarning naming how many; a DEM (or window) with no valid height is refused.
 - Heights are ellipsoidal. A DEM of orthometric heights H needs a geoid: h = H + N, with N a
-  constant or a raster of undulations sampled bilinearly at every DEM cell centre.
+  constant or a raster of undulations sampled bilinearly at every DEM cell centre. N is within
+  GEOID_UNDULATION_M (Earth's geoid: -106..+85 m): a constant beyond is refused, raster values
+  beyond are voids (a fill value, or heights in the wrong units) said like the DEM's.
+- Only band 1 is read; `band_note` says so for a raster with more.
 """
 
 from __future__ import annotations
@@ -42,6 +45,9 @@ GEOID_COORD_STEP_CELLS: Final = 16  # geoid coordinates computed exactly every 1
 # Heights (m) any terrain can have, orthometric or ellipsoidal (Dead Sea shore -430, Everest
 # 8849, geoid -106..+85): a value outside is a void marker, declared or not.
 PLAUSIBLE_HEIGHTS_M: Final = (-1000.0, 9000.0)
+# The geoid undulations N (m) a geoid can have (Earth's: -106..+85 m): a constant beyond is
+# refused, raster values beyond are voids; so h = H + N stays within SURFACE_HEIGHTS_M.
+GEOID_UNDULATION_M: Final = (-110.0, 110.0)
 # ...and the ellipsoidal heights a DEM read within them can have once a geoid (|N| < 110 m) is
 # added: what the ray caster accepts.
 SURFACE_HEIGHTS_M: Final = (PLAUSIBLE_HEIGHTS_M[0] - 200.0, PLAUSIBLE_HEIGHTS_M[1] + 200.0)
@@ -121,15 +127,14 @@ class Dem:
             if not np.isfinite(heights).any():
                 if bounds_m is not None and _has_valid_height(ds):
                     raise InputError(f"{path}: the DEM has no valid height in the window "
-                                     f"{bounds_m} (+{margin_m:g} m)")
+                                     f"{bounds_text(bounds_m)} (+{margin_m:g} m)")
                 raise _no_valid_height(path)
         dem = cls(heights, first_e + win.col_off * cell_e, first_n - win.row_off * cell_n,
                   cell_e, cell_n, epsg)
         if geoid is None:
             return dem
         if isinstance(geoid, (int, float)):
-            if not math.isfinite(geoid):
-                raise InputError(f"{path}: geoid undulation {geoid} is not finite")
+            check_undulation_m(float(geoid), f"{path}: geoid undulation")
             return dem._with_heights(heights + np.float32(geoid))
         return dem._with_heights(heights + _undulation_at_centres(Path(geoid), dem))
 
@@ -167,6 +172,33 @@ def bilinear_centres(grid: npt.NDArray[Any], x: F64, y: F64) -> F64:
 # ---------------------------------------------------------------------------------------------
 # Reading
 # ---------------------------------------------------------------------------------------------
+
+
+def check_undulation_m(value: float, name: str) -> None:
+    """InputError `name value: ...` unless `value` is a geoid undulation Earth can have: a
+    constant N of 1e6 m made every height implausible (an error blaming the DEM), 1e308 an
+    overflow traceback, and -200 m passed silently, the surface 100 m off."""
+    low, high = GEOID_UNDULATION_M
+    if not (math.isfinite(value) and low <= value <= high):
+        raise InputError(f"{name} {value:g}: must be {low:g} to {high:g} m (the geoid "
+                         "undulation on Earth: -106 to +85 m)")
+
+
+def bounds_text(bounds: tuple[float, ...]) -> str:
+    """(west, south, east, north) to 0.1 m, for a message."""
+    return "(" + ", ".join(f"{v:.1f}" for v in bounds) + ")"
+
+
+def band_note(path: str | Path, what: str = "DEM") -> str | None:
+    """What to say of a raster with more than one band (None with one): only band 1 is read,
+    which a 3-band file (an RGB relief rendering, a DEM with error bands) makes a guess."""
+    path = Path(path)
+    with _open(path, what) as ds:
+        bands = int(ds.count)
+    if bands == 1:
+        return None
+    return (f"{path}: the {what} raster has {bands} bands: band 1 is read as "
+            f"{'heights' if what == 'DEM' else 'undulations'}, the others are ignored")
 
 
 def dem_extent(path: str | Path) -> tuple[int, tuple[float, float, float, float]]:
@@ -280,7 +312,10 @@ def _window(ds: Any, path: Path, first_e: float, first_n: float, cell_e: float, 
     r0 = max(math.floor((first_n - north - margin_m) / cell_n), 0)
     r1 = min(math.ceil((first_n - south + margin_m) / cell_n), ds.height - 1)
     if c1 - c0 < 1 or r1 - r0 < 1:
-        raise InputError(f"{path}: bounds {bounds_m} (+{margin_m} m) do not overlap the DEM")
+        extent = (first_e, first_n - (ds.height - 1) * cell_n,
+                  first_e + (ds.width - 1) * cell_e, first_n)
+        raise InputError(f"{path}: bounds {bounds_text(bounds_m)} (+{margin_m:g} m) do not "
+                         f"overlap the DEM {bounds_text(extent)}")
     return Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1)
 
 
@@ -290,13 +325,26 @@ def _read_band(ds: Any, win: Window, path: Path, what: str) -> F32:
     DemVoidWarning."""
     out, marked = _voids_to_nan(_read(ds, window=win))
     if marked.size:
-        values, counts = np.unique(marked, return_counts=True)
-        top = values[np.argsort(counts)[::-1][:3]]
-        warnings.warn(f"{path}: {marked.size} {what} cell{'s' if marked.size > 1 else ''} hold "
-                      f"{', '.join(f'{v:g}' for v in top)}{' ...' if values.size > 3 else ''}, "
-                      f"outside {_plausible_text()}, and no nodata value declares them: read as "
-                      "voids (no surface there)", DemVoidWarning, stacklevel=3)
+        warnings.warn(_void_note(path, marked, what, PLAUSIBLE_HEIGHTS_M, "no surface there"),
+                      DemVoidWarning, stacklevel=3)
     return out
+
+
+def _void_note(path: Path, marked: F64, what: str, plausible: tuple[float, float],
+               meaning: str) -> str:
+    """The warning for cells read as voids that no nodata value declares: how many, their
+    commonest values, the range they are outside of."""
+    one = marked.size == 1
+    return (f"{path}: {marked.size} {what} cell{'' if one else 's'} hold{'s' if one else ''} "
+            f"{_values_text(marked)}, outside {_range_text(plausible)}, and no nodata value "
+            f"declares {'it' if one else 'them'}: read as void{'' if one else 's'} ({meaning})")
+
+
+def _values_text(values: F64) -> str:
+    """The three commonest of `values`, for a message ("-9999, -32768 ...")."""
+    unique, counts = np.unique(values, return_counts=True)
+    top = unique[np.argsort(counts)[::-1][:3]]
+    return f"{', '.join(f'{v:g}' for v in top)}{' ...' if unique.size > 3 else ''}"
 
 
 def _read(ds: Any, **kwargs: Any) -> np.ma.MaskedArray[Any, Any]:
@@ -316,14 +364,16 @@ def _reason(exc: BaseException) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
-def _voids_to_nan(data: np.ma.MaskedArray[Any, Any]) -> tuple[F32, F64]:
+def _voids_to_nan(data: np.ma.MaskedArray[Any, Any],
+                  plausible: tuple[float, float] = PLAUSIBLE_HEIGHTS_M) -> tuple[F32, F64]:
     """float32 copy of a masked band with every void NaN, and the values of the implausible
-    cells its mask (the raster's nodata value) leaves in (float64, for the note)."""
+    cells (outside `plausible`) its mask (the raster's nodata value) leaves in (float64, for
+    the note)."""
     mask = np.ma.getmaskarray(data)
     raw = np.ma.getdata(data)
     with np.errstate(over="ignore"):  # float64 beyond float32's range: inf, implausible
         out = np.ascontiguousarray(raw, dtype=np.float32)
-    low, high = PLAUSIBLE_HEIGHTS_M
+    low, high = plausible
     implausible = ~mask & ((out < low) | (out > high))  # NaN compares False: a void anyway
     marked = np.asarray(raw[implausible], dtype=np.float64)
     out[mask | implausible] = np.nan
@@ -337,9 +387,13 @@ def _has_valid_height(ds: Any) -> bool:
                for win, _ in _scan_windows(ds))
 
 
-def _plausible_text() -> str:
-    low, high = PLAUSIBLE_HEIGHTS_M
+def _range_text(limits: tuple[float, float]) -> str:
+    low, high = limits
     return f"{low:g}..{high:g} m"
+
+
+def _plausible_text() -> str:
+    return _range_text(PLAUSIBLE_HEIGHTS_M)
 
 
 def _no_valid_height(path: Path) -> InputError:
@@ -356,7 +410,10 @@ def _undulation_at_centres(path: Path, dem: Dem) -> F32:
     """Geoid undulation N (m) at every DEM cell centre, bilinear between the geoid raster's own
     centres. The DEM → geoid-CRS transform is done by pyproj every GEOID_COORD_STEP_CELLS cells
     and interpolated in between (it is smooth: far below a micro-degree), while the geoid grid
-    itself is sampled bilinearly at each centre."""
+    itself is sampled bilinearly at each centre. Values outside GEOID_UNDULATION_M are voids
+    (a DemVoidWarning naming the geoid's range); a DEM cell whose N is a void, or off the
+    geoid's grid, is an InputError saying which (a geoid of 3000 m was a 'no pixel could be
+    georeferenced: does the DEM cover the flight?' much later)."""
     with _open(path, "geoid") as ds:
         if ds.crs is None:
             raise InputError(f"{path}: geoid raster has no CRS")
@@ -370,11 +427,24 @@ def _undulation_at_centres(path: Path, dem: Dem) -> F32:
         r1 = min(math.ceil(float(row[ok].max())) + 2, ds.height - 1)
         if c1 - c0 < 1 or r1 - r0 < 1:
             raise InputError(f"{path}: geoid raster does not cover the DEM")
-        grid = _read_band(ds, Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1), path, "geoid")
+        win = Window(c0, r0, c1 - c0 + 1, r1 - r0 + 1)
+        grid, marked = _voids_to_nan(_read(ds, window=win), GEOID_UNDULATION_M)
+        on_grid = (col >= 0.0) & (col <= ds.width - 1) & (row >= 0.0) & (row <= ds.height - 1)
+    voids = f"nodata, NaN or outside {_range_text(GEOID_UNDULATION_M)}, the geoid's range"
+    if not np.isfinite(grid).any():
+        held = f"; {marked.size} hold {_values_text(marked)}" if marked.size else ""
+        raise InputError(f"{path}: the geoid raster has no valid undulation over the DEM "
+                         f"(every cell there is {voids}{held})")
     n = bilinear_centres(grid, col - c0, row - r0)
-    missing = int((np.isnan(n) & np.isfinite(dem.heights_m)).sum())
-    if missing:
-        raise InputError(f"{path}: geoid raster does not cover {missing} DEM cells")
+    missing = np.isnan(n) & np.isfinite(dem.heights_m)
+    if (off := int((missing & ~on_grid).sum())) > 0:
+        raise InputError(f"{path}: geoid raster does not cover {off} DEM cells")
+    if (void := int(missing.sum())) > 0:
+        raise InputError(f"{path}: the geoid raster has no valid undulation at {void} DEM "
+                         f"cells ({voids})")
+    if marked.size:
+        warnings.warn(_void_note(path, marked, "geoid", GEOID_UNDULATION_M,
+                                 "no undulation there"), DemVoidWarning, stacklevel=3)
     return n.astype(np.float32)
 
 

@@ -13,6 +13,12 @@ A trajectory that covers only part of the flight (an external file, a log cut sh
 what it covers: lines without a pose are NaN like lines without a time, a segment with no pose
 at all is skipped, each said in `result.warnings` and the summary's `skipped`; only when no
 segment has a pose does the job fail, naming the trajectory's and the lines' time spans.
+
+Inputs that still give products but not the ones asked for are said in `result.warnings` too:
+a segment whose rays miss the DEM in part (HIT_WARN_FRACTION), an ortho that holds no pixel, a
+DEM of several bands, --leap-seconds where no time is on UTC, an output CRS whose grid is not
+ground metres or north there. No pixel on the DEM at all is an InputError saying why (the
+surface above the camera, the swath off the DEM), as is an ortho cell wider than the swath.
 """
 
 from __future__ import annotations
@@ -30,7 +36,14 @@ import numpy.typing as npt
 from pyproj import CRS, Proj, Transformer
 from pyproj.transformer import AreaOfInterest
 
-from postproc.dem import Dem, dem_extent, height_range
+from postproc.dem import (
+    Dem,
+    band_note,
+    bounds_text,
+    check_undulation_m,
+    dem_extent,
+    height_range,
+)
 from postproc.exterior import LineEo, exterior_orientation, write_eo_csv
 from postproc.footprints import footprint_feature, write_footprints_geojson
 from postproc.igm import CutShortWarning, EnviRaster, IgmWriter, write_geolocation_vrt
@@ -74,6 +87,9 @@ I64 = npt.NDArray[np.int64]
 BLOCK_LINES: Final = 4096
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
 SPANS_IN_MESSAGE: Final = 3  # stretches of lines a warning names (the summary has them all)
+# below this share of a segment's pixels (of its lines with a pose) on the DEM, a warning: the
+# headline's percentage alone let a DEM covering half the flight pass unremarked
+HIT_WARN_FRACTION: Final = 0.99
 
 
 @dataclass(frozen=True)
@@ -106,6 +122,17 @@ class SegmentResult:
     igm: Path
     image: Path
     files: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SwathOnDem:
+    """Where a segment's swath lies against the DEM: what the messages need when its rays
+    miss. Heights are ellipsoidal (m); `footprint_m` in the DEM's CRS, without margin."""
+
+    footprint_m: tuple[float, float, float, float]
+    camera_m: tuple[float, float]  # lowest, highest perspective centre (every 64th line)
+    surface_m: tuple[float, float]  # lowest, highest valid height of the DEM window read
+    on_dem: bool  # the footprint lies within the DEM's cell centres
 
 
 @dataclass(frozen=True)
@@ -215,7 +242,9 @@ class GeorefJob:
         centre = _dem_centre_lon_lat(self.dem_epsg, self.dem_bounds)
         notes = grid_scale_note(crs, *centre), datum_shift_note(crs, *centre)
         self.warnings: list[str] = [note for note in notes if note is not None]
+        self.warnings += input_notes(options)
         self.trajectory_info: dict[str, Any] = {}
+        self.swaths: dict[int, SwathOnDem] = {}
 
     # -- the steps ---------------------------------------------------------------------------
 
@@ -234,6 +263,13 @@ class GeorefJob:
                                         fallback_leap_seconds=self.opt.leap_seconds_fallback,
                                         max_gap_s=self.opt.max_gap_s, report=info)
             self.warnings += info.pop("warnings", [])
+            if self.opt.leap_seconds is not None and info.get("time_scale") not in ("UTC",
+                                                                                   "JST"):
+                kind = "an SBET" if info.get("format") == "Applanix SBET" else "a .pos"
+                self.warnings.append(
+                    f"--leap-seconds {self.opt.leap_seconds}: not used: "
+                    f"{self.opt.trajectory} is {kind} on GPS time (the option is for a .pos "
+                    "on UTC or JST)")
         else:
             info["source"] = "flight log"
             config = None if self.opt.max_gap_s is None else NavConfig(
@@ -319,6 +355,44 @@ class GeorefJob:
         return InputError(f"{self.trajectory_name} ({self.trajectory_span_label(traj)}) does "
                           f"not cover the scan lines ({gps_span_label(b0, b1)}): {where}")
 
+    def partial_hit_note(self, segment: int, hits: int, posed: int) -> str:
+        """The warning for a segment whose rays (of its lines with a pose) miss the DEM in
+        part, with the likeliest reason."""
+        swath = self.swaths[segment]
+        if not swath.on_dem:
+            why = "the DEM does not cover the whole swath?"
+        elif swath.surface_m[1] >= swath.camera_m[0]:
+            why = "terrain above the camera?"
+        else:
+            why = "voids in the DEM under the swath?"
+        if hits == 0:
+            return (f"segment {segment}: none of its pixels meet the DEM {self.opt.dem.name} "
+                    f"({why}){': no ortho made for it' if self.opt.products else ''}")
+        share = math.floor(1000 * hits / posed) / 10  # 98.96 % is not "99.0 %"
+        return (f"segment {segment}: {share:.1f} % of its pixels meet the DEM "
+                f"{self.opt.dem.name} ({why})")
+
+    def no_hit_error(self, done: list[SegmentResult]) -> InputError:
+        """No ray of any segment met the DEM: the one line that says why. It once always
+        asked "does the DEM cover the flight?", also of a DEM that did, 8 km above the
+        aircraft."""
+        swaths = [self.swaths[d.segment] for d in done]
+        cam = min(sw.camera_m[0] for sw in swaths), max(sw.camera_m[1] for sw in swaths)
+        surf = (min(sw.surface_m[0] for sw in swaths), max(sw.surface_m[1] for sw in swaths))
+        heights = (f"the DEM {_span_text(surf)} under the swaths"
+                   f"{' (geoid added)' if self.opt.geoid is not None else ''}, the camera "
+                   f"{_span_text(cam)}, both ellipsoidal")
+        head = f"no pixel could be georeferenced on {self.opt.dem}"
+        if surf[0] >= cam[1]:
+            return InputError(f"{head}: its surface lies above the camera ({heights}): heights "
+                              "in other units, or a wrong geoid?")
+        if not all(sw.on_dem for sw in swaths):
+            foot = _union_bounds([sw.footprint_m for sw in swaths])
+            return InputError(f"{head}: the swaths {bounds_text(foot)} run off the DEM "
+                              f"{bounds_text(self.dem_bounds)}")
+        return InputError(f"{head}: the DEM covers the swaths, but no ray met its surface "
+                          f"({heights})")
+
     def write_sync(self, result: SyncResult) -> None:
         sync_dir = self.out / "sync"
         sync_dir.mkdir(parents=True, exist_ok=True)
@@ -358,9 +432,10 @@ class GeorefJob:
         found = height_range(self.opt.dem)
         return (0.0, 0.0) if found is None else (found[0] - 50.0, found[1] + 50.0)
 
-    def dem_window(self, eo: LineEo) -> Dem:
+    def dem_window(self, eo: LineEo) -> tuple[Dem, SwathOnDem]:
         """The DEM under the segment's swath: edge and centre rays of every 64th line met with
-        the DEM's lowest and highest heights, plus a margin."""
+        the DEM's lowest and highest heights, plus a margin; and where the swath lies against
+        the DEM (for the messages when rays miss)."""
         look = self.opt.sensor.scanner.look_vectors_camera()
         pick = np.flatnonzero(eo.valid)[::64]
         if pick.size == 0:  # run() skips such segments
@@ -385,18 +460,24 @@ class GeorefJob:
                 plon, plat, _ = to_geo.transform(p[:, 0], p[:, 1], p[:, 2])
                 pts.append(np.stack(to_dem.transform(plon, plat), axis=1))
         xy = np.concatenate(pts)
-        bounds = (float(xy[:, 0].min()) - FOOTPRINT_MARGIN_M,
-                  float(xy[:, 1].min()) - FOOTPRINT_MARGIN_M,
-                  float(xy[:, 0].max()) + FOOTPRINT_MARGIN_M,
-                  float(xy[:, 1].max()) + FOOTPRINT_MARGIN_M)
-        return Dem.read(self.opt.dem, bounds_m=bounds, geoid=self.opt.geoid)
+        foot = (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
+                float(xy[:, 1].max()))
+        m = FOOTPRINT_MARGIN_M
+        dem = Dem.read(self.opt.dem, bounds_m=(foot[0] - m, foot[1] - m, foot[2] + m,
+                                               foot[3] + m), geoid=self.opt.geoid)
+        valid = dem.heights_m[np.isfinite(dem.heights_m)]
+        surface = ((float(valid.min()), float(valid.max())) if valid.size else
+                   (math.nan, math.nan))
+        inside = all(self.dem_bounds[k] <= foot[k] for k in (0, 1)) and all(
+            foot[k] <= self.dem_bounds[k] for k in (2, 3))
+        return dem, SwathOnDem(foot, (float(np.min(h)), float(np.max(h))), surface, inside)
 
     def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
                              progress: Progress | None) -> SegmentResult:
         image, n_lines, pixels = raw.path, raw.lines, raw.pixels
         self.opt.sensor.check_pixels(pixels, str(image))
         look = self.opt.sensor.scanner.look_vectors_camera()
-        dem = self.dem_window(eo)
+        dem, self.swaths[segment] = self.dem_window(eo)
         stem = self.out / f"segment_{segment:03d}"
         write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
         hits = 0
@@ -426,6 +507,9 @@ class GeorefJob:
                 if progress is not None:
                     progress(hi - lo)
         timed = t_gps_ns >= 0
+        posed = int(eo.valid.sum()) * pixels
+        if posed and hits < HIT_WARN_FRACTION * posed:
+            self.warnings.append(self.partial_hit_note(segment, hits, posed))
         return SegmentResult(
             segment=segment, lines=n_lines, lines_timed=int(timed.sum()),
             lines_georeferenced=geo_lines, rays=n_lines * pixels, rays_hit=hits,
@@ -437,19 +521,26 @@ class GeorefJob:
 
     def products(self, seg: SegmentResult, cell_m: float) -> SwathIndex | None:
         """The segment's VRT and, with products, its ortho, GLT and quicklook; the index of
-        its IGM they were made from (the mosaic's too), None without products."""
+        its IGM they were made from (the mosaic's too); None without products, or when
+        none of its pixels met the DEM (an IGM of NaN: nothing to map)."""
         stem = self.out / f"segment_{seg.segment:03d}"
         vrt = Path(f"{stem}_geoloc.vrt")
         write_geolocation_vrt(vrt, seg.image, seg.igm, self.epsg)
         seg.files["geolocation_vrt"] = vrt.name
-        if not self.opt.products:
+        if not self.opt.products or seg.rays_hit == 0:
             return None
         index = SwathIndex.build(seg.igm)
         grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
         tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
         with warnings.catch_warnings():  # a cut image: said once, by segment_raster's warning
             warnings.simplefilter("ignore", CutShortWarning)
-            orthorectify(index, seg.image, grid, tif, glt)
+            made = orthorectify(index, seg.image, grid, tif, glt)
+        if made.cells_filled == 0:
+            width, length = swath_size_m(seg)
+            self.warnings.append(
+                f"segment {seg.segment}: its ortho holds no pixel: no centre of its "
+                f"{cell_m:g} m cells falls on the swath ({width:.0f} m wide, {length:.0f} m "
+                "long); a smaller --cell")
         png = Path(f"{stem}_quicklook.png")
         write_quicklook(tif, png)
         seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)
@@ -491,26 +582,31 @@ class GeorefJob:
             done.append(self.georeference_segment(s, eo, t, rasters[s], progress))
         if not done:
             raise self.no_overlap_error(result, traj)
+        if not any(d.rays_hit for d in done):
+            raise self.no_hit_error(done)
         cell_m = self.opt.cell_m or nice_cell_m(
             float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
                             or [math.nan])))
         if not math.isfinite(cell_m) or cell_m <= 0:
-            raise InputError("no pixel could be georeferenced: does the DEM cover the flight?")
+            hits, rays = sum(d.rays_hit for d in done), sum(d.rays for d in done)
+            raise InputError(f"only {hits} of {rays} pixels met the DEM, too few neighbours to "
+                             "measure the pixel spacing the ortho cell is sized by: give --cell M")
+        if self.opt.products and self.opt.cell_m is not None:
+            check_cell_against_swaths(cell_m, done)
         features = []
-        indexes: list[SwathIndex] = []
+        mapped: list[tuple[SwathIndex, Path]] = []
         for seg in done:
             if (index := self.products(seg, cell_m)) is not None:
-                indexes.append(index)
+                mapped.append((index, seg.image))
             features.append(footprint_feature(seg.igm, self.epsg, properties={
                 "segment": seg.segment, "lines": seg.lines,
                 "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
         write_footprints_geojson(self.out / "footprints.geojson", features)
         mosaic_path: Path | None = None
-        if self.opt.products and done:
+        if self.opt.products and mapped:
             mosaic_path = self.out / "mosaic.tif"
-            mosaic([(index, d.image) for index, d in zip(indexes, done, strict=True)],
-                   OrthoGrid.covering(_union_bounds([index.bounds_m for index in indexes]),
-                                      cell_m, self.epsg), mosaic_path)
+            mosaic(mapped, OrthoGrid.covering(_union_bounds([ix.bounds_m for ix, _ in mapped]),
+                                              cell_m, self.epsg), mosaic_path)
             write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
         summary = self._summary(result, done, cell_m)
         summary["strip_registration"] = self.registrations(done)
@@ -554,6 +650,47 @@ class GeorefJob:
         }
 
 
+def input_notes(options: GeorefOptions) -> list[str]:
+    """What to say of the inputs before the job starts (and the InputError of a geoid
+    undulation no geoid has): a DEM or geoid raster of several bands (band 1 is read), and
+    --leap-seconds without a trajectory file (the log's navigation is on GPS time: it changed
+    nothing, silently)."""
+    notes = [band_note(options.dem, "DEM")]
+    if isinstance(options.geoid, Path):
+        notes.append(band_note(options.geoid, "geoid"))
+    elif options.geoid is not None:
+        check_undulation_m(float(options.geoid), "geoid undulation")
+    if options.leap_seconds is not None and options.trajectory is None:
+        notes.append(f"--leap-seconds {options.leap_seconds}: not used: it applies to a "
+                     "--trajectory .pos on UTC or JST, and the flight log's navigation is on "
+                     "GPS time")
+    return [note for note in notes if note is not None]
+
+
+def swath_size_m(seg: SegmentResult) -> tuple[float, float]:
+    """(across-track width, along-track length) of a segment's georeferenced swath, from its
+    median pixel spacings (NaN when unknown)."""
+    pixels = seg.rays // seg.lines if seg.lines else 0
+    return (seg.gsd_across_m * max(pixels - 1, 0),
+            seg.gsd_along_m * max(seg.lines_georeferenced - 1, 0))
+
+
+def check_cell_against_swaths(cell_m: float, done: list[SegmentResult]) -> None:
+    """InputError when the ortho cell is wider than half the narrowest swath: its orthos
+    would hold a cell or two across at best, none at worst (--cell 5000 over a 500 m swath
+    gave empty orthos and mosaic, exit 0)."""
+    widths = [(swath_size_m(d)[0], d) for d in done]
+    widths = [(w, d) for w, d in widths if math.isfinite(w) and w > 0]
+    if not widths:
+        return
+    width, seg = min(widths, key=lambda wd: wd[0])
+    if cell_m > width / 2:
+        raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {seg.segment}: "
+                         f"{width:.0f} m wide, {seg.gsd_across_m:.2g} m pixels): its ortho would "
+                         "hold a cell or two across, or none; use at most "
+                         f"{math.floor(width / 2)} m")
+
+
 def check_output_crs(epsg: int) -> CRS:
     """The output CRS of an EPSG code: projected, every axis in metres; else InputError."""
     if epsg <= 0:
@@ -573,6 +710,9 @@ def check_output_crs(epsg: int) -> CRS:
 
 
 GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
+# a transverse Mercator (UTM) used this far in longitude from its central meridian is said:
+# a zone away is 9° at most; beyond 90° the grid is true again in scale, turned upside down
+CENTRAL_MERIDIAN_MAX_DEG: Final = 10.0
 
 
 def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, float]
@@ -593,7 +733,10 @@ def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
     """A warning when a metre of the output grid is not a metre on the ground at the DEM's
     centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
     Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
-    distances are grid metres, which users take for ground metres."""
+    distances are grid metres, which users take for ground metres. A transverse Mercator
+    far from its central meridian is said by `central_meridian_note` instead."""
+    if (far := central_meridian_note(crs, lon, lat)) is not None:
+        return far
     factors = Proj(crs).get_factors(lon, lat)
     scales = (factors.meridional_scale, factors.parallel_scale)
     if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
@@ -604,6 +747,45 @@ def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
             f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
             f"distances in the products are grid metres; UTM there (--crs {_utm_epsg(lon, lat)}) "
             "keeps them within 0.1 %")
+
+
+def _central_meridian_deg(crs: CRS) -> float | None:
+    """The central meridian (degrees) of a transverse Mercator CRS; None for any other."""
+    op = crs.coordinate_operation
+    if op is None or "transverse mercator" not in op.method_name.lower():
+        return None
+    for param in op.params:
+        if param.name in ("Longitude of natural origin", "Longitude of origin"):
+            return math.degrees(float(param.value) * param.unit_conversion_factor)
+    return None
+
+
+def central_meridian_note(crs: CRS, lon: float, lat: float) -> str | None:
+    """A warning when a transverse Mercator CRS (UTM) is used more than
+    CENTRAL_MERIDIAN_MAX_DEG of longitude from its central meridian at the DEM's centre; else
+    None. Its grid then turns from north and stretches; and across 90° the scale comes back to
+    1 (the scale note said nothing) with the grid upside down: UTM zone 1 over a site at 2°E
+    gave products turned by 180°, northings of 15 390 km."""
+    lon0 = _central_meridian_deg(crs)
+    if lon0 is None or not (math.isfinite(lon) and math.isfinite(lat)):
+        return None
+    dlon = (lon - lon0 + 180.0) % 360.0 - 180.0
+    if abs(dlon) <= CENTRAL_MERIDIAN_MAX_DEG:
+        return None
+    head = (f"EPSG:{crs.to_epsg()} ({crs.name}): the DEM's centre ({lat:.2f}°, {lon:.2f}°) is "
+            f"{abs(dlon):.0f}° of longitude from its central meridian ({lon0:g}°)")
+    factors = Proj(crs).get_factors(lon, lat)
+    turn, scale = factors.meridian_convergence, factors.meridional_scale
+    if abs(dlon) > 90.0:
+        _, northing = Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)
+        said = (f"on the far side of the projection: the products come out turned by "
+                f"{abs(turn):.0f}° (northings of {northing / 1000:.0f} km)")
+    elif math.isfinite(turn) and math.isfinite(scale) and scale > 0:
+        said = (f"its grid north is {abs(turn):.0f}° from true north there and a metre of its "
+                f"grid {1 / scale:.3f} m on the ground")
+    else:
+        said = "where its grid is far from true"
+    return f"{head}, {said}: UTM there is --crs {_utm_epsg(lon, lat)}"
 
 
 def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
@@ -622,6 +804,12 @@ def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
             f"at the DEM's centre ({lat:.2f}°, {lon:.2f}°), far from where this CRS is used, "
             f"and takes the two datums for one: the products can be metres to hundreds of "
             f"metres off; UTM there (--crs {_utm_epsg(lon, lat)}) needs no shift")
+
+
+def _span_text(span: tuple[float, float]) -> str:
+    """Heights (m) for a message: "898 to 902 m", or "9000 m" when both round alike."""
+    low, high = (f"{v:.0f}" for v in span)
+    return f"{low} m" if low == high else f"{low} to {high} m"
 
 
 def _median(parts: list[F64]) -> float:

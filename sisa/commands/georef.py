@@ -41,6 +41,8 @@ from sisa.outdir import staged_output_dir
 if TYPE_CHECKING:
     from postproc.georef import GeorefOptions, GeorefResult
 
+MAX_CELL_M = 10_000.0  # an ortho cell wider than any swath
+
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "georef", "put every scan line on GPS time and every pixel on the "
@@ -78,13 +80,15 @@ def add_georef_args(parser: argparse.ArgumentParser) -> None:
     geoid.add_argument("--geoid", type=Path, default=None, metavar="TIF",
                        help="geoid undulation raster: the DEM holds orthometric heights")
     geoid.add_argument("--geoid-m", type=float, default=None, metavar="N",
-                       help="constant geoid undulation for an orthometric DEM")
+                       help="constant geoid undulation for an orthometric DEM (-110 to "
+                            "110 m)")
     parser.add_argument("--no-products", action="store_true",
                         help="only EO, IGM and the geolocation VRT (no ortho, GLT, mosaic)")
 
 
 def options_from_args(args: argparse.Namespace, sensor_default: object = None
                       ) -> GeorefOptions:
+    from postproc.dem import check_undulation_m
     from postproc.georef import GeorefOptions
     from postproc.navigation import MAX_GAP_LIMIT_S
     from postproc.sensorfile import SensorModel
@@ -96,8 +100,10 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
         sensor = sensor_default
     else:
         sensor = SensorModel()
-    if args.cell is not None and not 0 < args.cell <= 10_000:
-        raise InputError(f"--cell {args.cell}: must be a positive size in metres")
+    if args.cell is not None and not args.cell > 0:
+        raise InputError(f"--cell {args.cell:g}: must be a positive size in metres")
+    if args.cell is not None and args.cell > MAX_CELL_M:
+        raise InputError(f"--cell {args.cell:g}: must be at most {MAX_CELL_M:g} m")
     if args.crs is not None and args.crs <= 0:
         raise InputError(f"--crs {args.crs}: not a valid EPSG code (a positive integer)")
     lo, hi = LEAP_SECONDS_RANGE
@@ -107,6 +113,8 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
     if args.max_gap_s is not None and not 0 < args.max_gap_s <= MAX_GAP_LIMIT_S:
         raise InputError(f"--max-gap-s {args.max_gap_s}: must be a positive number of seconds, "
                          f"at most {MAX_GAP_LIMIT_S}")
+    if args.geoid_m is not None:  # up front: 1e308 was an overflow traceback
+        check_undulation_m(args.geoid_m, "--geoid-m")
     geoid = args.geoid if args.geoid is not None else args.geoid_m
     return GeorefOptions(sensor=sensor, dem=args.dem, geoid=geoid, epsg=args.crs,
                          cell_m=args.cell, trajectory=args.trajectory,

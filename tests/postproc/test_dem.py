@@ -3,6 +3,7 @@ masks), pyproj (geoid sampling) and the emulator's own terrain sampler."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ from rasterio.windows import from_bounds
 
 from emulators.scenario import load_scenario
 from emulators.terrain import Terrain
-from postproc.dem import Dem
+from postproc.dem import Dem, DemVoidWarning, band_note
 from sisa.errors import InputError
 
 UTM31N = 32631
@@ -198,3 +199,83 @@ def test_reads_the_emulator_dem_as_the_emulator_samples_it(tmp_path: Path) -> No
     rng = np.random.default_rng(5)
     pe, pn = rng.uniform(w, e, 500), rng.uniform(s, n, 500)
     np.testing.assert_allclose(dem.height_at(pe, pn), terrain.height_at(pe, pn), atol=1e-4)
+
+
+# --- found by a bad-input sweep of `sisa georef`: geoids no geoid is, bounds to 13 digits --------
+
+def _geoid_tif(path: Path, grid: np.ndarray, nodata: float | None = None) -> Path:
+    """A geographic geoid grid of 0.01° cells over the `small` DEM (41.5°N, 1.7°E; 60 x 60)."""
+    return write_tif(path, grid.astype(np.float32), north_up(1.5, 42.0, 0.01, 0.01), 4326,
+                     nodata=nodata)
+
+
+@pytest.mark.parametrize("undulation", [1e308, 3.5e38, 1e6, -200.0, 110.5, float("nan")])
+def test_constant_geoid_no_geoid_has_is_refused(small: Path, undulation: float) -> None:
+    """1e308 was a ValueError traceback (float32 overflow), 1e6 an error blaming the DEM's
+    heights, -200 accepted; Earth's geoid is -106..+85 m."""
+    with pytest.raises(InputError) as err:
+        Dem.read(small, geoid=undulation)
+    assert str(err.value) == (f"{small}: geoid undulation {undulation:g}: must be -110 to "
+                              "110 m (the geoid undulation on Earth: -106 to +85 m)")
+
+
+@pytest.mark.parametrize(("fill", "nodata", "held"), [
+    (np.nan, None, ""), (-32768.0, -32768.0, ""), (3000.0, None, "; 25 hold 3000"),
+    (1e30, None, "; 25 hold 1e+30")])
+def test_geoid_raster_without_a_valid_undulation_says_so(
+        tmp_path: Path, small: Path, fill: float, nodata: float | None, held: str) -> None:
+    """All NaN or nodata was "does not cover the DEM" (it does); 3000 m was taken, leaving
+    every ray under the surface ("no pixel could be georeferenced: does the DEM cover the
+    flight?"); 1e30 a warning with the DEM's plausible range."""
+    geoid = _geoid_tif(tmp_path / "geoid.tif", np.full((60, 60), fill), nodata)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError) as err:
+            Dem.read(small, geoid=geoid)
+    assert str(err.value) == (f"{geoid}: the geoid raster has no valid undulation over the "
+                              "DEM (every cell there is nodata, NaN or outside -110..110 m, the "
+                              f"geoid's range{held})")
+
+
+def test_geoid_raster_voids_are_said_against_the_geoids_range(tmp_path: Path,
+                                                              small: Path) -> None:
+    """A 1e30 beside the cells the DEM needs: a void, said with the geoid's range (it was the
+    DEM's, -1000..9000 m); under a DEM cell: an error naming the cells."""
+    grid = np.full((60, 60), 49.5)
+    with rasterio.open(small) as ds:
+        lon, lat = Transformer.from_crs(UTM31N, 4326, always_xy=True).transform(*ds.xy(2, 1))
+    row, col = int((42.0 - lat) / 0.01), int((lon - 1.5) / 0.01)
+    grid[row - 2, col] = 1e30  # read (the window has a cell of margin) but not needed
+    geoid = _geoid_tif(tmp_path / "geoid.tif", grid)
+    with pytest.warns(DemVoidWarning) as said:
+        dem = Dem.read(small, geoid=geoid)
+    note, = (str(w.message) for w in said)
+    assert note == (f"{geoid}: 1 geoid cell holds 1e+30, outside -110..110 m, and no nodata "
+                    "value declares it: read as void (no undulation there)")
+    np.testing.assert_allclose(dem.heights_m, Dem.read(small).heights_m + np.float32(49.5))
+    grid[row, col] = 1e30
+    _geoid_tif(geoid, grid)
+    with pytest.raises(InputError, match=r"no valid undulation at 20 DEM cells \(nodata, NaN or "
+                                         r"outside -110\.\.110 m"):
+        Dem.read(small, geoid=geoid)
+
+
+def test_bounds_off_the_dem_are_said_to_a_decimetre(small: Path) -> None:
+    """They were 416188.9330400008 and (+500.0 m)."""
+    far = (416_188.93304000085, 4_604_056.222936864, 417_390.30419914704, 4_607_628.619075728)
+    with pytest.raises(InputError) as err:
+        Dem.read(small, bounds_m=far)
+    assert str(err.value) == (f"{small}: bounds (416188.9, 4604056.2, 417390.3, 4607628.6) "
+                              "(+500 m) do not overlap the DEM (401001.0, 4599991.0, 401007.0, "
+                              "4599999.0)")
+
+
+def test_a_raster_of_several_bands_is_said(tmp_path: Path, small: Path) -> None:
+    path = tmp_path / "rgb.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=5, count=3, dtype="float32",
+                       crs=CRS.from_epsg(UTM31N),
+                       transform=north_up(401_000.0, 4_600_000.0, 2.0, 2.0)) as ds:
+        ds.write(np.ones((3, 5, 4), np.float32))
+    assert band_note(small) is None
+    assert band_note(path) == (f"{path}: the DEM raster has 3 bands: band 1 is read as heights, "
+                               "the others are ignored")

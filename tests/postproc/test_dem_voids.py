@@ -307,3 +307,15 @@ def test_a_whole_dem_is_scanned_in_bounded_windows_of_whole_blocks(
     assert (seen == 1).all()
     assert dem_extent(path)[0] == UTM31N
     assert height_range(path, overview=1) == (200.0, 299.0)
+
+
+def test_a_void_window_is_named_to_a_decimetre(tmp_path: Path) -> None:
+    """The window was printed as computed (400040.00000000006, ... (+0.0 m)): to 0.1 m now."""
+    data = hills(40, 30).astype(np.float32)
+    data[:20] = np.nan
+    path = write_tif(tmp_path / "north_void.tif", data, nodata=None)
+    inside = (WEST_M + 40.00000000006, NORTH_M - 40.04, WEST_M + 60.0, NORTH_M - 20.0)
+    with pytest.raises(InputError) as err:
+        Dem.read(path, bounds_m=inside, margin_m=0.0)
+    assert str(err.value) == (f"{path}: the DEM has no valid height in the window (400040.0, "
+                              "4600960.0, 400060.0, 4600980.0) (+0 m)")

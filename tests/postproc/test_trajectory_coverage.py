@@ -464,3 +464,25 @@ def test_sbet_is_still_told_apart_from_text(tmp_path: Path) -> None:
     report: dict[str, Any] = {}
     read_trajectory_file(tmp_path / "nav.out", cols, times, antenna_offset_m=G_B, report=report)
     assert report["format"] == "Applanix SBET"
+
+
+@pytest.mark.parametrize("kind", ["GPST .pos", "SBET"])
+def test_leap_seconds_for_a_trajectory_on_gps_time_are_said_unused(
+        run: Path, truth: TruthTrajectory, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        kind: str) -> None:
+    """--leap-seconds with a .pos on GPST or an SBET changed nothing, without a word (found by
+    a bad-input sweep): one warning, the products as without it."""
+    path = tmp_path / ("gps.pos" if kind == "GPST .pos" else "nav.out")
+    if kind == "SBET":
+        write_truth_sbet(path, truth, truth.t_start_ns + NS_PER_S, truth.t_end_ns)
+    else:
+        write_truth_pos(path, truth, _antenna(run), truth.t_start_ns + NS_PER_S, truth.t_end_ns)
+    rc, _, err = georef(run, tmp_path / "geo", capsys, "--trajectory", path,
+                        "--leap-seconds", "17")
+    assert rc == 0, err
+    article = "an SBET" if kind == "SBET" else "a .pos"
+    assert err.splitlines() == [f"sisa georef: warning: --leap-seconds 17: not used: {path} is "
+                                f"{article} on GPS time (the option is for a .pos on UTC or "
+                                "JST)"]
+    assert summary(tmp_path / "geo")["warnings"] == [err.splitlines()[0].removeprefix(
+        "sisa georef: warning: ")]

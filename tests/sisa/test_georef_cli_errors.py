@@ -12,7 +12,7 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.georef import GeorefJob, GeorefOptions
+from postproc.georef import GeorefJob, GeorefOptions, SegmentResult, SwathOnDem
 from postproc.sensorfile import SensorModel
 from sisa.cli import build_parser, main
 from sisa.errors import InputError
@@ -149,3 +149,141 @@ def test_bad_leap_seconds_and_max_gap_are_one_line(
     assert out == ""
     assert err.splitlines() == [f"sisa georef: error: {says}"]
     assert not (inputs / "out").exists()
+
+
+# --- found by a bad-input sweep of `sisa georef`: --geoid-m, --cell, --crs far away, a 3-band
+# DEM, --leap-seconds without a trajectory --------------------------------------------------------
+
+@pytest.mark.parametrize(("option", "says"), [
+    # an overflow traceback (38 lines), an error blaming the DEM, and silence
+    (("--geoid-m", "1e308"), "--geoid-m 1e+308: must be -110 to 110 m (the geoid undulation on "
+                             "Earth: -106 to +85 m)"),
+    (("--geoid-m", "3.5e38"), "--geoid-m 3.5e+38: must be -110 to 110 m"),
+    (("--geoid-m", "1e6"), "--geoid-m 1e+06: must be -110 to 110 m"),
+    (("--geoid-m", "-200"), "--geoid-m -200: must be -110 to 110 m"),
+    (("--geoid-m", "110.5"), "--geoid-m 110.5: must be -110 to 110 m"),
+    # "must be a positive size in metres" of a size over the limit
+    (("--cell", "1e5"), "--cell 100000: must be at most 10000 m"),
+    (("--cell", "10000.5"), "--cell 10000.5: must be at most 10000 m"),
+    (("--cell", "0"), "--cell 0: must be a positive size in metres"),
+])
+def test_bad_geoid_undulation_and_cell_are_one_line(
+        inputs: Path, capsys: pytest.CaptureFixture[str], option: tuple[str, str], says: str
+        ) -> None:
+    rc, out, err = _georef(inputs, capsys, *option)
+    assert rc == 2
+    assert out == ""
+    line, = err.splitlines()
+    assert line.startswith(f"sisa georef: error: {says}")
+    assert not (inputs / "out").exists()
+
+
+@pytest.mark.parametrize("undulation", ["-106", "85", "0", "49.5", "110", "-110"])
+def test_geoid_undulations_earth_has_are_taken(undulation: str) -> None:
+    from sisa.commands.georef import options_from_args
+
+    args = build_parser().parse_args(["georef", "f.mcap", "--scanner", "s", "--dem", "d.tif",
+                                      "--out", "o", "--geoid-m", undulation])
+    assert options_from_args(args).geoid == float(undulation)
+
+
+def test_the_job_itself_refuses_an_undulation_no_geoid_has(inputs: Path) -> None:
+    """Before the log is read (it was a ValueError traceback from the first DEM window)."""
+    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", geoid=1e308)
+    with pytest.raises(InputError, match=r"geoid undulation 1e\+308: must be -110 to 110 m"):
+        GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+
+
+@pytest.mark.parametrize(("epsg", "says"), [
+    (32601, "179° of longitude from its central meridian (-177°), on the far side of the "
+            "projection: the products come out turned by 179° (northings of 15386 km)"),
+    (32649, "109° of longitude from its central meridian (111°), on the far side"),
+    (32633, "13° of longitude from its central meridian (15°), its grid north is 9° from true "
+            "north there and a metre of its grid 0.986 m on the ground"),
+    (32631, None), (32630, None), (25831, None), (2056, None), (3857, None)])
+def test_a_transverse_mercator_far_from_its_central_meridian_is_said(
+        inputs: Path, epsg: int, says: str | None) -> None:
+    """UTM zone 1 over the DEM's 2°E: 179° from its central meridian the scale is 1 again,
+    so the scale note said nothing, while the products came out upside down with northings of
+    15 390 km. One note, in place of the scale note (zone 33); a zone away (32630) is fine."""
+    _check_note(inputs, epsg, "central meridian", says)
+    if says is not None:
+        options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif", epsg=epsg)
+        job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+        assert len(job.warnings) == 1 + ("PROJ knows no shift" in " ".join(job.warnings))
+
+
+def _job_warnings(inputs: Path, **kwargs: object) -> list[str]:
+    options = GeorefOptions(sensor=SensorModel(), **kwargs)  # type: ignore[arg-type]
+    return GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out",
+                     options).warnings
+
+
+def test_a_dem_of_several_bands_is_said(inputs: Path) -> None:
+    """A 3-band raster given as the DEM (or the geoid) was read from band 1 without a word."""
+    with rasterio.open(inputs / "rgb.tif", "w", driver="GTiff", width=20, height=20, count=3,
+                       dtype="float32", crs="EPSG:32631",
+                       transform=Affine(10.0, 0.0, 420_000.0, 0.0, -10.0, 4_610_000.0)) as ds:
+        ds.write(np.full((3, 20, 20), 40.0, np.float32))
+    assert _job_warnings(inputs, dem=inputs / "dem.tif") == []
+    assert _job_warnings(inputs, dem=inputs / "rgb.tif") == [
+        f"{inputs / 'rgb.tif'}: the DEM raster has 3 bands: band 1 is read as heights, the "
+        "others are ignored"]
+    assert _job_warnings(inputs, dem=inputs / "dem.tif", geoid=inputs / "rgb.tif") == [
+        f"{inputs / 'rgb.tif'}: the geoid raster has 3 bands: band 1 is read as undulations, "
+        "the others are ignored"]
+
+
+def test_leap_seconds_without_a_trajectory_is_said(inputs: Path) -> None:
+    """--leap-seconds only applies to a --trajectory .pos on UTC or JST; without one it changed
+    nothing, silently (products byte-identical). A scenario's fallback (sisa process) says
+    nothing."""
+    assert _job_warnings(inputs, dem=inputs / "dem.tif", leap_seconds_fallback=18) == []
+    assert _job_warnings(inputs, dem=inputs / "dem.tif", leap_seconds=18) == [
+        "--leap-seconds 18: not used: it applies to a --trajectory .pos on UTC or JST, and the "
+        "flight log's navigation is on GPS time"]
+
+
+def _segment(segment: int, rays_hit: int) -> SegmentResult:
+    return SegmentResult(segment=segment, lines=100, lines_timed=100, lines_georeferenced=100,
+                         rays=51_200, rays_hit=rays_hit, gsd_across_m=0.4, gsd_along_m=1.0,
+                         t_first_gps_ns=0, t_last_gps_ns=1, igm=Path("igm.bil"),
+                         image=Path("image.bil"))
+
+
+@pytest.mark.parametrize(("swath", "says"), [
+    (SwathOnDem((420_050.0, 4_609_850.0, 420_150.0, 4_609_950.0), (898.2, 902.4),
+                (9000.0, 9000.3), True),
+     "its surface lies above the camera (the DEM 9000 m under the swaths, the camera 898 to "
+     "902 m, both ellipsoidal): heights in other units, or a wrong geoid?"),
+    (SwathOnDem((419_900.04, 4_609_850.0, 420_150.0, 4_609_950.0), (898.2, 902.4),
+                (300.0, 300.0), False),
+     "the swaths (419900.0, 4609850.0, 420150.0, 4609950.0) run off the DEM (420005.0, "
+     "4609805.0, 420195.0, 4609995.0)"),
+    (SwathOnDem((420_050.0, 4_609_850.0, 420_150.0, 4_609_950.0), (898.2, 902.4),
+                (300.0, 300.0), True),
+     "the DEM covers the swaths, but no ray met its surface (the DEM 300 m under the swaths, "
+     "the camera 898 to 902 m, both ellipsoidal)")])
+def test_no_pixel_on_the_dem_says_why(inputs: Path, swath: SwathOnDem, says: str) -> None:
+    """It always asked "does the DEM cover the flight?", also of a DEM that did, above the
+    aircraft: now the DEM's and the camera's heights, or the bounds that do not meet."""
+    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif")
+    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+    job.swaths[0] = swath
+    assert str(job.no_hit_error([_segment(0, 0)])) == (
+        f"no pixel could be georeferenced on {inputs / 'dem.tif'}: {says}")
+
+
+@pytest.mark.parametrize(("on_dem", "surface", "why"), [
+    (False, (300.0, 310.0), "the DEM does not cover the whole swath?"),
+    (True, (300.0, 310.0), "voids in the DEM under the swath?"),
+    (True, (300.0, 1200.0), "terrain above the camera?")])
+def test_a_segment_partly_off_the_dem_says_the_likeliest_why(
+        inputs: Path, on_dem: bool, surface: tuple[float, float], why: str) -> None:
+    options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif")
+    job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
+    job.swaths[3] = SwathOnDem((0.0, 0.0, 1.0, 1.0), (898.0, 902.0), surface, on_dem)
+    assert job.partial_hit_note(3, 25_474, 51_200) == (
+        f"segment 3: 49.7 % of its pixels meet the DEM dem.tif ({why})")
+    assert job.partial_hit_note(3, 0, 51_200) == (
+        f"segment 3: none of its pixels meet the DEM dem.tif ({why}): no ortho made for it")

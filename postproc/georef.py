@@ -61,11 +61,11 @@ from postproc.quicklook import write_quicklook
 from postproc.raycast import intersect
 from postproc.registration import register_strips
 from postproc.sensorfile import SensorModel
-from postproc.sync import LineTimes, SyncResult, synchronise
+from postproc.sync import SyncResult, synchronise
 from postproc.syncconfig import TimeStatus
 from postproc.syncio import (
     read_scanner_lines,
-    scanner_images,
+    unlisted_line_notes,
     write_ins_times,
     write_line_times,
     write_report,
@@ -205,16 +205,6 @@ def segment_image(scanner_dir: Path, segment: int) -> Path:
     if not path.is_file():
         raise InputError(f"{path}: missing: the lines file lists segment {segment}")
     return path
-
-
-def unlisted_lines(lines: LineTimes, segment: int, n_lines: int, image: Path) -> list[str]:
-    """What to say when the lines file lists only some of an image's lines (a file cut short):
-    the others have no frame counter, so no time, and are left out like lines without a pose."""
-    listed = np.unique(lines.line[(lines.segment == segment) & (lines.line < n_lines)]).size
-    if listed >= n_lines:
-        return []
-    return [f"{image}: its lines file lists {listed} of its {n_lines} lines: the other "
-            f"{n_lines - listed} have no time and are not georeferenced"]
 
 
 def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
@@ -414,8 +404,8 @@ class GeorefJob:
         rows = ln.line[sel]
         declared = n_lines if header_lines is None else max(header_lines, n_lines)
         if rows.size and (rows.min() < 0 or rows.max() >= declared):
-            raise InputError(f"segment {segment}: the lines file has line {rows.max()} but the "
-                             f"image only {declared} lines")
+            raise InputError(f"{self.scanner_dir / f'segment_{segment:03d}.lines.csv'} lists "
+                             f"line {rows.max()} but its image only {declared} lines")
         ok = (ln.status[sel] == TimeStatus.OK) & (rows < n_lines)
         t[rows[ok]] = ln.t_gps_ns[sel][ok]
         timed = t >= 0
@@ -562,10 +552,8 @@ class GeorefJob:
             rasters[s], cut = segment_raster(images[s], s)
             if cut is not None:
                 self.warnings.append(cut)
-            self.warnings += unlisted_lines(result.lines, s, rasters[s].lines, images[s])
-        self.warnings += [f"{p}: its lines file lists no line: not georeferenced"
-                          for p in scanner_images(self.scanner_dir)
-                          if p not in images.values()]
+        self.warnings += unlisted_line_notes(self.scanner_dir, result.lines.segment,
+                                             result.lines.line, "georeferenced")
         if on_total is not None:
             on_total(sum(rasters[s].lines for s in segments))
         done: list[SegmentResult] = []

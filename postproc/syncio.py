@@ -24,6 +24,7 @@ I64 = npt.NDArray[np.int64]
 LINES_GLOB: Final = "segment_*.lines.csv"
 IMAGES_GLOB: Final = "segment_*.bil"
 _SEGMENT_RE: Final = re.compile(r"segment_(\d+)\.lines\.csv$")
+_IMAGE_RE: Final = re.compile(r"segment_(\d+)\.bil$")
 # what a frame header can carry (acquisition/scanner_header.py: frame_counter u32, segment u16;
 # postproc reads files, not the codecs: tests/postproc/test_sync.py checks they agree)
 FRAME_COUNTER_MAX: Final = 2**32 - 1
@@ -133,6 +134,32 @@ def read_scanner_lines(folder: Path) -> LineTable:
 def scanner_images(folder: Path) -> list[Path]:
     """Every `segment_NNN.bil` image of a scanner recording folder, in segment order."""
     return sorted(Path(folder).glob(IMAGES_GLOB))
+
+
+def unlisted_line_notes(folder: Path, segment: npt.NDArray[np.integer[Any]],
+                        line: npt.NDArray[np.integer[Any]], what: str) -> list[str]:
+    """What to say of the scanner folder's images whose lines files list none or only some of
+    their lines (a lines file cut short, or holding its header only): those lines have no
+    frame counter, so no time, and are not `what` ("timed", "georeferenced"). An image whose
+    header cannot be read is named, and not judged. `segment`, `line`: the lines listed."""
+    from postproc.igm import EnviRaster
+
+    notes = []
+    for image in scanner_images(folder):
+        try:
+            n_lines = EnviRaster.open(image).lines
+        except InputError as exc:
+            notes.append(f"{exc}: its lines are not checked against it")
+            continue
+        m = _IMAGE_RE.search(image.name)
+        s = int(m.group(1)) if m is not None else -1
+        listed = np.unique(line[(segment == s) & (line >= 0) & (line < n_lines)]).size
+        if listed == 0:
+            notes.append(f"{image}: its lines file lists no line: not {what}")
+        elif listed < n_lines:
+            notes.append(f"{image}: its lines file lists {listed} of its {n_lines} lines: the "
+                         f"other {n_lines - listed} have no frame counter: not {what}")
+    return notes
 
 
 def _status_names(status: I64) -> npt.NDArray[np.str_]:

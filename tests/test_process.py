@@ -201,6 +201,28 @@ def test_a_damaged_table_of_the_run_is_one_line_naming_it(processed, tmp_path, n
     assert not (bad / "process").exists()
 
 
+def test_sync_says_the_lines_its_lines_files_leave_out(processed, tmp_path):
+    """`sisa sync --scanner` read only the lines files: one holding its header alone, or cut
+    short, left a segment or lines untimed without a word, where georef warned (found by a
+    bad-input sweep)."""
+    run, _, _ = processed
+    scanner = shutil.copytree(run / "scanner", tmp_path / "scanner")
+    for seg, keep in ((0, 0), (1, 100)):
+        lines_csv = scanner / f"segment_{seg:03d}.lines.csv"
+        rows = lines_csv.read_text().splitlines(keepends=True)
+        data_at = next(i for i, r in enumerate(rows) if r.startswith("line_index"))
+        lines_csv.write_text("".join(rows[:data_at + 1 + keep]))
+    proc = _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "s")
+    said = [line for line in proc.stderr.splitlines() if line.startswith("sisa sync: warning:")]
+    assert said[0] == (f"sisa sync: warning: {scanner / 'segment_000.bil'}: its lines file "
+                       "lists no line: not timed")
+    assert said[1].startswith(f"sisa sync: warning: {scanner / 'segment_001.bil'}: its lines "
+                              "file lists 100 of its ")
+    assert said[1].endswith("have no frame counter: not timed")
+    report = json.loads((tmp_path / "s" / "sync_report.json").read_text())
+    assert report["notes"] == [w.removeprefix("sisa sync: warning: ") for w in said]
+
+
 def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, tmp_path):
     """A lines file cut short (or holding only its header) left lines, or a whole segment, out
     of the products without a word (found by a bad-input sweep)."""
@@ -213,6 +235,6 @@ def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, t
     proc = _sisa("process", cut, check=False)
     assert proc.returncode == 0, proc.stderr
     assert "segment_000.bil: its lines file lists 100 of its" in proc.stderr
-    assert "have no time and are not georeferenced" in proc.stderr
+    assert "have no frame counter: not georeferenced" in proc.stderr
     summary = json.loads((cut / "process" / "georef_summary.json").read_text())
     assert any("lists 100 of its" in w for w in summary["warnings"])

@@ -13,7 +13,7 @@ import argparse
 import time
 from pathlib import Path
 
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, say_warning
 from sisa.outdir import staged_output_dir
 
 
@@ -35,6 +35,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.sync import TimeStatus, read_sync_input, synchronise
     from postproc.syncio import (
         read_scanner_lines,
+        unlisted_line_notes,
         write_ins_times,
         write_line_times,
         write_report,
@@ -51,7 +52,12 @@ def _run(args: argparse.Namespace) -> int:
         write_ins_times(out / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
         write_line_times(out / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                          ln.t_gps_ns, ln.status)
+        notes = [] if args.scanner is None else unlisted_line_notes(
+            args.scanner, result.lines.segment, result.lines.line, "timed")
+        result.report["notes"] = notes
         write_report(out / "sync_report.json", result.report)
+    for note in notes:  # a segment left out by its lines file was gone without a word
+        say_warning("sync", note)
     ok_ins = int((ins.status == TimeStatus.OK).sum())
     ok_lines = int((ln.status == TimeStatus.OK).sum())
     pulses = result.report["pulses"]

@@ -18,6 +18,7 @@ import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
+from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 from typing import Any, BinaryIO, Final
@@ -43,12 +44,19 @@ GDAL_TYPE_NAMES: Final = {"uint8": "Byte", "int8": "Int8", "uint16": "UInt16", "
 _INTERLEAVES: Final = ("bil", "bsq", "bip")
 _WAVELENGTH_SCALE_TO_NM: Final = {"nanometers": 1.0, "nm": 1.0, "micrometers": 1e3,
                                   "microns": 1e3, "um": 1e3, "millimeters": 1e6}
+_BYTE_ORDERS: Final = {"0": "<", "1": ">"}  # ENVI: 0 little-endian (LSF), 1 big-endian (MSF)
+LAYOUT_DENOMINATORS: Final = 16  # see _layout_hint
 
 
 # -- ENVI rasters on disk --------------------------------------------------------------------
 
 class CutShortWarning(UserWarning):
     """A raster file holds fewer lines than its header says; the lines it holds are used."""
+
+
+class HeaderBehindWarning(UserWarning):
+    """A raster file holds whole lines past its header's count (a recording stopped between
+    writing a block and rewriting its header); every line it holds is used."""
 
 
 def _header_offset(path: Path, text: str) -> int:
@@ -79,6 +87,7 @@ class EnviRaster:
     wavelengths_nm: tuple[float | None, ...]
     envi: dict[str, str]  # the header's fields as GDAL parsed them (keys with underscores)
     header_lines: int = -1  # lines the header declares; more than `lines` in a file cut short
+    file_bytes: int = -1  # the file's size when opened
 
     @classmethod
     def open(cls, path: Path) -> EnviRaster:
@@ -106,9 +115,12 @@ class EnviRaster:
         interleave = envi.get("interleave", "bsq").strip().lower()
         if interleave not in _INTERLEAVES:
             raise InputError(f"{path}: ENVI interleave {interleave!r} is not bil, bsq or bip")
-        if envi.get("byte_order", "0").strip() == "1":
-            dtype = dtype.newbyteorder(">")
-        raster = cls(path, *shape, dtype.newbyteorder("<") if dtype.byteorder == "=" else dtype,
+        order = envi.get("byte_order", "0").strip()
+        if order not in _BYTE_ORDERS:  # GDAL reads any other value as little-endian
+            raise InputError(f"{path}: ENVI byte order {order!r} is neither 0 (little-endian) "
+                             "nor 1 (big-endian)")
+        dtype = dtype.newbyteorder(_BYTE_ORDERS[order])
+        raster = cls(path, *shape, dtype,
                      interleave, _header_offset(path, envi.get("header_offset", "0")),
                      None if nodata is None else float(nodata), names, wl, envi)
         return raster._whole_lines()
@@ -123,22 +135,47 @@ class EnviRaster:
 
     def cut_short_text(self, name: object) -> str:
         """The start of every warning about this file being cut short (`name`: how to call it)."""
+        hint = _layout_hint(self.file_bytes - self.header_offset,
+                            self.header_lines * self.line_bytes)
         return (f"{name} is cut short: {self.lines} of its header's {self.header_lines} lines "
-                "are in the file (a copy or a recording interrupted?)")
+                f"are in the file (a copy or a recording interrupted?{hint and ' or ' + hint})")
 
     def _whole_lines(self) -> EnviRaster:
         """The raster as far as its file holds whole lines. A BIL or BIP file shorter than its
         header (a copy or a recording interrupted) keeps the lines before the cut (`lines`;
         the header's count in `header_lines`: callers say what is missing); a BSQ file, whose
-        every band would be cut, or one without a whole line, is refused."""
+        every band would be cut, or one without a whole line, is refused. A BIL or BIP file
+        holding whole lines past its header's count is a recording stopped between a block and
+        its header's rewrite (the scanner writes the header after each block): every line is
+        read, with a HeaderBehindWarning, so that no line recorded is lost. Any other surplus
+        (part of a line, or a whole multiple of the data, as from `bands = 1` for 4) is a
+        header of another layout and refused: read with it, the image came out striped."""
         need = self.header_offset + self.lines * self.line_bytes
         have = self.path.stat().st_size
-        if have >= need:
-            return replace(self, header_lines=self.lines)
+        if have > need:
+            data, described = have - self.header_offset, need - self.header_offset
+            behind = (self.interleave != "bsq" and self.line_bytes > 0 and described > 0
+                      and data % self.line_bytes == 0 and data % described != 0)
+            if not behind:
+                raise InputError(
+                    f"{self.path} holds {have} bytes, its header describes {need} ({self.lines} "
+                    f"lines x {self.pixels} samples x {self.bands} bands x "
+                    f"{self.dtype.itemsize} bytes + {self.header_offset} offset): a header of "
+                    "another file or layout, or damaged?")
+            lines = data // self.line_bytes
+            warnings.warn(HeaderBehindWarning(
+                f"{self.path} holds {lines} lines, {lines - self.lines} more than its header's "
+                f"{self.lines} (a recording stopped before its header was rewritten?): all "
+                f"{lines} are read"), stacklevel=3)
+            return replace(self, lines=lines, header_lines=lines, file_bytes=have)
+        if have == need:
+            return replace(self, header_lines=self.lines, file_bytes=have)
         whole = max(have - self.header_offset, 0) // self.line_bytes if self.line_bytes else 0
         if self.interleave == "bsq" or whole == 0:
-            raise InputError(f"{self.path}: truncated: {have} bytes, the header needs {need}")
-        return replace(self, lines=whole, header_lines=self.lines)
+            hint = _layout_hint(have - self.header_offset, need - self.header_offset)
+            raise InputError(f"{self.path}: truncated: {have} bytes, the header needs {need}"
+                             f"{hint and ' (' + hint + ')'}")
+        return replace(self, lines=whole, header_lines=self.lines, file_bytes=have)
 
     def read_lines(self, line0: int, line1: int) -> npt.NDArray[Any]:
         """Lines [line0, line1) as an array (lines, bands, pixels) in native byte order."""
@@ -163,6 +200,19 @@ class EnviRaster:
         if data.size != count:
             raise InputError(f"{self.path}: truncated while reading")
         return data
+
+
+def _layout_hint(have: int, need: int) -> str:
+    """Where a file holds exactly a simple fraction (1/2, 1/4, 3/4...) of the data its header
+    describes, the header may describe another layout (more bands, a wider data type) rather
+    than the file be cut short: said as a second guess. An interrupted copy hardly ends on
+    such a byte."""
+    if not 0 < have < need:
+        return ""
+    part = Fraction(have, need)
+    if part.denominator > LAYOUT_DENOMINATORS:
+        return ""
+    return f"a header of another layout: the file holds exactly {part} of the data it describes"
 
 
 def _wavelength_nm(band_tags: dict[str, str], envi: dict[str, str]) -> float | None:

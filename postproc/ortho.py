@@ -78,6 +78,7 @@ TIFF_COMPRESSIONS: Final = ("deflate", "zstd", "lzw", "none")
 GLT_BAND_NAMES: Final = ("GLT Sample Lookup", "GLT Line Lookup")
 MAX_GRID_CELLS: Final = 2**32  # 65 536² cells: a 32 GB GLT; a finer grid or a wider one is
 # a mistyped --cell or --bounds (0.001 m cells made a 13 TB sparse GLT before anyone noticed)
+FAR_WIDTHS: Final = 50.0  # a position this many line widths from the rest is damage: see _far_lines
 
 
 # -- the C kernels ---------------------------------------------------------------------------
@@ -231,15 +232,41 @@ def nice_cell_m(gsd_m: float) -> float:
 
 # -- where each block of lines lies on the ground --------------------------------------------
 
+class FarPositionWarning(UserWarning):
+    """An IGM holds positions far from the rest (damage): they are mapped as no position."""
+
+
+@dataclass(frozen=True)
+class FarPositions:
+    """Positions of an IGM far from the rest of it (see _far_lines), which the index and the
+    ortho take for no position (NaN): a damaged value 5000 km off otherwise stretches the
+    grid over 5000 km, or, on a grid given, fills a sliver of cells from the pixels beside it."""
+
+    pixels: I64  # (n, 2): line, pixel of every such position, in the order of lines
+    first: str  # e.g. "IGM line 10, pixel 10 lies 5000 km from the rest of its line"
+
+    @property
+    def text(self) -> str:
+        more = len(self.pixels) - 1
+        return self.first + (f" (and {more} more positions far off)" if more else "")
+
+    def void(self, blk: npt.NDArray[Any], line0: int) -> None:
+        """Set these positions NaN in blk (lines, 3, pixels), IGM lines from line0 on."""
+        a, b = np.searchsorted(self.pixels[:, 0], [line0, line0 + blk.shape[0]])
+        if b > a:
+            blk[self.pixels[a:b, 0] - line0, :, self.pixels[a:b, 1]] = np.nan
+
+
 @dataclass(frozen=True)
 class SwathIndex:
     """Bounding box of every block of quads of an IGM, so a tile reads only the lines that
     reach it. Block k holds the quads whose first line is in [k·block_lines, (k+1)·block_lines)
-    (they reach one line further)."""
+    (they reach one line further). Positions far from the rest (`far`) are left out."""
 
     raster: EnviRaster
     block_lines: int
     boxes_m: F64  # (blocks, 4): west, south, east, north; NaN where a block has no position
+    far: FarPositions | None = None  # usually None
 
     @classmethod
     def build(cls, igm: Path, block_lines: int = INDEX_BLOCK_LINES,
@@ -261,6 +288,7 @@ class SwathIndex:
         with ThreadPoolExecutor(len(parts) - 1, thread_name_prefix="sisa-index") as pool:
             for done in [pool.submit(extents, a, b) for a, b in itertools.pairwise(parts)]:
                 done.result()
+        far = _far_positions(raster, per_line, block_lines)
         starts = np.arange(0, max(raster.lines - 1, 1), block_lines)
         boxes = np.empty((starts.size, 4))
         boxes[:, :2] = np.fmin.reduceat(per_line[:, :2], starts, axis=0)
@@ -268,7 +296,7 @@ class SwathIndex:
         nxt = np.minimum(starts + block_lines, raster.lines - 1)  # last line of each block
         boxes[:, :2] = np.fmin(boxes[:, :2], per_line[nxt, :2])
         boxes[:, 2:] = np.fmax(boxes[:, 2:], per_line[nxt, 2:])
-        return cls(raster, block_lines, boxes)
+        return cls(raster, block_lines, boxes, far)
 
     @property
     def bounds_m(self) -> tuple[float, float, float, float]:
@@ -320,6 +348,75 @@ class SwathIndex:
             q0, q1 = int(f) * self.block_lines, min((int(la) + 1) * self.block_lines, end_line)
             runs += [(a, min(a + MAX_READ_LINES, q1)) for a in range(q0, q1, MAX_READ_LINES)]
         return runs
+
+
+def _far_lines(per_line: F64, block_lines: int) -> tuple[I64, B, F64, float]:
+    """Lines holding a position far from the rest, from the lines' extents (west, south, east,
+    north; O(lines), no pass over the pixels): a line wider than FAR_WIDTHS line widths (the
+    median of the lines' extents) holds a pixel that far from the rest of it; a line whose
+    centre lies that far from the median of the centres of its block of lines and the blocks
+    either side is off as a whole (a zeroed sector: easting 0). A flight's lines follow each
+    other, so neither happens to an IGM undamaged. Returns the lines, whether each is wide
+    (else off as a whole), their distances and the limit (metres); none where the lines have
+    no extent (one pixel each, all at one place)."""
+    w, s, e, n = per_line.T
+    lines = per_line.shape[0]
+    size = np.fmax(e - w, n - s)
+    centre = np.stack([(w + e) / 2, (s + n) / 2], axis=1)
+    step = np.hypot(*np.diff(centre, axis=0).T)
+    width, advance = (float(np.median(v[np.isfinite(v)])) if np.isfinite(v).any() else 0.0
+                      for v in (size, step))
+    # one-pixel lines have no width: the way along three blocks then sets the scale
+    limit = FAR_WIDTHS * max(width, 3 * block_lines * advance)
+    if not (math.isfinite(limit) and limit > 0):
+        return np.empty(0, np.int64), np.empty(0, np.bool_), np.empty(0), 0.0
+    blocks = -(-lines // block_lines)
+    c = np.full((blocks + 2, block_lines, 2), np.nan)
+    c.reshape(-1, 2)[block_lines:block_lines + lines] = centre
+    around = np.concatenate([c[:-2], c[1:-1], c[2:]], axis=1)  # (blocks, 3 blocks, 2)
+    ranked = np.sort(around, axis=1)  # NaN last
+    k = np.isfinite(around).sum(axis=1, keepdims=True)
+    mid = (np.take_along_axis(ranked, np.maximum((k - 1) // 2, 0), axis=1)
+           + np.take_along_axis(ranked, k // 2, axis=1))[:, 0] / 2  # k = 0: NaN, as no line
+    ref = np.repeat(mid, block_lines, axis=0)[:lines]
+    off = np.hypot(*(centre - ref).T)
+    with np.errstate(invalid="ignore"):
+        wide, away = size > limit, off > limit
+    found = np.flatnonzero(wide | away)
+    return found, wide[found], np.where(wide, size, off)[found], limit
+
+
+def _far_positions(raster: EnviRaster, per_line: F64, block_lines: int
+                   ) -> FarPositions | None:
+    """The positions far from the rest of the IGM (see _far_lines), None if none; the extents
+    of their lines (per_line) are made again without them."""
+    found, wide, dist, limit = _far_lines(per_line, block_lines)
+    if found.size == 0:
+        return None
+    hits, first = [], ""
+    for line, is_wide, d in zip(found.tolist(), wide.tolist(), dist.tolist(), strict=True):
+        blk = np.array(raster.read_lines(line, line + 1), dtype=np.float64)
+        x, y = blk[0, 0], blk[0, 1]
+        ok = np.isfinite(x) & np.isfinite(y)
+        if is_wide:  # a pixel more than half the limit from the line's median: see _far_lines
+            with np.errstate(invalid="ignore"):
+                gone = np.hypot(x - np.median(x[ok]), y - np.median(y[ok]))
+                pixels = np.flatnonzero(ok & (gone > limit / 2))  # an infinity: refused later
+            worst = int(pixels[np.argmax(gone[pixels])])
+            said = (f"IGM line {line}, pixel {worst} lies {_distance(float(gone[worst]))} from "
+                    "the rest of its line")
+        else:
+            pixels = np.flatnonzero(ok)
+            said = f"IGM line {line} lies {_distance(d)} from the lines around it"
+        first = first or said
+        hits.append(np.stack([np.full(pixels.size, line), pixels], axis=1))
+        blk[0, :, pixels] = np.nan
+        _line_extents(blk, per_line[line:line + 1])
+    return FarPositions(np.concatenate(hits).astype(np.int64), first)
+
+
+def _distance(m: float) -> str:
+    return f"{m / 1000:.0f} km" if m >= 10_000 else f"{m:.0f} m"
 
 
 def _line_extents(blk: npt.NDArray[Any], out: F64) -> None:
@@ -412,14 +509,29 @@ def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, row
         lo = max(q0 - DESCENT_MARGIN_LINES, 0)
         hi = min(q1 + 1 + DESCENT_MARGIN_LINES, index.raster.lines)
         blk = sc.read_lines("igm", index.raster, lo, hi)
+        if index.far is not None:
+            index.far.void(blk, lo)
         u = sc.get("u", (hi - lo, blk.shape[2]), np.float64)
         v = sc.get("v", (hi - lo, blk.shape[2]), np.float64)
         box = sc.get("box", (hi - lo, 4), np.float64)
         gap = sc.get("gap", (hi - lo, blk.shape[2]), np.float64)
         _to_cells(blk, x0, y0, float(grid.cell_m), u, v, box)
+        # an infinity (the kernels take any value but NaN for a position) shows in the lines'
+        # extents: umin or vmin -inf, umax or vmax +inf; no pass over the pixels
+        if np.isneginf(box[:, 0::2]).any() or np.isposinf(box[:, 1::2]).any():
+            raise _infinite(index.raster, blk, lo)
         _gaps(u, v, gap)
         _rasterise(u, v, box, gap, q0 - lo, q1 - lo, lo, d2, line, pixel, inside)
     return TileChoice(line, pixel, d2, inside)
+
+
+def _infinite(raster: EnviRaster, blk: npt.NDArray[Any], line0: int) -> InputError:
+    """The error for an IGM holding an infinity (blk: its lines from line0 on): damage, or a
+    foreign file; NaN is an IGM's 'no position', an infinity no position at all."""
+    line, band, pixel = (int(i) for i in np.argwhere(np.isinf(blk[:, :2]))[0])
+    return InputError(f"{raster.path}: IGM line {line0 + line}, pixel {pixel}: "
+                      f"{('easting', 'northing')[band]} {blk[line, band, pixel]}: not a position "
+                      "(NaN marks a pixel without one): a damaged IGM?")
 
 
 def _to_cells(blk: npt.NDArray[Any], x0: float, y0: float, cell: float, u: F64, v: F64,
@@ -542,7 +654,8 @@ def gather_pixels(raw: EnviRaster, line: npt.NDArray[np.integer[Any]],
 
 
 def output_nodata(raw: EnviRaster) -> float:
-    """The image's own ignore value when it has one (SISA's scanner: 0), else 0 or NaN."""
+    """The image's own ignore value when it has one (SISA's scanner: 0), else 0 or NaN. A
+    float image declaring 0 keeps 0: its zeros are not data by its own header."""
     if raw.nodata is not None:
         return raw.nodata
     return math.nan if raw.dtype.kind == "f" else 0.0
@@ -807,8 +920,8 @@ Progress = Callable[[int], None]  # told a count of work just done (lines, grid 
 def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGrid,
                  out_tif: Path, glt_stem: Path | None, *, tile_cells: int | None = None,
                  compress: str = "deflate", workers: int = WORKERS,
-                 progress: Progress | None = None, on_total: Progress | None = None
-                 ) -> OrthoResult:
+                 progress: Progress | None = None, on_total: Progress | None = None,
+                 empty_ok: bool = True) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
     unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
     the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
@@ -816,7 +929,9 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     perhaps cut to the IGM's lines with common_lines). `tile_cells` forces square work tiles
     of that side (default: windows sized by WINDOW_BYTES); `workers`: windows computed at once
     (the products do not depend on it). `on_total` is told how many cells the swath can reach
-    (the windows to map), `progress` how many of them each finished window held."""
+    (the windows to map), `progress` how many of them each finished window held. Without
+    `empty_ok`, a grid on which no cell is filled is an InputError, nothing written. Positions
+    far from the rest of the IGM (SwathIndex.far) are mapped as none, with a warning."""
     out_tif = Path(out_tif)
     glt_files = () if glt_stem is None else (Path(f"{glt_stem}.bil"), Path(f"{glt_stem}.hdr"))
     for path in (out_tif, *glt_files):  # found at the end: a traceback beside finished products
@@ -826,6 +941,9 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     raw = image if isinstance(image, EnviRaster) else EnviRaster.open(Path(image))
     index, raw = common_lines(index, raw)
     check_pair(index, raw, grid.epsg)
+    if index.far is not None:
+        warnings.warn(FarPositionWarning(f"{index.raster.path}: {index.far.text}: mapped as no "
+                                         "position (a damaged IGM?)"), stacklevel=2)
     w, s, e, n = index.bounds_m
     gw, gs, ge, gn = grid.bounds_m
     if not (w < ge and gw < e and s < gn and gs < n):
@@ -844,6 +962,8 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
             filled, infill, dist_sum, dist_max = _ortho_windows(
                 index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1),
                 progress, on_total)
+            if filled == 0 and not empty_ok:
+                raise _nothing_filled(index, grid)
             tif.close()
         except BaseException:
             tif.abort()
@@ -854,6 +974,20 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
             glt.close()
     return OrthoResult(grid.width * grid.height, filled, infill,
                        dist_sum / filled if filled else math.nan, dist_max)
+
+
+def _nothing_filled(index: SwathIndex, grid: OrthoGrid) -> InputError:
+    """The error for a grid on which no cell is filled: on a grid holding the IGM's whole
+    extent, no cell centre lies in any quad of neighbouring pixels (an IGM whose lines are all
+    one: an ortho of nodata and 'mean distance nan m' before); else the grid misses the
+    swath, its bounding box only."""
+    w, s, e, n = index.bounds_m
+    gw, gs, ge, gn = grid.bounds_m
+    if gw <= w and gs <= s and e <= ge and n <= gn:
+        return InputError(f"{index.raster.path}: no cell of the grid lies between neighbouring "
+                          "pixels of the IGM: its lines do not advance (a damaged IGM?)")
+    return InputError(f"no cell of the grid ({gw:.0f}, {gs:.0f}, {ge:.0f}, {gn:.0f}) lies in "
+                      "the image's swath: nothing to map")
 
 
 def _window_arrays(out: Scratch, raw: EnviRaster, rows: int, cols: int

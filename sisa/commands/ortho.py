@@ -77,11 +77,16 @@ def _run(args: argparse.Namespace) -> int:
     # the extent of the lines to be mapped (both files', one perhaps cut short), then the
     # ortho's index
     index, image = common_lines(SwathIndex.build(args.igm), EnviRaster.open(args.image))
+    if args.bounds is None and index.far is not None:
+        # a grid over its extent would cover the far positions (one 5000 km off: 66 s, a
+        # 21 GB sparse GLT, exit 0); on a grid given, they are mapped as none, with a warning
+        raise InputError(f"{args.igm}: {index.far.text}: a damaged IGM? give --bounds to map "
+                         "it anyway")
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
     glt = None if args.no_glt else out.with_name(f"{out.stem}_glt")
     with terminal_progress("ortho") as (progress, on_total):
         res = orthorectify(index, image, grid, out, glt, compress=args.compress,
-                           progress=progress, on_total=on_total)
+                           progress=progress, on_total=on_total, empty_ok=False)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

@@ -19,7 +19,7 @@ import rasterio
 from scipy.spatial import cKDTree
 
 import postproc.ortho as ortho
-from postproc.igm import CutShortWarning, EnviRaster
+from postproc.igm import CutShortWarning, EnviRaster, open_igm
 from postproc.ortho import OrthoGrid, SwathIndex, orthorectify
 from sisa.errors import InputError
 from tests.postproc.test_igm import (
@@ -549,3 +549,115 @@ def test_zstd_product_holds_the_same_values(made: Made, tmp_path: Path) -> None:
         assert z.compression.name == "zstd"
         assert z.nodata == d.nodata == 0
         np.testing.assert_array_equal(z.read(), d.read())
+
+
+def damaged_igm(made: Made, folder: Path, name: str, damage: Any) -> Path:
+    """`made`'s IGM written again with `damage(xyz)` done to its (lines, 3, pixels) values
+    (IgmWriter would write a non-finite pixel all NaN)."""
+    xyz = np.array(open_igm(made.folder / "seg_igm.bil"))
+    damage(xyz)
+    xyz.astype("<f8").tofile(folder / f"{name}.bil")
+    shutil.copy(made.folder / "seg_igm.hdr", folder / f"{name}.hdr")
+    return folder / f"{name}.bil"
+
+
+def test_an_undamaged_igm_has_nothing_far(made: Made) -> None:
+    """Turbulence white from line to line (lines cross), a DEM miss: nothing is far off."""
+    assert SwathIndex.build(made.folder / "seg_igm.bil").far is None
+    assert SwathIndex.build(made.folder / "seg_igm.bil", block_lines=7).far is None
+
+
+def _far_pixel(xyz: np.ndarray) -> None:
+    xyz[10, 1, 10] += 5e6  # northing 5000 km off
+
+
+def _off_line(xyz: np.ndarray) -> None:
+    xyz[300, 0] = 0.0  # a zeroed sector: one line's eastings
+
+
+def _far_void(xyz: np.ndarray) -> None:
+    xyz[10, :, 10] = np.nan
+
+
+def _off_void(xyz: np.ndarray) -> None:
+    xyz[300] = np.nan
+
+
+@pytest.mark.parametrize(("damage", "void", "said", "count"), [
+    (_far_pixel, _far_void, "IGM line 10, pixel 10 lies 5000 km from the rest of its line", 1),
+    (_off_line, _off_void, "IGM line 300 lies 461 km from the lines around it", 64)])
+def test_positions_far_from_the_rest_are_mapped_as_none(
+        made: Made, tmp_path: Path, damage: Any, void: Any, said: str, count: int) -> None:
+    """One northing 5000 km off stretched the default grid to 5000 km (`sisa ortho`: 66 s,
+    a 21 GB sparse GLT); on a grid given, the quads reaching it filled a sliver of cells up
+    to the grid's edge from the pixels beside it. Now the index leaves such positions out
+    (its extent is the swath's), and the ortho maps them as NaN, with a warning."""
+    far = damaged_igm(made, tmp_path, "far_igm", damage)
+    index = SwathIndex.build(far)
+    assert index.far is not None
+    assert index.far.first == said
+    assert len(index.far.pixels) == count
+    np.testing.assert_array_equal(index.boxes_m,
+                                  SwathIndex.build(made.folder / "seg_igm.bil").boxes_m
+                                  if damage is _far_pixel else
+                                  SwathIndex.build(damaged_igm(made, tmp_path, "v", void)).boxes_m)
+    with pytest.warns(ortho.FarPositionWarning, match=rf"far_igm\.bil: {said}.*: mapped as no "
+                                                      r"position \(a damaged IGM\?\)$"):
+        orthorectify(far, made.folder / "seg.bil", made.grid, tmp_path / "o.tif",
+                     tmp_path / "o_glt")
+    nan = damaged_igm(made, tmp_path, "nan_igm", void)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        orthorectify(nan, made.folder / "seg.bil", made.grid, tmp_path / "n.tif",
+                     tmp_path / "n_glt")
+    assert (tmp_path / "o_glt.bil").read_bytes() == (tmp_path / "n_glt.bil").read_bytes()
+    with rasterio.open(tmp_path / "o.tif") as o, rasterio.open(tmp_path / "n.tif") as n:
+        np.testing.assert_array_equal(o.read(), n.read())
+
+
+@pytest.mark.parametrize("value", [np.inf, -np.inf])
+@pytest.mark.parametrize("band", [0, 1])
+def test_an_infinite_position_is_refused(made: Made, tmp_path: Path, value: float,
+                                         band: int) -> None:
+    """The kernels took any value but NaN for a position: 44 cells of the bench run were
+    filled from a wrong pixel. NaN is the IGM's 'no position'; an infinity is damage."""
+    def damage(xyz: np.ndarray) -> None:
+        xyz[200, band, 30] = value
+        xyz[201:205, band, 3] = value
+
+    igm = damaged_igm(made, tmp_path, "inf_igm", damage)
+    name = ("easting", "northing")[band]
+    with pytest.raises(InputError, match=rf"inf_igm\.bil: IGM line 200, pixel 30: {name} "
+                                         rf"{value}: not a position \(NaN marks a pixel "
+                                         r"without one\): a damaged IGM\?$"):
+        orthorectify(igm, made.folder / "seg.bil", made.grid, tmp_path / "o.tif",
+                     tmp_path / "o_glt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["inf_igm.bil", "inf_igm.hdr"]
+
+
+def test_a_grid_with_no_cell_filled_is_refused_when_asked(made: Made, tmp_path: Path) -> None:
+    """An IGM whose lines are all one: `sisa ortho` wrote an ortho of nodata, '0 of 12168
+    cells filled ... mean distance nan m', exit 0. With empty_ok=False (the command's), an
+    error, nothing left; a grid missing the swath (its bounding box only) is said so."""
+    def one_line(xyz: np.ndarray) -> None:
+        xyz[:] = xyz[0]
+
+    igm = damaged_igm(made, tmp_path, "same_igm", one_line)
+    grid = OrthoGrid.covering(SwathIndex.build(igm).bounds_m, CELL_M, EPSG)
+    assert orthorectify(igm, made.folder / "seg.bil", grid, tmp_path / "o.tif",
+                        tmp_path / "o_glt").cells_filled == 0  # as before, by default
+    for name in ("o.tif", "o_glt.bil", "o_glt.hdr"):
+        (tmp_path / name).unlink()
+    with pytest.raises(InputError, match=r"same_igm\.bil: no cell of the grid lies between "
+                                         r"neighbouring pixels of the IGM: its lines do not "
+                                         r"advance \(a damaged IGM\?\)$"):
+        orthorectify(igm, made.folder / "seg.bil", grid, tmp_path / "o.tif",
+                     tmp_path / "o_glt", empty_ok=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["same_igm.bil", "same_igm.hdr"]
+    g = made.grid  # the strip turns: its bounding box's north-west corner holds no swath
+    corner = OrthoGrid(g.west_m, g.north_m, g.cell_m, 20, 20, EPSG)
+    with pytest.raises(InputError, match=r"^no cell of the grid \(\d+, \d+, \d+, \d+\) lies in "
+                                         r"the image's swath: nothing to map$"):
+        orthorectify(made.folder / "seg_igm.bil", made.folder / "seg.bil", corner,
+                     tmp_path / "c.tif", None, empty_ok=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["same_igm.bil", "same_igm.hdr"]

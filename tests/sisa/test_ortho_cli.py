@@ -9,6 +9,7 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -311,3 +312,83 @@ def test_a_float_radiance_image_maps_like_its_dn(made: Made, tmp_path: Path) -> 
     filled = dn[0] != 0
     np.testing.assert_array_equal(rad[:, filled], dn[:, filled].astype("f4") * np.float32(0.01))
     assert np.isnan(rad[:, ~filled]).all()
+
+
+def damaged_copy(made: Made, folder: Path, name: str, damage: Any) -> Path:
+    """`made`'s IGM with `damage(xyz)` done to its (lines, 3, pixels) values."""
+    xyz = np.array(open_igm(made.folder / "seg_igm.bil"))
+    damage(xyz)
+    xyz.astype("<f8").tofile(folder / f"{name}.bil")
+    (folder / f"{name}.hdr").write_text((made.folder / "seg_igm.hdr").read_text())
+    return folder / f"{name}.bil"
+
+
+def _far(xyz: np.ndarray) -> None:
+    xyz[10, 1, 10] += 1e5
+
+
+def _inf(xyz: np.ndarray) -> None:
+    xyz[100, 0, 20] = -np.inf
+
+
+def _one_line(xyz: np.ndarray) -> None:
+    xyz[:] = xyz[0]
+
+
+def test_damaged_inputs_are_one_line_and_write_nothing(made: Made, tmp_path: Path) -> None:
+    """Found by a bad-input sweep, each exit 0 before: a far pixel stretched the default grid
+    over it (5000 km: 66 s, a 21 GB sparse GLT); an infinite easting was taken for a position
+    (cells filled from a wrong pixel); an IGM of one line repeated gave an ortho of nodata
+    ('mean distance nan m'); an image header of 1 band for 4 read the file striped."""
+    image = made.folder / "seg.bil"
+    far = damaged_copy(made, tmp_path, "far_igm", _far)
+    inf = damaged_copy(made, tmp_path, "inf_igm", _inf)
+    same = damaged_copy(made, tmp_path, "same_igm", _one_line)
+    (tmp_path / "one_band.bil").symlink_to(image)
+    (tmp_path / "one_band.hdr").write_text(
+        (made.folder / "seg.hdr").read_text().replace("bands = 4", "bands = 1"))
+    cases = [
+        ((far, image), "far_igm.bil: IGM line 10, pixel 10 lies 100 km from the rest of its "
+                       "line: a damaged IGM? give --bounds to map it anyway"),
+        ((inf, image), "inf_igm.bil: IGM line 100, pixel 20: easting -inf: not a position (NaN "
+                       "marks a pixel without one): a damaged IGM?"),
+        ((same, image), "same_igm.bil: no cell of the grid lies between neighbouring pixels "
+                        "of the IGM: its lines do not advance (a damaged IGM?)"),
+        ((made.folder / "seg_igm.bil", tmp_path / "one_band.bil"),
+         f"one_band.bil holds {image.stat().st_size} bytes, its header describes "
+         f"{image.stat().st_size // 4} (400 lines x 48 samples x 1 bands x 2 bytes + 0 "
+         "offset): a header of another file or layout, or damaged?"),
+    ]
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for args, says in cases:
+        proc = sisa_ortho(*args, "--out", tmp_path / "o.tif", "--cell", "1")
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert proc.stdout == ""
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1, proc.stderr
+        assert lines[0].startswith("sisa ortho: error:"), proc.stderr
+        assert lines[0].endswith(says), (says, lines[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_a_far_pixel_on_a_grid_given_is_mapped_as_none(made: Made, tmp_path: Path) -> None:
+    """--bounds: the far pixel falls outside the grid; the cells beside the quads that reached
+    it are not filled from its neighbours (a sliver to the grid's edge before); one warning."""
+    far = damaged_copy(made, tmp_path, "far_igm", _far)
+    g = made.grid
+    proc = sisa_ortho(far, made.folder / "seg.bil", "--out", tmp_path / "o.tif", "--cell",
+                      g.cell_m, "--bounds", *g.bounds_m, "--no-glt")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ("sisa: warning: " + str(far) + ": IGM line 10, pixel 10 lies 100 km "
+                           "from the rest of its line: mapped as no position (a damaged "
+                           "IGM?)\n")
+
+    def void(xyz: np.ndarray) -> None:
+        xyz[10, :, 10] = np.nan
+
+    nan = damaged_copy(made, tmp_path, "nan_igm", void)
+    proc = sisa_ortho(nan, made.folder / "seg.bil", "--out", tmp_path / "n.tif", "--cell",
+                      g.cell_m, "--bounds", *g.bounds_m, "--no-glt")
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(tmp_path / "o.tif") as o, rasterio.open(tmp_path / "n.tif") as n:
+        np.testing.assert_array_equal(o.read(), n.read())

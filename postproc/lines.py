@@ -188,7 +188,22 @@ def time_lines(segment: I64, u: I64, linked: Bool, fits: list[SegmentFit], epoch
         status[sel] = np.where(inside, TimeStatus.OK, TimeStatus.OUTSIDE_FIT)
         t[np.flatnonzero(sel)[inside]] = epoch_ns + np.rint(f.line(x[inside]) * 1e9).astype(
             np.int64)
+    shared = np.flatnonzero(linked)[_claims_shared(segment[linked], u[linked])]
+    t[shared], status[shared] = -1, TimeStatus.AMBIGUOUS
     return t, status
+
+
+def _claims_shared(segment: I64, u: I64) -> Bool:
+    """Lines that claim one frame with another line of their segment (a lines file listing a
+    frame counter twice): which of them the frame was is unknown, so neither is timed. Both
+    took the frame's time, flagged OK (found by a bad-input sweep)."""
+    order = np.lexsort((u, segment))
+    s, v = segment[order], u[order]
+    same = (s[1:] == s[:-1]) & (v[1:] == v[:-1])
+    shared = np.zeros(u.size, dtype=np.bool_)
+    shared[order[1:][same]] = True
+    shared[order[:-1][same]] = True
+    return shared
 
 
 def frame_drops(table: LineTable, modulus: int) -> int:

@@ -223,6 +223,32 @@ def test_sync_says_the_lines_its_lines_files_leave_out(processed, tmp_path):
     assert report["notes"] == [w.removeprefix("sisa sync: warning: ") for w in said]
 
 
+def test_two_lines_claiming_one_frame_are_neither_timed(processed, tmp_path):
+    """A lines file listing a frame counter twice gave both lines the frame's time, flagged ok
+    (found by a bad-input sweep): which line the frame was is unknown, so both are ambiguous,
+    and every other line keeps its time."""
+    run, _, _ = processed
+    scanner = shutil.copytree(run / "scanner", tmp_path / "scanner")
+    lines_csv = scanner / "segment_000.lines.csv"
+    rows = lines_csv.read_text().splitlines(keepends=True)
+    at = next(i for i, r in enumerate(rows) if r.startswith("line_index")) + 1
+    counter_10 = rows[at + 10].split(",")[1]
+    rows[at + 11] = f"11,{counter_10}"
+    lines_csv.write_text("".join(rows))
+    _sisa("sync", run / "flight.mcap", "--scanner", run / "scanner", "--out", tmp_path / "a")
+    _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "b")
+
+    def table(folder):
+        text = (folder / "line_times.csv").read_text().splitlines()
+        return [r.split(",") for r in text if r[:1].isdigit()]
+
+    whole, twice = table(tmp_path / "a"), table(tmp_path / "b")
+    assert [r[4] for r in twice[10:12]] == ["ambiguous", "ambiguous"]
+    assert [r[3] for r in twice[10:12]] == ["-1", "-1"]
+    assert twice[:10] + twice[12:] == whole[:10] + whole[12:]
+    assert whole[10][4] == whole[11][4] == "ok"
+
+
 def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, tmp_path):
     """A lines file cut short (or holding only its header) left lines, or a whole segment, out
     of the products without a word (found by a bad-input sweep)."""

@@ -203,7 +203,9 @@ def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, .
 def segment_image(scanner_dir: Path, segment: int) -> Path:
     path = scanner_dir / f"segment_{segment:03d}.bil"
     if not path.is_file():
-        raise InputError(f"{path}: missing: the lines file lists segment {segment}")
+        what = ("a link to nothing" if path.is_symlink() and not path.exists() else
+                "not a file" if path.exists() or path.is_symlink() else "missing")
+        raise InputError(f"{path}: {what}, but the lines file lists segment {segment}")
     return path
 
 

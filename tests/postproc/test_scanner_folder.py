@@ -53,3 +53,21 @@ def test_a_segment_number_no_header_can_hold_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=rf"{name}: segment 99999999999999999999 outside "
                        r"0\.\.65535, what a frame header holds$"):
         read_scanner_lines(tmp_path)
+
+
+def test_a_segment_image_that_is_no_file_is_named_for_what_it_is(tmp_path: Path) -> None:
+    """A folder, or a link to nothing, named segment_000.bil was called missing (found by a
+    bad-input sweep)."""
+    from postproc.georef import segment_image
+
+    with pytest.raises(InputError, match=r"segment_000\.bil: missing, but the lines file lists "
+                                         r"segment 0$"):
+        segment_image(tmp_path, 0)
+    (tmp_path / "segment_000.bil").mkdir()
+    with pytest.raises(InputError, match=r"segment_000\.bil: not a file, but the lines file"):
+        segment_image(tmp_path, 0)
+    (tmp_path / "segment_001.bil").symlink_to(tmp_path / "nowhere.bil")
+    with pytest.raises(InputError, match=r"segment_001\.bil: a link to nothing, but the lines"):
+        segment_image(tmp_path, 1)
+    (tmp_path / "segment_002.bil").write_bytes(b"")
+    assert segment_image(tmp_path, 2) == tmp_path / "segment_002.bil"

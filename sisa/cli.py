@@ -109,6 +109,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     if handler is None:
         parser.print_help()
         return 2
+    _speaker[0] = f"sisa {args.command}"
     if batch_gc and not getattr(args, "real_time_loop", False):
         gc.set_threshold(*BATCH_GC_THRESHOLDS)
     on_term = _terminate_like_ctrl_c()
@@ -128,6 +129,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
         return 130
     finally:
+        _speaker[0] = "sisa"
         if on_term is not None:
             signal.signal(signal.SIGTERM, on_term)
 
@@ -181,13 +183,17 @@ def run() -> None:
 OWN_PACKAGES: Final = frozenset({"sisa", "emulators", "acquisition", "recorder", "postproc"})
 
 
+_speaker = ["sisa"]  # who says a warning: "sisa COMMAND" once main() knows the command
+
+
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
                       lineno: int, file: TextIO | None = None, line: str | None = None
                       ) -> None:
     """SISA's own warnings (a DEM's undeclared voids, an SBET cut mid-record) are said to
-    the user in one line, like its errors; others keep Python's form, source line included."""
+    the user in one line, like its errors and named by the command as they are; others keep
+    Python's form, source line included."""
     if category.__module__.split(".")[0] in OWN_PACKAGES:
-        text = f"sisa: warning: {message}\n"
+        text = f"{_speaker[0]}: warning: {message}\n"
     else:
         text = warnings.formatwarning(message, category, filename, lineno, line)
     print(text, end="", file=file or sys.stderr)

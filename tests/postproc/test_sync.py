@@ -614,5 +614,5 @@ def test_sisa_sync_says_once_what_it_could_not_read_of_a_damaged_log(imaged: Pat
     assert proc.returncode == 0, proc.stderr
     said = [line for line in proc.stderr.splitlines() if "damaged chunk" in line]
     assert len(said) == 1, proc.stderr
-    assert said[0].startswith(f"sisa: warning: {bad}: ")
+    assert said[0].startswith(f"sisa sync: warning: {bad}: ")
     assert f"`sisa log info {bad}` shows the gaps" in said[0]

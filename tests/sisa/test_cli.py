@@ -352,3 +352,26 @@ def test_a_block_too_small_for_ground_points_is_said_and_flies_without_them(tmp_
     assert "# note: terrain" not in out
     assert main(["truth", "--scenario", str(small), "--out", str(tmp_path / "run")]) == 0
     assert "0 ground points" in capsys.readouterr().out
+
+
+def test_a_warning_during_a_command_is_named_by_the_command(monkeypatch, capsys):
+    """SISA's warnings said 'sisa: warning:' where its errors say 'sisa COMMAND: error:'
+    (noticed in a bad-input sweep); after the command, a warning is the toolkit's again."""
+    import warnings
+
+    from postproc.dem import DemVoidWarning
+    from sisa import cli
+    from sisa.commands import scenario
+
+    def warns(_args):
+        warnings.warn(DemVoidWarning("dem.tif: 3 cells hold -9999"), stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(scenario, "_show", warns)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        monkeypatch.setattr(warnings, "showwarning", cli._one_line_warning)
+        assert cli.main(["scenario", "show", "bench"]) == 0
+        assert capsys.readouterr().err == "sisa scenario: warning: dem.tif: 3 cells hold -9999\n"
+        cli._one_line_warning(DemVoidWarning("x"), DemVoidWarning, "/x/dem.py", 1)
+        assert capsys.readouterr().err == "sisa: warning: x\n"

@@ -153,7 +153,7 @@ def test_a_file_cut_short_gets_the_grid_of_the_lines_mapped(made: Made, tmp_path
     proc = sisa_ortho(igm, image, "--out", out, "--cell", made.grid.cell_m, "--no-glt")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count("\n") == 1
-    assert proc.stderr.startswith("sisa: warning:")
+    assert proc.stderr.startswith("sisa ortho: warning:")
     assert "lines 200-399 are not mapped" in proc.stderr
     e = made.strip.easting_m[:200]
     n = made.strip.northing_m[:200]
@@ -379,8 +379,8 @@ def test_a_far_pixel_on_a_grid_given_is_mapped_as_none(made: Made, tmp_path: Pat
     proc = sisa_ortho(far, made.folder / "seg.bil", "--out", tmp_path / "o.tif", "--cell",
                       g.cell_m, "--bounds", *g.bounds_m, "--no-glt")
     assert proc.returncode == 0, proc.stderr
-    assert proc.stderr == ("sisa: warning: " + str(far) + ": IGM line 10, pixel 10 lies 100 km "
-                           "from the rest of its line: mapped as no position (a damaged "
+    assert proc.stderr == ("sisa ortho: warning: " + str(far) + ": IGM line 10, pixel 10 lies "
+                           "100 km from the rest of its line: mapped as no position (a damaged "
                            "IGM?)\n")
 
     def void(xyz: np.ndarray) -> None:

@@ -18,6 +18,7 @@ from types import FrameType
 from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
+from sisa.commands import warning_line
 from sisa.errors import InputError, SisaError
 
 Handler = Callable[[argparse.Namespace], int]
@@ -109,7 +110,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     if handler is None:
         parser.print_help()
         return 2
-    _speaker[0] = f"sisa {args.command}"
+    _command[0] = args.command
     if batch_gc and not getattr(args, "real_time_loop", False):
         gc.set_threshold(*BATCH_GC_THRESHOLDS)
     on_term = _terminate_like_ctrl_c()
@@ -129,7 +130,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
         return 130
     finally:
-        _speaker[0] = "sisa"
+        _command[0] = None
         if on_term is not None:
             signal.signal(signal.SIGTERM, on_term)
 
@@ -183,7 +184,7 @@ def run() -> None:
 OWN_PACKAGES: Final = frozenset({"sisa", "emulators", "acquisition", "recorder", "postproc"})
 
 
-_speaker = ["sisa"]  # who says a warning: "sisa COMMAND" once main() knows the command
+_command: list[str | None] = [None]  # names the warnings once main() knows the command
 
 
 def _one_line_warning(message: Warning | str, category: type[Warning], filename: str,
@@ -193,7 +194,7 @@ def _one_line_warning(message: Warning | str, category: type[Warning], filename:
     the user in one line, like its errors and named by the command as they are; others keep
     Python's form, source line included."""
     if category.__module__.split(".")[0] in OWN_PACKAGES:
-        text = f"{_speaker[0]}: warning: {message}\n"
+        text = warning_line(_command[0], message)
     else:
         text = warnings.formatwarning(message, category, filename, lineno, line)
     print(text, end="", file=file or sys.stderr)

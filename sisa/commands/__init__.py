@@ -46,9 +46,15 @@ FLIGHT_HELP = ("the flight log (MCAP; the numbered parts of a split recording ar
                "it), or every part (read in part order, whatever the order given)")
 
 
+def warning_line(command: str | None, text: object) -> str:
+    """A warning as the user reads it: one line, named by the command (if known) as its errors
+    are."""
+    return f"sisa{'' if command is None else ' ' + command}: warning: {text}\n"
+
+
 def say_warning(command: str, text: str) -> None:
     """A warning to the user: one line on stderr, named by the command, like its errors."""
-    print(f"sisa {command}: warning: {text}", file=sys.stderr, flush=True)
+    print(warning_line(command, text), end="", file=sys.stderr, flush=True)
 
 
 def flight_parts(files: Sequence[Path]) -> list[Path]:

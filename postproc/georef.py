@@ -51,9 +51,11 @@ from postproc.jsonio import write_json
 from postproc.mosaic import mosaic
 from postproc.navigation import (
     NAV_WANTED,
+    AntennaFixes,
     NavConfig,
     PiecewiseTrajectory,
     Trajectory,
+    fixes_from_columns,
     nav_from_columns,
 )
 from postproc.ortho import OrthoGrid, Progress, SwathIndex, nice_cell_m, orthorectify
@@ -182,6 +184,7 @@ class GeorefResult:
     summary: dict[str, Any]
     skipped: list[SegmentSkip] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    log_fixes: AntennaFixes | None = None  # the flight log's GPS fixes, as read for the sync
 
 
 def _duration_label(ns: int) -> str:
@@ -237,6 +240,7 @@ class GeorefJob:
         self.warnings += input_notes(options)
         self.trajectory_info: dict[str, Any] = {}
         self.swaths: dict[int, SwathOnDem] = {}
+        self.log_fixes: AntennaFixes | None = None
 
     # -- the steps ---------------------------------------------------------------------------
 
@@ -245,6 +249,7 @@ class GeorefJob:
         wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
         cols = read_topics(self.flight, merged_wanted(*wanted), notes=self.warnings)
         result = synchronise(sync_input_from_columns(cols), lines)
+        self.log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
         mounting = self.opt.sensor.mounting
         info = self.trajectory_info
         if self.opt.trajectory is not None:
@@ -605,7 +610,7 @@ class GeorefJob:
         summary["warnings"] = list(self.warnings)
         write_json(self.out / "georef_summary.json", summary)
         return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
-                            skipped, list(self.warnings))
+                            skipped, list(self.warnings), log_fixes=self.log_fixes)
 
     def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
         """Shift between every pair of overlapping segment orthos (cells and metres)."""

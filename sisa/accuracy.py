@@ -31,7 +31,7 @@ from emulators.truth import read_truth_csv
 from postproc.calib_data import read_ground_points
 from postproc.georef import GeorefResult, SegmentResult
 from postproc.igm import open_igm
-from postproc.navigation import ecef_to_geodetic, fixes_from_columns
+from postproc.navigation import AntennaFixes, ecef_to_geodetic, fixes_from_columns
 from recorder.messages import Topic
 from recorder.reader import read_topics
 from sisa.errors import InputError
@@ -113,8 +113,8 @@ def decompose(d_e: F64, d_n: F64, d_h: F64, along: F64, right: F64) -> F64:
     return np.stack([a.ravel(), c.ravel(), d_h.ravel()], axis=1)
 
 
-def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int64]
-                   ) -> TruthTrajectory:
+def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int64],
+                   log_fixes: AntennaFixes | None = None) -> TruthTrajectory:
     """The scenario's true trajectory, checked against the run's truth frames: a scenario.toml
     changed after the run (another preset) put the frames outside it, a traceback later."""
     traj = TruthTrajectory.from_scenario(scn)
@@ -124,11 +124,12 @@ def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int
                          f"({gps_span_label(traj.t_start_ns, traj.t_end_ns)}) does not hold the "
                          f"run's truth frames ({gps_span_label(int(t.min()), int(t.max()))}): "
                          "not the scenario this run was made from")
-    _check_against_fixes(run, scn, traj)
+    _check_against_fixes(run, scn, traj, log_fixes)
     return traj
 
 
-def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory) -> None:
+def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
+                         fixes: AntennaFixes | None) -> None:
     """The flight a scenario.toml rebuilds against the run's own log: each logged GPS fix less
     the error the emulator recorded adding to it (truth/gps_fixes.csv) is where the rebuilt
     flight puts the antenna, to NMEA's rounding. A scenario edited after the run (another
@@ -140,8 +141,9 @@ def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory) -> Non
     if not truth_csv.is_file():
         return  # a run without it cannot be checked; the frames' times were
     errors = read_truth_csv(truth_csv)
-    fixes = fixes_from_columns(read_topics(flight_parts([run / "flight.mcap"]),
-                                           {Topic.GPS_FIX: FIX_FIELDS}, notes=[]))
+    if fixes is None:  # not read already (sisa process passes georef's)
+        fixes = fixes_from_columns(read_topics(flight_parts([run / "flight.mcap"]),
+                                               {Topic.GPS_FIX: FIX_FIELDS}, notes=[]))
     t, at_log, at_truth = np.intersect1d(fixes.t_gps_ns, errors["t_gps_ns"],
                                          return_indices=True)
     if t.size == 0:
@@ -160,10 +162,11 @@ def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory) -> Non
 class TruthGround:
     """True ground position of every pixel of a segment, block by block."""
 
-    def __init__(self, scn: Scenario, run: Path, out_epsg: int) -> None:
+    def __init__(self, scn: Scenario, run: Path, out_epsg: int,
+                 log_fixes: AntennaFixes | None = None) -> None:
         self.scn = scn
         frames = read_truth_csv(run / "truth" / "frames.csv")
-        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"])
+        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"], log_fixes)
         self.terrain = Terrain.from_scenario(scn)
         self.intersector = GroundIntersector(self.terrain)
         self.look = scn.scanner.look_vectors_camera()
@@ -328,7 +331,7 @@ def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
 
 def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, Any]:
     """Every-pixel and check-point accuracy of a georeferenced simulated run."""
-    truth = TruthGround(scn, run, result.epsg)
+    truth = TruthGround(scn, run, result.epsg, result.log_fixes)
     total = ErrorStats()
     per_segment = []
     checks: list[CheckPoint] = []

@@ -12,13 +12,17 @@ Nothing here reads simulation truth.
 A trajectory that covers only part of the flight (an external file, a log cut short) georeferences
 what it covers: lines without a pose are NaN like lines without a time, a segment with no pose
 at all is skipped, each said in `result.warnings` and the summary's `skipped`; only when no
-segment has a pose does the job fail, naming the trajectory's and the lines' time spans.
+segment has a pose does the job fail, naming the trajectory's and the lines' time spans. A DEM
+that covers only part of the flight likewise: a segment whose swath lies wholly off the DEM is
+skipped (its swath's and the DEM's bounds said), and only when no segment is left does the job
+fail, saying why no pixel met the DEM.
 
 Inputs that still give products but not the ones asked for are said in `result.warnings` too:
 a segment whose rays miss the DEM in part (HIT_WARN_FRACTION), an ortho that holds no pixel, a
 DEM of several bands, --leap-seconds where no time is on UTC, an output CRS whose grid is not
 ground metres or north there. No pixel on the DEM at all is an InputError saying why (the
-surface above the camera, the swath off the DEM), as is an ortho cell wider than the swath.
+surface above the camera, the swath off the DEM), as is an ortho cell wider than half the swath
+(refused at a segment's first block of rays, not after the whole flight is cast).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import functools
 import math
 import warnings
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -37,6 +42,7 @@ from pyproj import CRS, Proj, Transformer
 from pyproj.transformer import AreaOfInterest
 
 from postproc.dem import (
+    GEOID_UNDULATION_M,
     Dem,
     band_note,
     bounds_text,
@@ -154,15 +160,15 @@ class LineSpan:
 
 @dataclass(frozen=True)
 class SegmentSkip:
-    """Lines of a segment that were not georeferenced for want of a time or a pose (a whole
-    segment: nothing made for it)."""
+    """Lines of a segment that were not georeferenced for want of a time or a pose, or a
+    segment whose swath lies off the DEM (a whole segment: nothing made for it)."""
 
     segment: int
     lines: int
     lines_timed: int
     lines_skipped: int
     whole_segment: bool
-    reason: str  # "no line time" | "no pose"
+    reason: str  # "no line time" | "no pose" | "off the DEM"
     spans: tuple[LineSpan, ...]  # timed lines without a pose
     message: str
 
@@ -369,18 +375,21 @@ class GeorefJob:
         return (f"segment {segment}: {share:.1f} % of its pixels meet the DEM "
                 f"{self.opt.dem.name} ({why})")
 
-    def no_hit_error(self, done: list[SegmentResult]) -> InputError:
-        """No ray of any segment met the DEM: the one line that says why. It once always
-        asked "does the DEM cover the flight?", also of a DEM that did, 8 km above the
-        aircraft."""
-        swaths = [self.swaths[d.segment] for d in done]
+    def no_hit_error(self, done: list[SegmentResult], off_dem: Sequence[int] = ()
+                     ) -> InputError:
+        """No ray of any segment met the DEM (`done`), or its swath lay off the DEM (`off_dem`,
+        skipped): the one line that says why. It once always asked "does the DEM cover the
+        flight?", also of a DEM that did, 8 km above the aircraft."""
+        swaths = [self.swaths[s] for s in [d.segment for d in done] + list(off_dem)]
         cam = min(sw.camera_m[0] for sw in swaths), max(sw.camera_m[1] for sw in swaths)
-        surf = (min(sw.surface_m[0] for sw in swaths), max(sw.surface_m[1] for sw in swaths))
+        under = [sw.surface_m for sw in swaths if not math.isnan(sw.surface_m[0])]
+        surf = ((min(lo for lo, _ in under), max(hi for _, hi in under)) if under else
+                (math.nan, math.nan))
         heights = (f"the DEM {_span_text(surf)} under the swaths"
                    f"{' (geoid added)' if self.opt.geoid is not None else ''}, the camera "
                    f"{_span_text(cam)}, both ellipsoidal")
         head = f"no pixel could be georeferenced on {self.opt.dem}"
-        if surf[0] >= cam[1]:
+        if under and surf[0] >= cam[1]:
             return InputError(f"{head}: its surface lies above the camera ({heights}): heights "
                               "in other units, or a wrong geoid?")
         if not all(sw.on_dem for sw in swaths):
@@ -429,15 +438,11 @@ class GeorefJob:
         found = height_range(self.opt.dem)
         return (0.0, 0.0) if found is None else (found[0] - 50.0, found[1] + 50.0)
 
-    def dem_window(self, eo: LineEo) -> tuple[Dem, SwathOnDem]:
-        """The DEM under the segment's swath: edge and centre rays of every 64th line met with
-        the DEM's lowest and highest heights, plus a margin; and where the swath lies against
-        the DEM (for the messages when rays miss)."""
+    def swath_footprint(self, eo: LineEo, pick: I64, heights_m: tuple[float, float]
+                        ) -> tuple[float, float, float, float]:
+        """(west, south, east, north) in the DEM's CRS of where the edge and centre rays of the
+        lines `pick` meet the heights `heights_m` (lowest, highest, ellipsoidal)."""
         look = self.opt.sensor.scanner.look_vectors_camera()
-        pick = np.flatnonzero(eo.valid)[::64]
-        if pick.size == 0:  # run() skips such segments
-            raise InputError("no line of the segment has a time and a pose: no DEM window")
-        h_lo, h_hi = self.dem_height_range_m
         to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
         to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
         c = eo.centre_ecef_m[pick]
@@ -450,15 +455,57 @@ class GeorefJob:
             d = np.einsum("nij,j->ni", eo.r_ecef_from_camera[pick], look[:, j])
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             down = -np.einsum("ni,ni->n", d, up)
-            for target in (h_lo, h_hi):
+            for target in heights_m:
                 s = np.where(down > 0.05, (h - target) / np.maximum(down, 0.05), 0.0)
                 s = np.clip(s, 0.0, 50_000.0)
                 p = c + s[:, None] * d
                 plon, plat, _ = to_geo.transform(p[:, 0], p[:, 1], p[:, 2])
                 pts.append(np.stack(to_dem.transform(plon, plat), axis=1))
         xy = np.concatenate(pts)
-        foot = (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
+        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
                 float(xy[:, 1].max()))
+
+    def _camera_heights_m(self, eo: LineEo, pick: I64) -> tuple[float, float]:
+        c = eo.centre_ecef_m[pick]
+        _, _, h = Transformer.from_crs(4978, 4979, always_xy=True).transform(
+            c[:, 0], c[:, 1], c[:, 2])
+        return float(np.min(h)), float(np.max(h))
+
+    def off_dem_skip(self, segment: int, eo: LineEo, t_gps_ns: I64) -> SegmentSkip | None:
+        """The skip of a segment whose swath lies wholly off the DEM, where none of its rays
+        can meet it; None when the swath touches the DEM. (Such a segment once failed the
+        whole job when its DEM window was empty, or made an IGM of NaN.) The swath is placed
+        as in `dem_window`, but through the last line too and over the heights a geoid can
+        add, so that a segment with a ray on the DEM is never skipped."""
+        valid = np.flatnonzero(eo.valid)
+        pick = valid[::64]
+        if valid.size and pick[-1] != valid[-1]:
+            pick = np.append(pick, valid[-1])
+        h_lo, h_hi = self.dem_height_range_m
+        if isinstance(self.opt.geoid, Path):
+            h_lo, h_hi = h_lo + GEOID_UNDULATION_M[0], h_hi + GEOID_UNDULATION_M[1]
+        elif self.opt.geoid is not None:
+            h_lo, h_hi = h_lo + float(self.opt.geoid), h_hi + float(self.opt.geoid)
+        foot = self.swath_footprint(eo, pick, (h_lo, h_hi))
+        w, s, e, n = self.dem_bounds
+        if not (foot[2] < w or foot[0] > e or foot[3] < s or foot[1] > n):
+            return None
+        self.swaths[segment] = SwathOnDem(foot, self._camera_heights_m(eo, pick),
+                                          (math.nan, math.nan), False)
+        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
+        return SegmentSkip(
+            segment, lines, timed, lines, True, "off the DEM", (),
+            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies off the DEM "
+            f"{self.opt.dem.name} {bounds_text(self.dem_bounds)}")
+
+    def dem_window(self, eo: LineEo) -> tuple[Dem, SwathOnDem]:
+        """The DEM under the segment's swath: edge and centre rays of every 64th line met with
+        the DEM's lowest and highest heights, plus a margin; and where the swath lies against
+        the DEM (for the messages when rays miss)."""
+        pick = np.flatnonzero(eo.valid)[::64]
+        if pick.size == 0:  # run() skips such segments
+            raise InputError("no line of the segment has a time and a pose: no DEM window")
+        foot = self.swath_footprint(eo, pick, self.dem_height_range_m)
         m = FOOTPRINT_MARGIN_M
         dem = Dem.read(self.opt.dem, bounds_m=(foot[0] - m, foot[1] - m, foot[2] + m,
                                                foot[3] + m), geoid=self.opt.geoid)
@@ -467,7 +514,7 @@ class GeorefJob:
                    (math.nan, math.nan))
         inside = all(self.dem_bounds[k] <= foot[k] for k in (0, 1)) and all(
             foot[k] <= self.dem_bounds[k] for k in (2, 3))
-        return dem, SwathOnDem(foot, (float(np.min(h)), float(np.max(h))), surface, inside)
+        return dem, SwathOnDem(foot, self._camera_heights_m(eo, pick), surface, inside)
 
     def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
                              progress: Progress | None) -> SegmentResult:
@@ -479,6 +526,9 @@ class GeorefJob:
         write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
         hits = 0
         geo_lines = 0
+        # a --cell too wide for the orthos is refused at the segment's first block of rays,
+        # not once the whole flight is cast (minutes on a long one); without products, no ortho
+        cell_to_check = self.opt.cell_m if self.opt.products else None
         across: list[F64] = []
         along: list[F64] = []
         with IgmWriter(Path(f"{stem}_igm"), n_lines, pixels, self.epsg) as igm:
@@ -499,6 +549,10 @@ class GeorefJob:
                 geo_lines += int(good.any(axis=1).sum())
                 across.append(np.hypot(np.diff(east, axis=1), np.diff(north, axis=1))[::16]
                               .ravel())
+                if cell_to_check is not None and math.isfinite(gsd := _median(across[-1:])):
+                    check_cell_against_swath(cell_to_check, segment, gsd * max(pixels - 1, 0),
+                                             gsd)
+                    cell_to_check = None
                 mid = pixels // 2
                 along.append(np.hypot(np.diff(east[:, mid]), np.diff(north[:, mid])))
                 if progress is not None:
@@ -565,20 +619,26 @@ class GeorefJob:
             on_total(sum(rasters[s].lines for s in segments))
         done: list[SegmentResult] = []
         skipped: list[SegmentSkip] = []
+        off_dem: list[int] = []  # segments whose swath lies off the DEM (skipped)
         for s in segments:
             eo, t = self.segment_eo(result, traj, s, rasters[s].lines, rasters[s].header_lines)
             if (skip := self.coverage(result, traj, s, eo, t)) is not None:
                 skipped.append(skip)
                 self.warnings.append(skip.message)
-            if not eo.valid.any():
+            off = self.off_dem_skip(s, eo, t) if eo.valid.any() else None
+            if off is not None:
+                skipped.append(off)
+                off_dem.append(s)
+                self.warnings.append(off.message)
+            if off is not None or not eo.valid.any():
                 if progress is not None:
                     progress(rasters[s].lines)
                 continue
             done.append(self.georeference_segment(s, eo, t, rasters[s], progress))
-        if not done:
+        if not done and not off_dem:
             raise self.no_overlap_error(result, traj)
         if not any(d.rays_hit for d in done):
-            raise self.no_hit_error(done)
+            raise self.no_hit_error(done, off_dem)
         cell_m = self.opt.cell_m or nice_cell_m(
             float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
                             or [math.nan])))
@@ -679,11 +739,17 @@ def check_cell_against_swaths(cell_m: float, done: list[SegmentResult]) -> None:
     if not widths:
         return
     width, seg = min(widths, key=lambda wd: wd[0])
-    if cell_m > width / 2:
-        raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {seg.segment}: "
-                         f"{width:.0f} m wide, {seg.gsd_across_m:.2g} m pixels): its ortho would "
-                         "hold a cell or two across, or none; use at most "
-                         f"{math.floor(width / 2)} m")
+    check_cell_against_swath(cell_m, seg.segment, width, seg.gsd_across_m)
+
+
+def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m: float
+                             ) -> None:
+    """InputError when the ortho cell is wider than half of one segment's swath (`width_m`
+    across, of `gsd_m` pixels); nothing when the width is unknown."""
+    if math.isfinite(width_m) and width_m > 0 and cell_m > width_m / 2:
+        raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {segment}: "
+                         f"{width_m:.0f} m wide, {gsd_m:.2g} m pixels): its ortho would hold a "
+                         f"cell or two across, or none; use at most {math.floor(width_m / 2)} m")
 
 
 def check_output_crs(epsg: int) -> CRS:

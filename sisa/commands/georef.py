@@ -17,7 +17,8 @@ OUT/
                              trajectory's span, what was skipped and why
 
 A trajectory that covers only part of the flight georeferences the segments (and lines) it
-covers; each segment or stretch of lines skipped is one warning line on stderr.
+covers, a DEM that covers only part of it the segments whose swath meets it; each segment or
+stretch of lines skipped is one warning line on stderr.
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ The tables are written with numpy in blocks, so a million lines never become Pyt
 
 from __future__ import annotations
 
+import codecs
 import io
 import re
 from pathlib import Path
@@ -59,8 +60,16 @@ LINE_HEADER: Final = (
 
 def _read_lines_csv(path: Path, segment: int) -> LineTable:
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: unreadable: {exc}") from None
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        raise InputError(f"{path}: UTF-16 text (a Windows 'Unicode' save): save it as UTF-8 or "
+                         "plain ASCII text")
+    try:  # utf-8-sig: the byte-order mark Excel and Windows tools write is read past (it was
+        # taken as part of the first line: "expected the header line", beside that very line)
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
         raise InputError(f"{path}: unreadable: {exc}") from None
     body = [(number, row) for number, row in enumerate(text.splitlines(), start=1)
             if row.strip() and not row.startswith("#")]  # numbered as an editor counts lines

@@ -48,6 +48,12 @@ PRIOR_MIN: Final = 1e-3  # µm or arcsec: a tighter prior holds the value; leave
 SWEEP_SPAN_MS: Final = (5.0, 1000.0)  # ≥ 3 trial delays (5 ms steps); each is one adjustment
 SIM_DELAY_MS_MAX: Final = 1000.0  # a scanner's delay is milliseconds; 1 s is ~70 m of flight
 SIM_GCP_NOISE_M_MAX: Final = 100.0  # a survey error beyond 100 m makes the points other places
+# Tie points the adjustment can use: each adds one redundancy to tens of parameters, whose σ
+# falls only as 1/√n; docs/calibration.md's best case uses 1000. The simulation costs ~1.3 ms
+# and ~110 kB per tie point on the test run (10 000: 14 s, 1.4 GB; 40 000: 49 s, 4.8 GB, and
+# the adjustment then refused φ and δx0 as inseparable); 10^9 was numpy's MemoryError traceback
+# (6·N candidates drawn at once), and 10^6 would exhaust the memory.
+TIE_POINTS_MAX: Final = 10_000
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -112,7 +118,7 @@ def _add_simulation(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--noise-px", type=float, default=0.3,
                    help="σ of the measurements, pixels (0.3; at most 1)")
     g.add_argument("--tie-points", type=int, default=0, metavar="N",
-                   help="tie points in strip overlaps (default 0)")
+                   help=f"tie points in strip overlaps (default 0; at most {TIE_POINTS_MAX})")
     g.add_argument("--max-views", type=int, default=2, help="segments a point is measured in")
     g.add_argument("--single-view-control", type=int, default=0, metavar="N",
                    help="the N control points nearest the block border are measured in one "
@@ -132,7 +138,8 @@ def _within(flag: str, value: float, limits: tuple[float, float], why: str,
     if not lo <= (abs(value) if either_sign else value) <= hi:
         span = f"±{lo:g} to ±{hi:g}" if either_sign and lo > 0 else (
             f"within ±{hi:g}" if either_sign else f"{lo:g} to {hi:g}")
-        raise InputError(f"{flag} {value:g}: must be {span} ({why})")
+        shown = str(value) if isinstance(value, int) else f"{value:g}"  # a count, as typed
+        raise InputError(f"{flag} {shown}: must be {span} ({why})")
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -244,6 +251,8 @@ def _check_simulation(args: argparse.Namespace) -> None:
             or args.single_view_control < 0):
         raise InputError("--tie-points, --blunders and --single-view-control must be ≥ 0, "
                          "--max-views ≥ 1")
+    _within("--tie-points", args.tie_points, (0, TIE_POINTS_MAX), "tie points beyond it add "
+            "little to the adjustment; each costs ~110 kB and ~1.3 ms to simulate")
     _within("--noise-px", args.noise_px, (0.0, SENSOR_FIT_MARGIN_PX / 3.0),
             f"pixels: 3σ must stay within the {SENSOR_FIT_MARGIN_PX:g} px past the detector's "
             "ends that the sensor check allows")

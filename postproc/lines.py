@@ -87,15 +87,25 @@ def unwrap_headers(hdr: HeaderColumns, modulus: int, period_s: float) -> I64:
 def header_period_s(hdr: HeaderColumns, modulus: int) -> float:
     """Host-time interval of headers one frame apart (coarse: host jitter): their median, or
     their mean when a read holds several headers (a line period below the recorder's read
-    clock: most intervals are 0, and a 0 period divided the wrap count by zero)."""
+    clock: most intervals are 0, and a 0 period divided the wrap count by zero); 1 s when the
+    headers do not tell."""
+    period = measured_header_period_s(hdr, modulus)
+    return 1.0 if period is None else period
+
+
+def measured_header_period_s(hdr: HeaderColumns, modulus: int) -> float | None:
+    """The line period the headers' host times show (see header_period_s); None if no two
+    headers one frame apart tell it."""
     same = hdr.segment[1:] == hdr.segment[:-1]
     one = same & (_steps(hdr.frame_counter, modulus) == 1)
     dt = np.diff(hdr.t_host_ns)[one]
     if dt.size == 0:
-        return 1.0
+        return None
     median_ns = float(np.median(dt))
     mean_ns = float(dt.mean())
-    return (median_ns if median_ns > 0 else mean_ns if mean_ns > 0 else 1e9) * 1e-9
+    if median_ns > 0:
+        return median_ns * 1e-9
+    return mean_ns * 1e-9 if mean_ns > 0 else None
 
 
 def place_forwards(pulses: SisaPulses, hdr: HeaderColumns, u_hdr: I64, hdr_gps_ns: I64,

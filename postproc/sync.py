@@ -129,20 +129,28 @@ def solve_ins(ins: InsColumns, pulses: SisaPulses, host: ClockMap, epoch_ns: int
 
 def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
                 host: ClockMap, epoch_ns: int, cfg: SyncConfig
-                ) -> tuple[LineTimes, list[ln.SegmentFit], dict[str, int]]:
+                ) -> tuple[LineTimes, list[ln.SegmentFit], dict[str, Any]]:
     """Unwrap counters, place the timed frames, fit each segment, time every line."""
     hdr = inp.headers
     lines = table if table is not None else ln.lines_from_headers(hdr)
     modulus = ln.counter_modulus(hdr.frame_counter, lines.frame_counter, pulses.frame_counter)
-    u_hdr = ln.unwrap_headers(hdr, modulus, ln.header_period_s(hdr, modulus))
+    period_s = ln.measured_header_period_s(hdr, modulus)
+    u_hdr = ln.unwrap_headers(hdr, modulus, 1.0 if period_s is None else period_s)
     fwd, seg_f, u_f = ln.place_forwards(pulses, hdr, u_hdr, ln.hdr_gps(hdr, host), modulus)
     segments = np.unique(hdr.segment)
     refs = np.array([u_hdr[hdr.segment == s][0] for s in segments.tolist()], dtype=np.int64)
     fits = ln.segment_fits(seg_f, u_f, pulses.t_gps_ns[fwd], segments, refs, epoch_ns)
     u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
     t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
+    frame_pulse = pulses.mode == 2
     counts = {"frame_counter_modulus": modulus, "frames_dropped": ln.frame_drops(lines, modulus),
-              "frame_pulses_placed": int(fwd.size)}
+              # the sync filter names a forwarded frame by the header it tied to it on host
+              # time; none named at all is the symptom syncreport.untied_frames_note explains
+              "frame_pulses_forwarded": int(np.count_nonzero(frame_pulse)),
+              "frame_pulses_with_counter": int(np.count_nonzero(
+                  frame_pulse & (pulses.frame_counter >= 0))),
+              "frame_pulses_placed": int(fwd.size),
+              "header_line_period_ns": None if period_s is None else round(period_s * 1e9, 3)}
     return LineTimes(lines.segment, lines.line, lines.frame_counter, t, status), fits, counts
 
 

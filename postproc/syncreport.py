@@ -24,6 +24,9 @@ if TYPE_CHECKING:
 
 I64 = npt.NDArray[np.int64]
 NS = 1e9
+# the sync filter ties a header on time alone only in a window narrower than its shortest line
+# period: the period less the 5 % grid tolerance (acquisition.syncfilter, interval_tolerance)
+NARROW_OF_PERIOD = 0.95
 
 
 def status_counts(status: I64) -> dict[str, int]:
@@ -115,7 +118,41 @@ def _segment(f: SegmentFit, times: LineTimes) -> dict[str, Any]:
     return out
 
 
-def line_report(times: LineTimes, fits: list[SegmentFit], counts: dict[str, int]
+def line_report(times: LineTimes, fits: list[SegmentFit], counts: dict[str, Any]
                 ) -> dict[str, Any]:
     return {"lines": int(times.t_gps_ns.size), **counts, "status": status_counts(times.status),
             "segments": [_segment(f, times) for f in fits]}
+
+
+def frames_untied(lines: dict[str, Any]) -> bool:
+    """Frame pulses were forwarded, not one names its frame, and lines went untimed for it:
+    the sync filter tied no frame header to its pulse (`lines`: the report's "lines")."""
+    return bool(lines.get("frame_pulses_forwarded", 0) > 0
+                and lines.get("frame_pulses_with_counter", 0) == 0
+                and lines["status"].get("no_pulses", 0) > 0)
+
+
+def untied_frames_note(lines: dict[str, Any], window_ms: tuple[float, float],
+                       window_from: str | None) -> str:
+    """Why every line is no_pulses when `frames_untied`: the filter ties a header to its pulse
+    on host time alone only in a header window narrower than a line period (docs/sync.md,
+    Limits). The period is the headers' own (host times); the window `sisa.header_window_ms`
+    as the log's recording settings give it (`window_from` says so), or (None) the default."""
+    head = (f"{lines['status']['no_pulses']} scan lines not timed (no_pulses): none of the "
+            f"{lines['frame_pulses_forwarded']} forwarded frame pulses carries its frame counter")
+    period_ns = lines.get("header_line_period_ns")
+    lo, hi = window_ms
+    width = hi - lo
+    if period_ns is None or width < NARROW_OF_PERIOD * period_ns * 1e-6:
+        return f"{head} (no frame header was tied to its pulse; docs/sync.md, Limits)"
+    period = f"{period_ns * 1e-6:.3g} ms"
+    fix = ("set sisa.header_window_ms (and sisa.read_interval_ms) narrower than a line period "
+           "(docs/sync.md, Limits)")
+    if window_from is None:
+        return (f"{head}: the frame headers show a line period of {period}; a header window "
+                f"not narrower (sisa.header_window_ms; the default [{lo:g}, {hi:g}] is "
+                f"{width:g} ms wide) ties no frame header to its pulse on host time: {fix}")
+    return (f"{head}: the header window (sisa.header_window_ms [{lo:g}, {hi:g}] "
+            f"{window_from}: {width:g} ms wide) is not narrower than the scanner's line period "
+            f"({period}, from the frame headers), so frame headers cannot be tied to pulses on "
+            f"host time: {fix}")

@@ -28,3 +28,28 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
                              line_rate_hz=1e9 / line_period_ns,
                              read_interval_ns=round(scn.sisa.read_interval_ms * 1e6))
+
+
+# the recording settings a log keeps in its `sisa.recording` metadata (as text): what
+# post-processing may need to explain a result the log's messages cannot (docs/recorder.md)
+HEADER_WINDOW_KEY = "header_window_ms"
+READ_INTERVAL_KEY = "read_interval_ms"
+
+
+def recording_settings(config: AcquisitionConfig) -> dict[str, str]:
+    """The sync filter's header window and the read clock, for the log's metadata: `sisa sync`
+    names them when they left every frame pulse untied (a scanner faster than the window)."""
+    sync = config.sync
+    return {HEADER_WINDOW_KEY: f"{sync.header_latency_min_ns / 1e6:g},"
+                               f"{sync.header_latency_max_ns / 1e6:g}",
+            READ_INTERVAL_KEY: f"{config.read_interval_ns / 1e6:g}"}
+
+
+def recorded_header_window_ms(metadata: dict[str, str]) -> tuple[float, float] | None:
+    """The header window a log was recorded with (`recording_settings`), None if it does not
+    say (a log from before 2026-11-27, or another recorder's)."""
+    try:
+        lo, hi = (float(v) for v in metadata[HEADER_WINDOW_KEY].split(","))
+    except (KeyError, ValueError):
+        return None
+    return (lo, hi) if lo < hi else None

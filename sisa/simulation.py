@@ -22,7 +22,7 @@ from emulators.system import EmulatedSystem
 from emulators.terrain import Terrain, ground_points, write_ground_points_csv
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import FlightRecorder
-from sisa.acqconfig import acquisition_config
+from sisa.acqconfig import acquisition_config, recording_settings
 from sisa.errors import ConfigError
 from sisa.timescale import NS_PER_S
 
@@ -116,7 +116,8 @@ def simulate(scn: Scenario, run: Path, *, images: bool = True) -> VirtualWiring:
     terrain = Terrain.from_scenario(scn)
     write_survey_data(scn, terrain, run / "terrain")
     system = EmulatedSystem(scn, run / "scanner" if images else None, terrain=terrain)
-    with FlightRecorder(run / "flight.mcap", metadata={"scenario": scn.block.name}) as rec:
+    meta = {"scenario": scn.block.name, **recording_settings(acquisition_config(scn))}
+    with FlightRecorder(run / "flight.mcap", metadata=meta) as rec:
         wiring = VirtualWiring(system, rec, scn.seed)
         Runner(system.devices, system.faulty(wiring)).run()
         wiring.finish()

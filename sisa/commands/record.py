@@ -59,7 +59,7 @@ def _run(args: argparse.Namespace) -> int:
     from acquisition.live import LiveSources
     from acquisition.runner import Acquisition
     from recorder.writer import FlightRecorder
-    from sisa.acqconfig import acquisition_config
+    from sisa.acqconfig import acquisition_config, recording_settings
 
     if not any((args.gps, args.scanner, args.ins, args.pulses)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
@@ -77,7 +77,8 @@ def _run(args: argparse.Namespace) -> int:
     wall0, cpu0 = time.monotonic(), time.process_time()
     try:
         with FlightRecorder(args.out, split_duration_s=split_s, split_size_bytes=split_b,
-                            metadata={"settings": scn.block.name}) as rec:
+                            metadata={"settings": scn.block.name,
+                                      **recording_settings(config)}) as rec:
             acq = Acquisition(config, rec.write, sources.send_edge)
             _loop(acq, sources, stop, args)
     except RecorderError as exc:  # a recording is kept whatever happens: say how to use it

@@ -1,0 +1,119 @@
+"""A scanner faster than the sync filter's header window (line period 0.11 ms against the
+12 ms default window, docs/sync.md 'Limits'): no frame header is tied to its pulse, every line
+is no_pulses, and `sisa sync` said only the counts. It now says why, in one warning (and in
+sync_report.json's notes)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from postproc.syncreport import frames_untied, untied_frames_note
+from sisa.cli import main
+
+FAST = """base = "bench"
+[block]
+strips = 1
+strip_length_m = 100.0
+flying_height_agl_m = 150.0
+[flight]
+static_alignment_s = 10.0
+figure_eights = 0
+run_in_s = 1.0
+[terrain]
+margin_m = 300.0
+control_points = 4
+check_points = 2
+[scanner]
+line_period_ms = 0.11
+integration_time_ms = 0.05
+"""
+
+
+@pytest.fixture(scope="module")
+def fast_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """~2 min of flight, one 100 m strip at 9091 lines/s (a few seconds to simulate); the
+    log keeps the window it was recorded with."""
+    root = tmp_path_factory.mktemp("fast")
+    (root / "fast.toml").write_text(FAST)
+    assert main(["simulate", "--scenario", str(root / "fast.toml"), "--out", str(root / "run"),
+                 "--no-images"]) == 0
+    return root / "run"
+
+
+def _sync(flight: Path, out: Path, capsys: pytest.CaptureFixture[str]
+          ) -> tuple[str, dict[str, Any]]:
+    assert main(["sync", str(flight), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "scan lines flagged: no_pulses" in captured.out
+    return captured.err, json.loads((out / "sync_report.json").read_text())
+
+
+def test_sync_says_the_header_window_is_wider_than_a_line_period(
+        fast_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    capsys.readouterr()  # the fixture's simulate
+    err, report = _sync(fast_run / "flight.mcap", tmp_path / "sync", capsys)
+    lines = report["lines"]
+    assert lines["status"] == {"no_pulses": lines["lines"]}
+    assert lines["frame_pulses_forwarded"] > 0
+    assert lines["frame_pulses_with_counter"] == 0
+    assert lines["header_line_period_ns"] == pytest.approx(110_000, rel=0.02)
+    said = err.splitlines()
+    assert len(said) == 1, err
+    assert said[0].startswith(f"sisa sync: warning: {lines['lines']} scan lines not timed "
+                              "(no_pulses): none of the ")
+    assert ("the header window (sisa.header_window_ms [-2, 10] as flight.mcap was recorded:"
+            " 12 ms wide) is not narrower than the scanner's line period (0.11 ms, from the "
+            "frame headers)") in said[0]
+    assert "set sisa.header_window_ms (and sisa.read_interval_ms) narrower" in said[0]
+    assert report["notes"] == [said[0].removeprefix("sisa sync: warning: ")]
+
+
+def test_the_log_carries_its_window(fast_run: Path, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """The flight log alone, away from its run folder, still names the window it was
+    recorded with: the recorder keeps it in the log's metadata."""
+    (tmp_path / "log").mkdir()
+    shutil.copy(fast_run / "flight.mcap", tmp_path / "log" / "flight.mcap")
+    capsys.readouterr()
+    err, _ = _sync(tmp_path / "log" / "flight.mcap", tmp_path / "sync", capsys)
+    assert "(sisa.header_window_ms [-2, 10] as flight.mcap was recorded: 12 ms wide)" in err
+
+
+def test_a_log_without_its_settings_names_the_default_window(
+        fast_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A log recorded before the settings were kept: the period from the headers, and the
+    window the recorder has by default, said as such."""
+    import recorder.reader
+
+    monkeypatch.setattr(recorder.reader, "recording_metadata", lambda _path: {})
+    capsys.readouterr()
+    err, _ = _sync(fast_run / "flight.mcap", tmp_path / "sync", capsys)
+    said = err.splitlines()
+    assert len(said) == 1, err
+    assert ("the frame headers show a line period of 0.11 ms; a header window not narrower "
+            "(sisa.header_window_ms; the default [-2, 10] is 12 ms wide)") in said[0]
+
+
+def _lines(forwarded: int, named: int, no_pulses: int, period_ns: float | None) -> dict[str, Any]:
+    return {"frame_pulses_forwarded": forwarded, "frame_pulses_with_counter": named,
+            "header_line_period_ns": period_ns,
+            "status": {"no_pulses": no_pulses} if no_pulses else {"ok": 10}}
+
+
+def test_the_note_blames_the_window_only_when_it_is_the_cause() -> None:
+    assert not frames_untied(_lines(5, 1, 100, 110_000.0))  # one frame named: lines timed
+    assert not frames_untied(_lines(0, 0, 100, 110_000.0))  # no frame pulse at all
+    assert not frames_untied(_lines(5, 0, 0, 110_000.0))
+    assert frames_untied(_lines(5, 0, 100, 16e6))
+    # a 16 ms scanner and a 12 ms window: something else (lost or late headers); not guessed
+    note = untied_frames_note(_lines(5, 0, 100, 16e6), (-2.0, 10.0), "as flight.mcap was recorded")
+    assert note == ("100 scan lines not timed (no_pulses): none of the 5 forwarded frame pulses "
+                    "carries its frame counter (no frame header was tied to its pulse; "
+                    "docs/sync.md, Limits)")
+    assert "not narrower" in untied_frames_note(_lines(5, 0, 100, 12.4e6), (-2.0, 10.0), None)

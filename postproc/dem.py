@@ -11,7 +11,8 @@ Conventions (docs/conventions.md):
 - Voids (no data): the band's declared nodata value, NaN (always, declared or not) and any value
   outside PLAUSIBLE_HEIGHTS_M, which no terrain has: the void markers of DEMs whose nodata
   value is not declared (-9999, -32768, ±3.4e38). Undeclared ones are read as voids with a
-  DemVoidWarning naming how many; a DEM (or window) with no valid height is refused.
+  DemVoidWarning naming how many; a DEM (or window) with no valid height is refused (a window
+  of voids only is read as such when the caller asks: a job skips the segment over it).
 - Heights are ellipsoidal. A DEM of orthometric heights H needs a geoid: h = H + N, with N a
   constant or a raster of undulations sampled bilinearly at every DEM cell centre. N is within
   GEOID_UNDULATION_M (Earth's geoid: -106..+85 m): a constant beyond is refused, raster values
@@ -111,27 +112,32 @@ class Dem:
 
     @classmethod
     def read(cls, path: str | Path, *, bounds_m: tuple[float, float, float, float] | None = None,
-             margin_m: float = DEFAULT_MARGIN_M, geoid: float | str | Path | None = None) -> Dem:
+             margin_m: float = DEFAULT_MARGIN_M, geoid: float | str | Path | None = None,
+             voids_only_ok: bool = False) -> Dem:
         """Read a single-band GeoTIFF (or any GDAL raster), only the window that covers
         bounds_m = (west, south, east, north) in the DEM's CRS grown by margin_m, so a flight
         segment never loads a whole national DEM. Voids (module docstring) become NaN, the
         undeclared ones with a DemVoidWarning; InputError if the window has no valid height.
         `geoid` turns orthometric heights into ellipsoidal ones: a constant undulation N (m)
-        or a raster of N in any CRS."""
+        or a raster of N in any CRS. `voids_only_ok`: a window of bounds_m with no valid height
+        is returned as it is, all NaN and without the geoid, for the caller to skip (a segment
+        over sea or a hole of a mosaic), not refused; the caller knows the DEM has a valid
+        height elsewhere (`dem_extent`)."""
         path = Path(path)
         with _open(path, "DEM") as ds:
             epsg = _projected_epsg(ds, path)
             first_e, first_n, cell_e, cell_n = _grid_of(ds, path)
             win = _window(ds, path, first_e, first_n, cell_e, cell_n, bounds_m, margin_m)
             heights = _read_band(ds, win, path, "DEM")
-            if not np.isfinite(heights).any():
+            voids_only = not np.isfinite(heights).any()
+            if voids_only and not (voids_only_ok and bounds_m is not None):
                 if bounds_m is not None and _has_valid_height(ds):
                     raise InputError(f"{path}: the DEM has no valid height in the window "
                                      f"{bounds_text(bounds_m)} (+{margin_m:g} m)")
                 raise _no_valid_height(path)
         dem = cls(heights, first_e + win.col_off * cell_e, first_n - win.row_off * cell_n,
                   cell_e, cell_n, epsg)
-        if geoid is None:
+        if geoid is None or voids_only:
             return dem
         if isinstance(geoid, (int, float)):
             check_undulation_m(float(geoid), f"{path}: geoid undulation")

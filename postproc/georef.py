@@ -14,15 +14,17 @@ what it covers: lines without a pose are NaN like lines without a time, a segmen
 at all is skipped, each said in `result.warnings` and the summary's `skipped`; only when no
 segment has a pose does the job fail, naming the trajectory's and the lines' time spans. A DEM
 that covers only part of the flight likewise: a segment whose swath lies wholly off the DEM is
-skipped (its swath's and the DEM's bounds said), and only when no segment is left does the job
+skipped (its swath's and the DEM's bounds said), as is one whose DEM window holds voids only
+(nodata: sea masked out, a hole in a mosaic), and only when no segment is left does the job
 fail, saying why no pixel met the DEM.
 
 Inputs that still give products but not the ones asked for are said in `result.warnings` too:
 a segment whose rays miss the DEM in part (HIT_WARN_FRACTION), an ortho that holds no pixel, a
 DEM of several bands, --leap-seconds where no time is on UTC, an output CRS whose grid is not
 ground metres or north there. No pixel on the DEM at all is an InputError saying why (the
-surface above the camera, the swath off the DEM), as is an ortho cell wider than half the swath
-(refused at a segment's first block of rays, not after the whole flight is cast).
+surface above the camera, the swath off the DEM or over its voids only), as is an ortho cell
+wider than half the swath (refused at a segment's first block of rays, not after the whole
+flight is cast).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from pyproj import CRS, Proj, Transformer
 from pyproj.transformer import AreaOfInterest
 
 from postproc.dem import (
+    DEFAULT_MARGIN_M,
     GEOID_UNDULATION_M,
     Dem,
     band_note,
@@ -94,6 +97,8 @@ I64 = npt.NDArray[np.int64]
 
 BLOCK_LINES: Final = 4096
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
+# how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
+WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
 SPANS_IN_MESSAGE: Final = 3  # stretches of lines a warning names (the summary has them all)
 # below this share of a segment's pixels (of its lines with a pose) on the DEM, a warning: the
 # headline's percentage alone let a DEM covering half the flight pass unremarked
@@ -161,14 +166,15 @@ class LineSpan:
 @dataclass(frozen=True)
 class SegmentSkip:
     """Lines of a segment that were not georeferenced for want of a time or a pose, or a
-    segment whose swath lies off the DEM (a whole segment: nothing made for it)."""
+    segment whose swath lies off the DEM or over its voids only (a whole segment: nothing made
+    for it)."""
 
     segment: int
     lines: int
     lines_timed: int
     lines_skipped: int
     whole_segment: bool
-    reason: str  # "no line time" | "no pose" | "off the DEM"
+    reason: str  # "no line time" | "no pose" | "off the DEM" | "DEM voids"
     spans: tuple[LineSpan, ...]  # timed lines without a pose
     message: str
 
@@ -375,12 +381,14 @@ class GeorefJob:
         return (f"segment {segment}: {share:.1f} % of its pixels meet the DEM "
                 f"{self.opt.dem.name} ({why})")
 
-    def no_hit_error(self, done: list[SegmentResult], off_dem: Sequence[int] = ()
-                     ) -> InputError:
+    def no_hit_error(self, done: list[SegmentResult], off_dem: Sequence[int] = (),
+                     voids: Sequence[int] = ()) -> InputError:
         """No ray of any segment met the DEM (`done`), or its swath lay off the DEM (`off_dem`,
-        skipped): the one line that says why. It once always asked "does the DEM cover the
-        flight?", also of a DEM that did, 8 km above the aircraft."""
-        swaths = [self.swaths[s] for s in [d.segment for d in done] + list(off_dem)]
+        skipped) or over its voids only (`voids`, skipped): the one line that says why. It once
+        always asked "does the DEM cover the flight?", also of a DEM that did, 8 km above the
+        aircraft."""
+        swaths = [self.swaths[s] for s in [d.segment for d in done] + list(off_dem) +
+                  list(voids)]
         cam = min(sw.camera_m[0] for sw in swaths), max(sw.camera_m[1] for sw in swaths)
         under = [sw.surface_m for sw in swaths if not math.isnan(sw.surface_m[0])]
         surf = ((min(lo for lo, _ in under), max(hi for _, hi in under)) if under else
@@ -392,12 +400,45 @@ class GeorefJob:
         if under and surf[0] >= cam[1]:
             return InputError(f"{head}: its surface lies above the camera ({heights}): heights "
                               "in other units, or a wrong geoid?")
+        if voids:
+            return InputError(f"{head}: {self._voids_text(done, off_dem, voids)}")
         if not all(sw.on_dem for sw in swaths):
             foot = _union_bounds([sw.footprint_m for sw in swaths])
             return InputError(f"{head}: the swaths {bounds_text(foot)} run off the DEM "
                               f"{bounds_text(self.dem_bounds)}")
         return InputError(f"{head}: the DEM covers the swaths, but no ray met its surface "
                           f"({heights})")
+
+    def _voids_text(self, done: list[SegmentResult], off_dem: Sequence[int],
+                    voids: Sequence[int]) -> str:
+        """Why no pixel met the DEM when some swaths lie over its voids only."""
+        foot = bounds_text(_union_bounds([self.swaths[s].footprint_m for s in
+                                          [d.segment for d in done] + [*off_dem, *voids]]))
+        if not done and not off_dem:
+            one = len(voids) == 1
+            return (f"the swath{'' if one else 's'} {foot} lie{'s' if one else ''} over DEM "
+                    f"voids only (nodata): no valid height within {WINDOW_REACH_M:g} m of "
+                    f"{'it' if one else 'them'}")
+        said = [f"{len(voids)} lie{'s' if len(voids) == 1 else ''} over DEM voids only (nodata)"]
+        if off_dem:
+            said.append(f"{len(off_dem)} off the DEM {bounds_text(self.dem_bounds)}")
+        if done:
+            said.append(f"no ray of the other {len(done)} met the DEM")
+        return (f"of the {len(done) + len(off_dem) + len(voids)} swaths {foot}, "
+                f"{', '.join(said[:-1])} and {said[-1]}")
+
+    def void_skip(self, segment: int, t_gps_ns: I64) -> SegmentSkip:
+        """The skip of a segment whose DEM window holds voids only (no valid height within
+        WINDOW_REACH_M of its swath: sea masked out, a hole in a mosaic), where none of its
+        rays can meet the DEM. (Such a segment once failed the whole job, "the DEM has no
+        valid height in the window".)"""
+        foot = self.swaths[segment].footprint_m
+        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
+        return SegmentSkip(
+            segment, lines, timed, lines, True, "DEM voids", (),
+            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies over DEM voids "
+            f"only (nodata): the DEM {self.opt.dem.name} has no valid height within "
+            f"{WINDOW_REACH_M:g} m of it")
 
     def write_sync(self, result: SyncResult) -> None:
         sync_dir = self.out / "sync"
@@ -498,30 +539,33 @@ class GeorefJob:
             f"segment {segment}: skipped, its swath {bounds_text(foot)} lies off the DEM "
             f"{self.opt.dem.name} {bounds_text(self.dem_bounds)}")
 
-    def dem_window(self, eo: LineEo) -> tuple[Dem, SwathOnDem]:
+    def dem_window(self, eo: LineEo) -> tuple[Dem | None, SwathOnDem]:
         """The DEM under the segment's swath: edge and centre rays of every 64th line met with
-        the DEM's lowest and highest heights, plus a margin; and where the swath lies against
-        the DEM (for the messages when rays miss)."""
+        the DEM's lowest and highest heights, plus a margin (None when it holds voids only:
+        `void_skip`); and where the swath lies against the DEM (for the messages when rays
+        miss)."""
         pick = np.flatnonzero(eo.valid)[::64]
         if pick.size == 0:  # run() skips such segments
             raise InputError("no line of the segment has a time and a pose: no DEM window")
         foot = self.swath_footprint(eo, pick, self.dem_height_range_m)
         m = FOOTPRINT_MARGIN_M
         dem = Dem.read(self.opt.dem, bounds_m=(foot[0] - m, foot[1] - m, foot[2] + m,
-                                               foot[3] + m), geoid=self.opt.geoid)
+                                               foot[3] + m), geoid=self.opt.geoid,
+                       voids_only_ok=True)
         valid = dem.heights_m[np.isfinite(dem.heights_m)]
         surface = ((float(valid.min()), float(valid.max())) if valid.size else
                    (math.nan, math.nan))
         inside = all(self.dem_bounds[k] <= foot[k] for k in (0, 1)) and all(
             foot[k] <= self.dem_bounds[k] for k in (2, 3))
-        return dem, SwathOnDem(foot, self._camera_heights_m(eo, pick), surface, inside)
+        return (dem if valid.size else None,
+                SwathOnDem(foot, self._camera_heights_m(eo, pick), surface, inside))
 
     def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
-                             progress: Progress | None) -> SegmentResult:
+                             dem: Dem, progress: Progress | None) -> SegmentResult:
+        """Every ray of the segment cast on `dem`, its window (`dem_window`)."""
         image, n_lines, pixels = raw.path, raw.lines, raw.pixels
         self.opt.sensor.check_pixels(pixels, str(image))
         look = self.opt.sensor.scanner.look_vectors_camera()
-        dem, self.swaths[segment] = self.dem_window(eo)
         stem = self.out / f"segment_{segment:03d}"
         write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
         hits = 0
@@ -620,25 +664,33 @@ class GeorefJob:
         done: list[SegmentResult] = []
         skipped: list[SegmentSkip] = []
         off_dem: list[int] = []  # segments whose swath lies off the DEM (skipped)
+        voids: list[int] = []  # segments whose DEM window holds voids only (skipped)
         for s in segments:
             eo, t = self.segment_eo(result, traj, s, rasters[s].lines, rasters[s].header_lines)
             if (skip := self.coverage(result, traj, s, eo, t)) is not None:
                 skipped.append(skip)
                 self.warnings.append(skip.message)
-            off = self.off_dem_skip(s, eo, t) if eo.valid.any() else None
-            if off is not None:
-                skipped.append(off)
-                off_dem.append(s)
-                self.warnings.append(off.message)
-            if off is not None or not eo.valid.any():
+            dem: Dem | None = None
+            if eo.valid.any():
+                if (off := self.off_dem_skip(s, eo, t)) is not None:
+                    off_dem.append(s)
+                else:
+                    dem, self.swaths[s] = self.dem_window(eo)
+                    if dem is None:
+                        off = self.void_skip(s, t)
+                        voids.append(s)
+                if off is not None:
+                    skipped.append(off)
+                    self.warnings.append(off.message)
+            if dem is None:
                 if progress is not None:
                     progress(rasters[s].lines)
                 continue
-            done.append(self.georeference_segment(s, eo, t, rasters[s], progress))
-        if not done and not off_dem:
+            done.append(self.georeference_segment(s, eo, t, rasters[s], dem, progress))
+        if not done and not off_dem and not voids:
             raise self.no_overlap_error(result, traj)
         if not any(d.rays_hit for d in done):
-            raise self.no_hit_error(done, off_dem)
+            raise self.no_hit_error(done, off_dem, voids)
         cell_m = self.opt.cell_m or nice_cell_m(
             float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
                             or [math.nan])))

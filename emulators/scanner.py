@@ -40,6 +40,7 @@ from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
+from sisa.outdir import partial_path
 
 I64 = npt.NDArray[np.int64]
 U16 = npt.NDArray[np.uint16]
@@ -159,7 +160,7 @@ class BilSegmentWriter:
             self._write_header()
 
     def _write_header(self) -> None:
-        tmp = self.hdr_path.with_suffix(".hdr.tmp")
+        tmp = partial_path(self.hdr_path)
         tmp.write_text(envi_header(self.pixels, self.lines, self.bands, self.segment,
                                    self.lines_csv_path.name), encoding="utf-8")
         os.replace(tmp, self.hdr_path)

@@ -21,8 +21,9 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Geod, Transformer
 
-from postproc.igm import IgmSource, iter_igm_blocks, partial_path, projected_crs
+from postproc.igm import IgmSource, iter_igm_blocks, projected_crs
 from sisa.errors import InputError
+from sisa.outdir import partial_path
 
 F64 = npt.NDArray[np.float64]
 

@@ -31,6 +31,7 @@ from rasterio.enums import WktVersion
 from rasterio.errors import CRSError, NotGeoreferencedWarning, RasterioIOError
 
 from sisa.errors import InputError
+from sisa.outdir import partial_path
 
 F64 = npt.NDArray[np.float64]
 
@@ -225,11 +226,6 @@ def _wavelength_nm(band_tags: dict[str, str], envi: dict[str, str]) -> float | N
 
 
 # -- writing ENVI files ----------------------------------------------------------------------
-
-def partial_path(final: Path) -> Path:
-    """A temporary name beside `final`, so the last rename is atomic (same file system)."""
-    return final.with_name(f".{final.name}.partial-{os.getpid()}")
-
 
 def replace_file(tmp: Path, final: Path) -> None:
     """Rename the finished `tmp` to `final`, replacing any file there. A file in the way is

@@ -48,11 +48,11 @@ from postproc.igm import (
     envi_list,
     igm_epsg,
     igm_raster,
-    partial_path,
     projected_crs,
     replace_file,
 )
 from sisa.errors import InputError
+from sisa.outdir import partial_path
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]

@@ -22,8 +22,8 @@ import rasterio
 from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
-from postproc.igm import partial_path
 from sisa.errors import InputError
+from sisa.outdir import partial_path
 
 U8 = npt.NDArray[np.uint8]
 

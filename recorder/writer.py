@@ -55,6 +55,7 @@ from recorder.messages import (
     json_schema,
 )
 from sisa.errors import ConfigError, EncodeError, InputError, RecorderError
+from sisa.outdir import partial_path
 
 RECORDER_ID: Final = f"sisa-recorder/{sisa.__version__}"
 MESSAGE_ENCODING: Final = "json"
@@ -328,7 +329,7 @@ class _Part:
         """A new file that appears under its name only with its header and metadata on disk
         (written to a hidden file, fsync'd, then hard-linked, which never replaces a file): a
         power cut while a part is started leaves no file that is not MCAP."""
-        tmp = path.with_name(f".{path.name}.partial-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+        tmp = partial_path(path, f"-{uuid.uuid4().hex[:8]}")
         try:
             fh = _open_new(tmp)
         except OSError as exc:

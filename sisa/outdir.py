@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 from collections.abc import Iterator
@@ -10,12 +11,34 @@ from pathlib import Path
 
 from sisa.errors import InputError, RecorderError
 
+SCRATCH_NAME_CHARS = 200  # of the output's name in its scratch name (names: 255 bytes)
+
+
+def partial_path(final: Path, tag: str = "") -> Path:
+    """The hidden name a file or folder is made under beside `final` (same file system: the
+    last rename is atomic), this process's (`tag` to tell several apart), and short enough
+    for any name the file system takes for `final`."""
+    return final.with_name(f".{final.name[:SCRATCH_NAME_CHARS]}.partial-{os.getpid()}{tag}")
+
+
+def name_taken(path: Path, what: str = "") -> bool:
+    """Whether `path` is taken (a dangling symlink too); a name the file system cannot hold
+    (longer than its limit) is an InputError rather than a traceback. `what`: the option
+    that named it, for the message."""
+    try:
+        return os.path.lexists(path) or path.exists()
+    except OSError as exc:
+        if exc.errno != errno.ENAMETOOLONG:
+            raise
+        raise InputError(f"{what + ' ' if what else ''}{path}: cannot be used as a name: "
+                         f"{exc.strerror}") from None
+
 
 @contextmanager
 def staged_output_dir(out: Path) -> Iterator[Path]:
     """Yield a scratch folder beside `out`; rename it to `out` only if the block succeeds."""
     out = Path(out)
-    if out.exists():
+    if name_taken(out):
         raise InputError(f"{out} already exists: choose a new output folder (runs are never "
                          "overwritten)")
     parent = out.parent
@@ -23,7 +46,7 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot create {parent}: {exc.strerror}") from None
-    scratch = parent / f".{out.name}.partial-{os.getpid()}"
+    scratch = partial_path(out)
     shutil.rmtree(scratch, ignore_errors=True)
     try:
         scratch.mkdir()
@@ -48,3 +71,4 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
         os.replace(scratch, out)
     except OSError as exc:
         raise InputError(f"cannot move the result to {out} ({exc.strerror}): {kept}") from None
+

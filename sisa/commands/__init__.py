@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -10,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sisa.errors import InputError
+from sisa.outdir import name_taken
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
@@ -98,11 +100,20 @@ def check_port(port: int, option: str = "--pulses-port") -> None:
         raise InputError(f"{option} {port}: a TCP port is 0 to 65535 (0: any free port)")
 
 
+def new_file_arg(text: str) -> Path:
+    """argparse type of an argument naming a new file: a name ending in '/' names a folder, and
+    Path would drop the slash and make a file of that name."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(f"{text}: ends in '/': name a new file, not a folder")
+    return Path(text)
+
+
 def check_endpoints_path(path: Path | None) -> None:
     """--endpoints names a file in an existing folder: checked before any port opens, so a
     wrong path costs nothing (no ports, no run folder)."""
     if path is None:
         return
+    name_taken(path, "--endpoints")
     if path.is_dir():
         raise InputError(f"--endpoints {path}: is a folder, not a file")
     if not path.parent.is_dir():
@@ -112,9 +123,10 @@ def check_endpoints_path(path: Path | None) -> None:
 def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
     """Written whole (a temporary file renamed), so a script polling for it never reads half."""
     import json
-    import os
 
-    tmp = path.with_name(f".{path.name}.tmp")
+    from sisa.outdir import partial_path
+
+    tmp = partial_path(path)
     try:
         tmp.write_text(json.dumps(endpoints, indent=2) + "\n", encoding="utf-8")
         os.replace(tmp, path)
@@ -138,6 +150,13 @@ def add_scenario_args(parser: argparse.ArgumentParser, what: str = "scenario") -
 
 
 def scenario_from_args(args: argparse.Namespace) -> Scenario:
+    return load_scenario_arg(args.scenario if args.scenario is not None else args.preset)
+
+
+def load_scenario_arg(name_or_path: str | Path) -> Scenario:
+    """`emulators.scenario.load_scenario`, with a name no file can have (too long) an
+    InputError."""
     from emulators.scenario import load_scenario
 
-    return load_scenario(args.scenario if args.scenario is not None else args.preset)
+    name_taken(Path(name_or_path))
+    return load_scenario(name_or_path)

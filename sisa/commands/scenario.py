@@ -8,7 +8,7 @@ from typing import Any
 
 import tomli_w
 
-from sisa.commands import add_command
+from sisa.commands import add_command, load_scenario_arg
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -93,9 +93,7 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
 
 
 def _show(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
-
-    scn = load_scenario(args.scenario)
+    scn = load_scenario_arg(args.scenario)
     derived = derived_figures(scn)
     print(f"# resolved scenario: {args.scenario}")
     print(scenario_toml(scn))

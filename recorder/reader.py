@@ -37,6 +37,8 @@ import contextlib
 import dataclasses
 import io
 import json
+import os
+import stat
 import struct
 import warnings
 import zlib
@@ -316,17 +318,33 @@ def _paths(path_or_paths: Paths) -> list[Path]:
 def open_log(path: Path) -> BinaryIO:
     """Open an MCAP file for reading past its magic; InputError (one line) if it is not one."""
     try:
-        fh = open(path, "rb")  # noqa: SIM115 - the caller closes it
+        # without blocking: a FIFO would wait for a writer forever (refused just below)
+        fh = open(path, "rb", opener=_open_nonblocking)  # noqa: SIM115 - the caller closes it
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    mode = os.fstat(fh.fileno()).st_mode
+    if not stat.S_ISREG(mode):  # a log is read by offsets, and its size is its file's
+        fh.close()
+        raise InputError(f"{path}: not an MCAP file (not a regular file: {_file_kind(mode)})")
+    os.set_blocking(fh.fileno(), True)
     magic = fh.read(len(MCAP_MAGIC))
     if magic != MCAP_MAGIC:
         fh.close()
         what = "empty" if not magic else "no MCAP magic"
         raise InputError(f"{path}: not an MCAP file ({what})")
     return fh
+
+
+def _open_nonblocking(path: str, flags: int) -> int:
+    return os.open(path, flags | os.O_NONBLOCK)
+
+
+def _file_kind(mode: int) -> str:
+    kinds = ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    return next((kind for test, kind in kinds if test(mode)), "a special file")
 
 
 FIRST_DATA_KEY_BYTES: Final = 32  # a chunk's start and end times, size and CRC

@@ -9,6 +9,7 @@ an existing file): an interrupted recover leaves nothing half-written, and nothi
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,8 @@ from recorder.writer import (
     link_new,
     refuse_existing,
 )
-from sisa.errors import RecorderError
+from sisa.errors import InputError, RecorderError
+from sisa.outdir import partial_path
 
 
 @dataclass(frozen=True)
@@ -94,9 +96,12 @@ class _Copier:
 def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
     """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`."""
     src, out = Path(in_path), Path(out_path)
-    refuse_existing(out)
+    try:
+        refuse_existing(out)
+    except OSError as exc:  # a name longer than the file system takes
+        raise InputError(f"{out}: cannot be used as a name: {exc.strerror or exc}") from None
     reader = LogReader(src)  # InputError if missing or not MCAP
-    tmp = out.with_name(f".{out.name}.partial-{os.getpid()}")
+    tmp = partial_path(out)
     try:
         with open(tmp, "xb") as fh:
             copier = _Copier(fh)
@@ -109,7 +114,8 @@ def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
     except OSError as exc:
         raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from exc
     finally:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # (none was made if its name was refused)
+            tmp.unlink(missing_ok=True)
     fsync_dir(out.parent)
     return _report(src, out, reader.stats)
 

@@ -11,7 +11,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import FLIGHT_HELP, add_command, flight_parts, say_warning
+from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, say_warning
+from sisa.errors import InputError
 
 if TYPE_CHECKING:
     from recorder.reader import FileStats, LogStats
@@ -33,7 +34,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                           "damaged flight log into a new, complete MCAP file",
                           "sisa log recover crashed.mcap recovered.mcap")
     recover.add_argument("input", type=Path, metavar="IN", help="the damaged MCAP file")
-    recover.add_argument("output", type=Path, metavar="OUT", help="new file (never overwritten)")
+    recover.add_argument("output", type=new_file_arg, metavar="OUT",
+                         help="new file (never overwritten)")
     recover.set_defaults(handler=_recover)
     parser.set_defaults(handler=lambda _args: _usage(parser))
 
@@ -46,6 +48,8 @@ def _usage(parser: argparse.ArgumentParser) -> int:
 def _info(args: argparse.Namespace) -> int:
     from recorder.reader import scan_log
 
+    if args.gaps < 0:
+        raise InputError(f"--gaps {args.gaps}: list at most N gaps, N 0 or more")
     stats = scan_log(flight_parts(args.files))
     for note in stats.part_notes:  # a part not given: said, and the rest is shown
         say_warning("log", note)
@@ -64,8 +68,13 @@ def _recover(args: argparse.Namespace) -> int:
     from recorder.recover import recover
     from recorder.writer import part_path
 
+    _refuse_part_name(args.input, args.output)
     report = recover(args.input, args.output)
     print(report.summary())
+    if not report.messages:  # a complete file all the same: said, not hidden in the summary
+        why = f" ({report.problems[0]})" if report.problems else ""
+        say_warning("log", f"no readable messages in {args.input}{why}: {args.output} holds "
+                    "none")
     further = _further_parts(args.input)
     if further:
         names = ", ".join(p.name for p in further)
@@ -75,6 +84,27 @@ def _recover(args: argparse.Namespace) -> int:
                     f"log recover {further[0]} {part_path(args.output, 1)}`, ...), and readers "
                     f"given {args.output} take them together")
     return 0
+
+
+def _refuse_part_name(src: Path, out: Path) -> None:
+    """OUT named as a further part of a log beside it (flight_001.mcap beside flight.mcap)
+    would be read with that log as a part of it: refused, unless IN is a further part itself
+    (recovering each part to the numbered names, as the warning below says)."""
+    import re
+
+    from recorder.reader import part_label
+
+    numbered = re.fullmatch(r"(.+)_(\d{3,})", out.stem)
+    if numbered is None or int(numbered.group(2)) == 0:
+        return
+    base = out.with_name(numbered.group(1) + out.suffix)
+    if not base.is_file():
+        return
+    label = part_label(src) if src.is_file() else None
+    if label is not None and label.index > 0:
+        return
+    raise InputError(f"{out} would be read as part {int(numbered.group(2))} of {base} (readers "
+                     f"take the numbered files beside a log as its parts): choose another name")
 
 
 def _further_parts(path: Path) -> list[Path]:

@@ -306,6 +306,9 @@ class LiveSources:
             raise InputError(f"cannot open CAN {spec}: {exc}") from None
         except _LostError as exc:
             raise InputError(str(exc)) from None
+        except Exception as exc:  # noqa: BLE001 - a python-can plugin's own bug (kvaser
+            # without its library: a NameError) is still the bus that cannot be opened
+            raise InputError(f"cannot open CAN {spec}: {type(exc).__name__}: {exc}") from None
         self._add(_Link(Source.INS, open_, fileno, read, _shutdown_bus), first)
 
     def _pulses(self, endpoint: str) -> None:

@@ -16,14 +16,18 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.commands.emulate import HELD_LINE, check_span
-from sisa.errors import SisaError
+from sisa.errors import InputError, SisaError
 from sisa.outdir import staged_output_dir
 
+if TYPE_CHECKING:
+    from emulators.trajectory import TruthTrajectory
+
 ANNOUNCE_TIMEOUT_S = 60.0
+MIN_REAL_S = 2.0  # of emulation: a shorter one is over before the recorder has started
 DRAIN_S = 0.5  # after the emulator's last output: a frame header's latency, the read clock
 
 
@@ -77,7 +81,13 @@ def _run(args: argparse.Namespace) -> int:
     from sisa.simulation import write_survey_data
 
     scn = scenario_from_args(args)
-    check_span(scn, TruthTrajectory.from_scenario(scn), args)  # before anything starts
+    traj = TruthTrajectory.from_scenario(scn)
+    check_span(scn, traj, args)  # before anything starts
+    real_s = _real_seconds(traj, args)
+    if real_s < MIN_REAL_S:
+        raise InputError(f"this run plays {real_s:.2g} s of real time: sisa record takes about "
+                         f"a second to start, so at least {MIN_REAL_S:g} s (a longer --duration, "
+                         "or a lower --speed)")
     sisa = [sys.executable, "-m", "sisa.cli"]
     with staged_output_dir(args.out) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
@@ -111,8 +121,7 @@ def _run(args: argparse.Namespace) -> int:
             if rec is not None:
                 _stop(rec, ask=True)
             _stop(emu, ask=True)
-        failed = (f"sisa emulate exited {emu_end.code}, sisa record exited {rec_end.code}"
-                  if emu_end.code != 0 or rec_end.code != 0 else None)
+        failed = failure(emu_end, rec_end, real_s, stopped_early=bool(early))
         if failed and not (run / "flight.mcap").exists():
             raise SisaError(failed)  # nothing recorded: nothing to keep
         for part in ("scanner", "truth"):
@@ -127,6 +136,31 @@ def _run(args: argparse.Namespace) -> int:
              for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
     print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{early}")
     return 0
+
+
+# sisa record's exit when asked to stop (SIGINT) before its own handler is in place: Python's
+# KeyboardInterrupt in `sisa.cli.main`, or death by the signal while it was still starting up
+STOPPED_STARTING = (130, -signal.SIGINT)
+
+
+def failure(emu_end: Ended, rec_end: Ended, real_s: float, *, stopped_early: bool
+            ) -> str | None:
+    """What went wrong with the two children, if anything, in the words of the bench."""
+    if emu_end.code == 0 and rec_end.code == 0:
+        return None
+    if not stopped_early and emu_end.code == 0 and rec_end.code in STOPPED_STARTING:
+        # the scenario ended and the recorder was asked to stop, as always, but it was still
+        # starting up: "sisa record exited 130" said nothing of why
+        return (f"the emulated run was over ({real_s:.2g} s of real time) before sisa record "
+                "had started, and it was stopped starting: run for longer (--duration, or a "
+                "lower --speed)")
+    return f"sisa emulate exited {emu_end.code}, sisa record exited {rec_end.code}"
+
+
+def _real_seconds(traj: TruthTrajectory, args: argparse.Namespace) -> float:
+    """How long the emulator plays: --duration, or the scenario from --start, at --speed."""
+    flight_s = (traj.t_end_ns - traj.t_start_ns) / 1e9 - args.start
+    return float(min(flight_s, args.duration or flight_s) / args.speed)
 
 
 def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drain_s: float

@@ -22,11 +22,13 @@ from sisa.commands import (
     write_endpoints,
 )
 from sisa.errors import InputError
+from sisa.outdir import name_taken
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
     from emulators.trajectory import TruthTrajectory
 
+MIN_SPEED = 0.001  # --speed: slower flies a minute of the scenario in more than 16 hours
 HELD_LINE = "emulate: the scenario is over; every port held open, silent, until Ctrl-C"
 
 
@@ -66,6 +68,9 @@ def check_span(scn: Scenario, traj: TruthTrajectory, args: argparse.Namespace) -
     flight_s = (traj.t_end_ns - traj.t_start_ns) / 1e9
     if args.speed <= 0:  # (sisa.cli has checked that every number is finite)
         raise InputError("--speed must be positive")
+    if args.speed < MIN_SPEED:
+        raise InputError(f"--speed {args.speed:g}: at least {MIN_SPEED:g} (a thousandth of real "
+                         "time)")
     if not 0 <= args.start < flight_s:
         raise InputError(f"--start {args.start:g} s: the {scn.block.name} flight lasts "
                          f"{flight_s:.1f} s")
@@ -85,9 +90,12 @@ def _run(args: argparse.Namespace) -> int:
     check_port(args.pulses_port)
     check_endpoints_path(args.endpoints)
     target = CanTarget.parse(args.can)
-    if args.out.exists():
+    if name_taken(args.out, "--out"):
         raise InputError(f"{args.out} already exists: choose a new output folder")
-    args.out.mkdir(parents=True)
+    try:
+        args.out.mkdir(parents=True)
+    except OSError as exc:  # under a file, in /proc or /sys, a read-only place
+        raise InputError(f"cannot create {args.out}: {exc.strerror or exc}") from None
     try:
         system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner",
                                 traj=traj, real_time=True)
@@ -113,8 +121,8 @@ def _run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     _announce(bridge.endpoints(), scn.block.name, args)
     start = system.traj.t_start_ns + int(args.start * 1e9)
-    until = None
-    if args.duration is not None:
+    until = None  # a --duration past the end of the scenario is the scenario (1e308 s too)
+    if args.duration is not None and args.duration * 1e9 < system.traj.t_end_ns - start:
         until = start + int(args.duration * 1e9)
     started = time.monotonic()
     try:

@@ -13,8 +13,15 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, cast
 
-from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_scenario_args,
+    new_file_arg,
+    scenario_from_args,
+)
 from sisa.errors import InputError, RecorderError
+from sisa.outdir import name_taken
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -42,7 +49,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--ins", help="INS CAN bus as INTERFACE:CHANNEL (slcan:/dev/pts/6, "
                         "socketcan:can0, virtual:sisa)")
     parser.add_argument("--pulses", help="timing-board edge link, tcp://127.0.0.1:PORT")
-    parser.add_argument("--out", type=Path, required=True, help="new MCAP file")
+    parser.add_argument("--out", type=new_file_arg, required=True, help="new MCAP file")
     add_scenario_args(parser, "settings (rates, leap seconds, sync unit) from this")
     parser.add_argument("--split-minutes", type=float, default=None,
                         help="start a new file every N minutes of log time")
@@ -64,7 +71,7 @@ def _run(args: argparse.Namespace) -> int:
     if not any((args.gps, args.scanner, args.ins, args.pulses)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
                          "--pulses")
-    if args.out.exists():
+    if name_taken(args.out, "--out"):
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     _check_options(args)
     scn = scenario_from_args(args)
@@ -92,6 +99,8 @@ def _run(args: argparse.Namespace) -> int:
 
 MIN_SPLIT_MINUTES = 0.1  # shorter parts are no flight log: a part for every few messages
 MIN_SPLIT_MB = 1.0
+MAX_SPLIT_MINUTES = 100_000.0  # 69 days; longer overflowed the writer's nanoseconds
+MAX_SPLIT_MB = 1e9  # a petabyte; larger overflowed the byte count (1e308)
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -102,6 +111,13 @@ def _check_options(args: argparse.Namespace) -> None:
                          f"{MIN_SPLIT_MINUTES:g}")
     if args.split_mb is not None and args.split_mb < MIN_SPLIT_MB:
         raise InputError(f"--split-mb {args.split_mb:g}: must be at least {MIN_SPLIT_MB:g}")
+    for option, value, most in (("--split-minutes", args.split_minutes, MAX_SPLIT_MINUTES),
+                                ("--split-mb", args.split_mb, MAX_SPLIT_MB)):
+        if value is not None and value > most:
+            raise InputError(f"{option} {value:g}: at most {most:g} (leave it out for one "
+                             "file)")
+    if args.pulses:
+        args.pulses = pulse_endpoint(args.pulses)
     ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins")
              if getattr(args, name)]
     seen: dict[str, str] = {}
@@ -111,6 +127,20 @@ def _check_options(args: argparse.Namespace) -> None:
         if device in seen:
             raise InputError(f"--{seen[device]} and --{name} name the same device {spec}")
         seen[device] = name
+
+
+def pulse_endpoint(text: str) -> str:
+    """--pulses as tcp://HOST:PORT, its port one a connection can be made to (a port out of
+    range was refused as 'connection refused', or by getaddrinfo's 'servname not supported');
+    an IPv6 address may be in brackets. Whether HOST is loopback is the pulse link's check."""
+    host, sep, port_text = text.removeprefix("tcp://").rpartition(":")
+    if not sep or not port_text:
+        raise InputError(f"--pulses {text}: no port number (tcp://127.0.0.1:PORT)")
+    if not (port_text.isascii() and port_text.isdigit()) or not 1 <= int(port_text) <= 65535:
+        raise InputError(f"--pulses {text}: the port is a number from 1 to 65535")
+    if host.startswith("[") and host.endswith("]"):
+        return f"tcp://{host[1:-1]}:{port_text}"
+    return text
 
 
 def _install_stop_handlers() -> list[bool]:

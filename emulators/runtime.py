@@ -23,6 +23,8 @@ import can
 from acquisition.pulses import Edge
 
 PACE_EARLY_NS = 50_000  # an emission this close to due goes out at once
+PACE_SLICE_S = 0.25  # a longer wait for an emission (a slow --speed) is slept in slices,
+# asking between them whether to stop: Ctrl-C waited for the next emission, ~16 s at 0.001
 
 
 class Port(StrEnum):
@@ -122,7 +124,9 @@ class Runner:
                     if self.speed is not None:
                         if wall0 is None:
                             wall0 = time.perf_counter_ns() - int((t_ns - t0) / self.speed)
-                        self._pace(wall0 + int((t_ns - t0) / self.speed))
+                        if not self._pace(wall0 + int((t_ns - t0) / self.speed),
+                                          should_stop):
+                            break
                     self._drain_inbox()
                     self._deliver(dev.emit(t_ns))
                 nxt = dev.next_time_ns()
@@ -146,13 +150,15 @@ class Runner:
                 return
             self.router.deliver(edge)
 
-    def _pace(self, due_wall_ns: int) -> None:
+    def _pace(self, due_wall_ns: int, should_stop: Callable[[], bool] | None) -> bool:
         """Sleep until the emission is due, never spin: what a device emits carries its own
         time (edges their timestamps, records their clock), so sleeping's ~0.1 ms overshoot
         costs no fidelity, and a spinning emulator would take the CPU the recorder under test
         needs. Less than PACE_EARLY_NS ahead goes out at once (a sleep that short only adds a
-        wake-up)."""
-        ahead_ns = due_wall_ns - time.perf_counter_ns()
-        if ahead_ns > PACE_EARLY_NS:
-            time.sleep(ahead_ns / 1e9)
+        wake-up). False if asked to stop while waiting (in slices of PACE_SLICE_S)."""
+        while (ahead_ns := due_wall_ns - time.perf_counter_ns()) > PACE_EARLY_NS:
+            if ahead_ns > PACE_SLICE_S * 1e9 and should_stop is not None and should_stop():
+                return False
+            time.sleep(min(ahead_ns / 1e9, PACE_SLICE_S))
         self.late_ns_max = max(self.late_ns_max, time.perf_counter_ns() - due_wall_ns)
+        return True

@@ -1,5 +1,6 @@
 """The event loop: time order, feedback edges acting at their own timestamp, real-time pacing."""
 
+import threading
 import time
 
 from acquisition.pulses import Edge, PulseLine
@@ -71,3 +72,21 @@ def test_skip_until_runs_devices_silently_then_paces():
     Runner([dev], sink, speed=1.0).run(skip_until_ns=150_000_000)
     assert seen == list(range(150_000_000, 200_000_000, 10_000_000))
     assert stamps[-1] - stamps[0] < 0.1  # only the last 50 ms were paced (not 200 ms)
+
+
+def test_a_stop_is_heard_while_waiting_for_a_far_emission():
+    """At --speed 0.001 the next emission can be seconds away; the runner waited for it
+    whole before asking whether to stop (Ctrl-C ~16 s late). It now asks between slices."""
+    dev = Ticker(1_000_000_000, 2)  # the second output 1 s later: 1000 s at speed 0.001
+    seen = []
+    t0 = time.perf_counter()
+
+    def stop():
+        return time.perf_counter() - t0 > 0.3
+
+    runner = Runner([dev], lambda o: seen.append(o.t_ns) or [], speed=0.001)
+    worker = threading.Thread(target=runner.run, kwargs={"should_stop": stop}, daemon=True)
+    worker.start()
+    worker.join(3.0)  # (a daemon: a runner that does not hear the stop fails, not hangs)
+    assert not worker.is_alive()
+    assert seen == [0]

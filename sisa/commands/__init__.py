@@ -108,16 +108,36 @@ def new_file_arg(text: str) -> Path:
     return Path(text)
 
 
+ENDPOINTS_MAX_BYTES = 65536  # an endpoints file is a few lines of JSON
+
+
 def check_endpoints_path(path: Path | None) -> None:
     """--endpoints names a file in an existing folder: checked before any port opens, so a
-    wrong path costs nothing (no ports, no run folder)."""
+    wrong path costs nothing (no ports, no run folder). An existing file is replaced only if
+    it is an endpoints file (a script reusing its path); anything else there (a flight log
+    named by a typo) is refused, not overwritten."""
     if path is None:
         return
-    name_taken(path, "--endpoints")
+    taken = name_taken(path, "--endpoints")
     if path.is_dir():
         raise InputError(f"--endpoints {path}: is a folder, not a file")
     if not path.parent.is_dir():
         raise InputError(f"--endpoints {path}: {path.parent} is not a folder")
+    if taken and not _is_endpoints_file(path):
+        raise InputError(f"--endpoints {path}: exists and is not an endpoints file (JSON of "
+                         "device names and ports): it would be replaced; name a new file")
+
+
+def _is_endpoints_file(path: Path) -> bool:
+    import json
+
+    try:
+        if not path.is_file() or path.stat().st_size > ENDPOINTS_MAX_BYTES:
+            return False
+        found = json.loads(path.read_bytes())
+    except (OSError, ValueError):  # (UnicodeDecodeError is a ValueError)
+        return False
+    return isinstance(found, dict) and all(isinstance(v, str) for v in found.values())
 
 
 def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:

@@ -320,3 +320,19 @@ def test_a_can_plugin_that_fails_in_its_own_code_is_one_line(
     assert code == 2
     assert last.startswith(f"sisa {argv[0]}: error: cannot open CAN kvaser:0: "), last
     assert list(tmp_path.iterdir()) == []
+
+
+def test_emulate_does_not_replace_a_file_that_is_no_endpoints_file(
+        tmp_path: Path, log: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--endpoints naming an existing flight log (a typo) replaced it with a few lines of JSON;
+    an endpoints file left by an earlier run may still be reused."""
+    victim = tmp_path / "flight.mcap"
+    victim.write_bytes(log.read_bytes())
+    _fails(["emulate", "--preset", "bench", "--out", str(tmp_path / "emu"), "--endpoints",
+            str(victim)], capsys, tmp_path, "--endpoints", "is not an endpoints file")
+    assert victim.read_bytes() == log.read_bytes()
+    from sisa.commands import check_endpoints_path
+
+    earlier = tmp_path / "ep.json"
+    earlier.write_text('{"gps": "/dev/pts/3", "pulses": "tcp://127.0.0.1:4000"}\n')
+    check_endpoints_path(earlier)  # no error: reused

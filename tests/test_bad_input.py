@@ -31,13 +31,10 @@ PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\x00\x00\x00\x01\x08\
 
 @pytest.fixture(scope="module")
 def valid_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from recorder.writer import FlightRecorder
-    from tests.recorder import sample_messages
+    from tests.recorder import write_sample_log
 
     path = tmp_path_factory.mktemp("log") / "flight.mcap"
-    with FlightRecorder(path) as rec:
-        for msg, topic in sample_messages():
-            rec.write(msg, topic)
+    write_sample_log(path)
     return path
 
 

@@ -13,9 +13,7 @@ with DEMs cropped here from its own."""
 
 from __future__ import annotations
 
-import fcntl
 import json
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -26,6 +24,7 @@ from rasterio.transform import Affine
 from rasterio.windows import Window
 
 from sisa.cli import main
+from tests.postproc import simulated_once
 
 SEVEN = """base = "bench"
 seed = 5
@@ -56,19 +55,8 @@ EAST_OF_ALL_M = 417_500.0  # a DEM starting here meets no swath
 
 @pytest.fixture(scope="session")
 def seven_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The seven-strip run, simulated by the first xdist worker that asks, under a lock."""
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    folder = root / "dem-cover-run"
-    with (root / "dem-cover-run.lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (folder / "done").is_file():
-            folder.mkdir(exist_ok=True)
-            (folder / "seven.toml").write_text(SEVEN, encoding="utf-8")
-            assert main(["simulate", "--scenario", str(folder / "seven.toml"),
-                         "--out", str(folder / "run")]) == 0
-            (folder / "done").write_text("")
-    return folder / "run"
+    """The seven-strip run, simulated once per session."""
+    return simulated_once(tmp_path_factory, "dem-cover-run", SEVEN)
 
 
 def dem_east_of(run: Path, path: Path, west_edge_m: float) -> Path:

@@ -16,7 +16,6 @@ read from a log's NMEA bytes.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 from pathlib import Path
@@ -35,6 +34,7 @@ from sisa.cli import main
 from sisa.errors import InputError
 from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK
+from tests.postproc import simulated_once
 from tests.postproc.test_navigation import G_B, SYN, T0_NS
 from tests.postproc.test_trajfiles import T_POS, antenna_llh, write_pos, write_sbet
 
@@ -63,19 +63,8 @@ LEAP_S = 18  # the bench preset's
 
 @pytest.fixture(scope="session")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The tiny run, simulated by the first xdist worker that asks, under a lock."""
-    base = tmp_path_factory.getbasetemp()
-    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
-    folder = root / "trajectory-coverage-run"
-    with (root / "trajectory-coverage-run.lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (folder / "done").is_file():
-            folder.mkdir(exist_ok=True)
-            (folder / "tiny.toml").write_text(TINY, encoding="utf-8")
-            assert main(["simulate", "--scenario", str(folder / "tiny.toml"),
-                         "--out", str(folder / "run")]) == 0
-            (folder / "done").write_text("")
-    return folder / "run"
+    """The tiny run, simulated once per session."""
+    return simulated_once(tmp_path_factory, "trajectory-coverage-run", TINY)
 
 
 @pytest.fixture(scope="session")

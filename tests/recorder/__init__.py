@@ -7,6 +7,7 @@ values a real log holds (bytes with NULs, empty bytes, NaN, infinities, negative
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from recorder.messages import (
     SyncSession,
     Topic,
 )
+from recorder.writer import FlightRecorder
 
 T0_NS = 1_700_000_000 * 10**9  # host clock (Unix ns)
 
@@ -60,3 +62,11 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[LoggedMessage, Topic | Non
         (SyncModeSwitch(t + 12, 0, 10**12, 1, 2, "scanner on: ppf seen"), None),
         (StreamHealth(t + 13, "gps", 100, 10.0, 10.0, 0, 1, 0, 5, 0, 0), None),
     ]
+
+
+def write_sample_log(path: Path, **recorder_options: Any) -> FlightRecorder:
+    """`path`: a complete log of sample_messages(); the recorder that wrote it."""
+    with FlightRecorder(path, **recorder_options) as rec:
+        for msg, topic in sample_messages():
+            rec.write(msg, topic)
+    return rec

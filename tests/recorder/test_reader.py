@@ -15,7 +15,7 @@ from recorder.reader import DamagedLogWarning, LogReader, read_columns, read_log
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
 from sisa.errors import InputError
-from tests.recorder import T0_NS, sample_messages
+from tests.recorder import T0_NS, sample_messages, write_sample_log
 from tests.recorder.crash_child import kill_many
 
 JS_DIR = Path(__file__).resolve().parent / "js"
@@ -266,9 +266,7 @@ def test_columns_are_numpy_arrays_of_the_declared_types(flight):
 
 def test_columns_keep_nan_and_infinity(tmp_path):
     path = tmp_path / "nan.mcap"
-    with FlightRecorder(path) as rec:
-        for msg, topic in sample_messages():
-            rec.write(msg, topic)
+    write_sample_log(path)
     cols = read_columns(path, Topic.INS_RECORD)
     assert math.isnan(cols["rate_y_rps"][0])
     assert cols["vel_e_mps"][0] == math.inf

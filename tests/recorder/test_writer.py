@@ -35,16 +35,13 @@ from recorder.writer import (
     topics_markdown,
 )
 from sisa.errors import ConfigError, EncodeError, InputError
-from tests.recorder import T0_NS, sample_messages
+from tests.recorder import T0_NS, sample_messages, write_sample_log
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "flight-log.md"
 
 
 def _write_samples(path, **kwargs):
-    with FlightRecorder(path, metadata={"scenario": "bench", "seed": 7}, **kwargs) as rec:
-        for msg, topic in sample_messages():
-            rec.write(msg, topic)
-    return rec
+    return write_sample_log(path, metadata={"scenario": "bench", "seed": 7}, **kwargs)
 
 
 def test_every_topic_has_a_channel_with_its_json_schema(tmp_path):

@@ -19,7 +19,7 @@ from recorder.messages import RawBytes, Topic
 from recorder.writer import FlightRecorder
 from sisa.cli import main
 from sisa.commands.bench import Ended, failure
-from tests.recorder import T0_NS, sample_messages
+from tests.recorder import T0_NS, write_sample_log
 
 ROOT = Path(__file__).resolve().parents[2]
 LONG = "n" * 300  # longer than a file name can be (255 bytes)
@@ -29,9 +29,7 @@ LONGEST = "m" * 250  # a name the file system takes, with no room for a suffix
 @pytest.fixture(scope="module")
 def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("log") / "flight.mcap"
-    with FlightRecorder(path) as rec:
-        for msg, topic in sample_messages():
-            rec.write(msg, topic)
+    write_sample_log(path)
     return path
 
 
@@ -301,9 +299,7 @@ def test_a_log_under_the_longest_name_is_recorded(tmp_path: Path) -> None:
     for it (the name plus '.partial-PID-...') was longer: 'cannot create'. Every scratch name
     is now made by sisa.outdir.partial_path, which shortens the name inside it."""
     path = tmp_path / ("m" * 250 + ".mcap")
-    with FlightRecorder(path) as rec:
-        for msg, topic in sample_messages():
-            rec.write(msg, topic)
+    write_sample_log(path)
     assert path.is_file()
     assert [p.name for p in tmp_path.iterdir()] == [path.name]
 

@@ -28,6 +28,10 @@ _OK, _ERROR = slcanBus._OK[0], slcanBus._ERROR[0]
 _TERMINATOR = re.compile(rb"[\r\a]")
 _ID_DIGITS = {ord("t"): 3, ord("r"): 3, ord("T"): 8, ord("R"): 8}  # classic frame lines
 _REPLIES = frozenset((b"", b"z", b"Z"))  # OK, transmit acknowledgements: not frames
+# the longest SLCAN line is ~30 bytes (T, 8 id digits, length, 16 data digits, a timestamp):
+# bytes this many past the last terminator are no line (an adapter sending garbage, a wrong
+# baud rate): dropped and counted, or the buffer grew with every read
+PENDING_MAX = 4096
 
 
 def parse_frame_line(line: bytes) -> can.Message | None:
@@ -95,9 +99,15 @@ class BulkSlcanBus(slcanBus):
             self._buffer.extend(chunk)
         last = max(self._buffer.rfind(_OK), self._buffer.rfind(_ERROR))
         if last < 0:
+            if len(self._buffer) > PENDING_MAX:  # no terminator in all this: no line
+                del self._buffer[:]
+                self.garbled += 1
             return []
         lines = _TERMINATOR.split(bytes(self._buffer[:last]))
         del self._buffer[: last + 1]
+        if len(self._buffer) > PENDING_MAX:
+            del self._buffer[:]
+            self.garbled += 1
         frames: list[can.Message] = []
         for line in lines:
             try:

@@ -117,3 +117,23 @@ def test_the_fast_parse_agrees_with_python_can() -> None:
         assert ours is not None
         assert their is not None
         assert ours.equals(their, timestamp_delta=None), (line, ours, their)
+
+
+def test_bytes_without_a_terminator_do_not_pile_up() -> None:
+    """An adapter sending no terminator (garbage, a wrong baud rate) grew the line buffer with
+    every read, without bound; past PENDING_MAX bytes they are dropped and counted, and the
+    frames after them come through."""
+    from acquisition.slcan_bulk import PENDING_MAX
+
+    bus, master = _bus_on_a_pty()
+    try:
+        junk = b"x" * 1000
+        for _ in range(3 * PENDING_MAX // len(junk)):
+            assert _ids_after_writing(bus, master, junk) == []
+        assert len(bus._buffer) <= PENDING_MAX
+        assert bus.garbled >= 1
+        frames = b"\rt10180011223344556677\rt1028AABBCCDDEEFF0011\r"
+        assert _ids_after_writing(bus, master, frames) == [0x101, 0x102]
+    finally:
+        bus.shutdown()
+        os.close(master)

@@ -96,6 +96,10 @@ F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 BLOCK_LINES: Final = 4096
+# the --cell check at a segment's first block of rays refuses only a cell this much wider than
+# allowed: that block's pixel spacing is not the whole segment's (198 against 211 m of swath on
+# a test run), and a cell the check after the whole flight takes must not be refused early
+EARLY_CELL_MARGIN: Final = 1.25
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
 # how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
 WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
@@ -595,7 +599,7 @@ class GeorefJob:
                               .ravel())
                 if cell_to_check is not None and math.isfinite(gsd := _median(across[-1:])):
                     check_cell_against_swath(cell_to_check, segment, gsd * max(pixels - 1, 0),
-                                             gsd)
+                                             gsd, margin=EARLY_CELL_MARGIN)
                     cell_to_check = None
                 mid = pixels // 2
                 along.append(np.hypot(np.diff(east[:, mid]), np.diff(north[:, mid])))
@@ -794,11 +798,11 @@ def check_cell_against_swaths(cell_m: float, done: list[SegmentResult]) -> None:
     check_cell_against_swath(cell_m, seg.segment, width, seg.gsd_across_m)
 
 
-def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m: float
-                             ) -> None:
+def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m: float,
+                             margin: float = 1.0) -> None:
     """InputError when the ortho cell is wider than half of one segment's swath (`width_m`
-    across, of `gsd_m` pixels); nothing when the width is unknown."""
-    if math.isfinite(width_m) and width_m > 0 and cell_m > width_m / 2:
+    across, of `gsd_m` pixels) times `margin`; nothing when the width is unknown."""
+    if math.isfinite(width_m) and width_m > 0 and cell_m > margin * width_m / 2:
         raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {segment}: "
                          f"{width_m:.0f} m wide, {gsd_m:.2g} m pixels): its ortho would hold a "
                          f"cell or two across, or none; use at most {math.floor(width_m / 2)} m")

@@ -447,9 +447,13 @@ class DateDdMmYy(WireFormat[dt.date]):
 
 
 class DateDayMonthYear(WireFormat[dt.date]):
-    """ZDA date as three tokens: dd, mm, yyyy."""
+    """ZDA date as three tokens: dd, mm, yyyy; the year in 1980..2079, as RMC's. A year far
+    outside (a corrupt or hostile receiver's 9999 or 0001) put the GPS times taken from it
+    beyond the log's 64-bit integers, and the whole /gps/fix topic no longer read."""
 
-    _DAY, _MONTH, _YEAR = Integer(2, 1, 31), Integer(2, 1, 12), Integer(4, 1, 9999)
+    _DAY, _MONTH = Integer(2, 1, 31), Integer(2, 1, 12)
+    _YEAR = Integer(4, FIRST_CENTURY + TWO_DIGIT_YEAR_PIVOT,
+                    SECOND_CENTURY + TWO_DIGIT_YEAR_PIVOT - 1)
 
     @property
     def width(self) -> int:

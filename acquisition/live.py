@@ -42,7 +42,7 @@ import serial
 
 from acquisition.canspec import parse_can_spec
 from acquisition.clocks import wall_clock_ns
-from acquisition.codec import ErrorPolicy
+from acquisition.codec import DecodeStats, ErrorPolicy
 from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
 from acquisition.slcan_bulk import BulkSlcanBus
 from sisa.errors import InputError
@@ -52,7 +52,10 @@ RETRY_FIRST_S = 0.2  # first reopen attempt this long after the loss ...
 RETRY_MAX_S = 2.0  # ... then doubling up to this
 RECONNECT_TIMEOUT_S = 0.5  # a TCP connect attempt while reconnecting (loopback: refused at once)
 UNWAITABLE_POLL_S = 0.002  # a CAN interface without a file descriptor is polled this often
-SEND_TIMEOUT_S = 0.5  # an edge the timing board does not take in this long is not sent
+# an edge the timing board does not take in this long is not sent, and the link is dropped and
+# reopened: a board that stopped reading (hung, its socket still open) filled the link's buffer,
+# and then held every later edge, and with it every device's reading, this long
+SEND_TIMEOUT_S = 0.5
 
 H = TypeVar("H")
 
@@ -128,7 +131,11 @@ class LiveSources:
         self._next_read_s = 0.0  # monotonic: with a read interval, when to read next
         self._links: dict[Source, _Link[Any]] = {}
         self._pulse_sock: socket.socket | None = None
-        self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
+        self._pulse_stuck = ""  # why the pulse link is being dropped from the sending side
+        # the pulse link's decode counts (bytes that were no edge), over all its connections:
+        # the acquisition reports them (`Acquisition` takes them with `send_edge`)
+        self.pulse_stats = DecodeStats()
+        self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT, self.pulse_stats)
         self.open_sources: set[Source] = set()
         self.down: set[Source] = set()  # sources whose device is away right now
         self.retry_first_s = RETRY_FIRST_S
@@ -306,7 +313,7 @@ class LiveSources:
             raise InputError(f"cannot open CAN {spec}: {exc}") from None
         except _LostError as exc:
             raise InputError(str(exc)) from None
-        except Exception as exc:  # noqa: BLE001 - a python-can plugin's own bug (kvaser
+        except Exception as exc:  # a python-can plugin's own bug (kvaser
             # without its library: a NameError) is still the bus that cannot be opened
             raise InputError(f"cannot open CAN {spec}: {type(exc).__name__}: {exc}") from None
         self._add(_Link(Source.INS, open_, fileno, read, _shutdown_bus), first)
@@ -327,8 +334,9 @@ class LiveSources:
                 raise _LostError(f"cannot connect to pulse endpoint {endpoint}: {exc}") from None
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             sock.settimeout(SEND_TIMEOUT_S)  # reads only when select says so; a send may wait
-            self._pulse_sock = sock
-            self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)  # a new link numbers afresh
+            self._pulse_sock, self._pulse_stuck = sock, ""
+            # a new link numbers afresh; its errors add to the link's
+            self.pulse_decoder = EdgeStreamDecoder(ErrorPolicy.COUNT, self.pulse_stats)
             return sock
 
         def read(sock: socket.socket) -> list[Edge]:
@@ -337,7 +345,8 @@ class LiveSources:
             except OSError as exc:
                 raise _LostError(f"pulse link {endpoint}: {exc}") from None
             if not data:
-                raise _LostError(f"pulse link {endpoint}: closed by the timing board")
+                raise _LostError(self._pulse_stuck
+                                 or f"pulse link {endpoint}: closed by the timing board")
             return [item.message for item in self.pulse_decoder.feed(data)]
 
         def close(sock: socket.socket) -> None:
@@ -356,8 +365,22 @@ class LiveSources:
         sock = self._pulse_sock
         if sock is None:
             return  # the link is away: `poll` reports the loss and reconnects
-        with contextlib.suppress(OSError):
+        try:
             sock.sendall(encode_edge(edge))
+        except TimeoutError:
+            self._drop_stuck_pulse_link(sock)
+        except OSError:
+            pass  # the link is gone: its read says so
+
+    def _drop_stuck_pulse_link(self, sock: socket.socket) -> None:
+        """The timing board took no edge for SEND_TIMEOUT_S: no more edges go to this socket,
+        and its read side is shut, so `poll` sees an end of file, reports the link lost and
+        reconnects (a board that is alive takes the new connection with empty buffers)."""
+        self._pulse_sock = None
+        self._pulse_stuck = (f"pulse link: the timing board took no edge for "
+                             f"{SEND_TIMEOUT_S:g} s (dropped to reconnect)")
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_RD)
 
     def close(self) -> None:
         for link in self._links.values():

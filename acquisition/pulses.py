@@ -52,12 +52,22 @@ def encode_edge(edge: Edge) -> bytes:
     return body + struct.pack("<H", crc16_ccitt_false(body))
 
 
-class EdgeStreamDecoder:
-    """Edges from a byte stream (a socket), resynchronising on the magic after bad bytes."""
+# An edge time farther than this from the timeline's zero (~127 years either side of the GPS
+# epoch) is no time a timing board gives: the board counts from its first edge and the log holds
+# 64-bit ns, and a forward adds its delay to an input edge's time, so an edge near either end of
+# int64 overflowed both (an unreadable /pulses/in, a recorder ended by the forward's encoding).
+# The acquisition counts such an edge as a framing error of the link and drops it.
+EDGE_TIME_LIMIT_NS = 4 * 10**18
 
-    def __init__(self, policy: ErrorPolicy = ErrorPolicy.COUNT) -> None:
+
+class EdgeStreamDecoder:
+    """Edges from a byte stream (a socket), resynchronising on the magic after bad bytes.
+    `stats`: counters to add to (a link's, kept over its reconnections), else new ones."""
+
+    def __init__(self, policy: ErrorPolicy = ErrorPolicy.COUNT,
+                 stats: DecodeStats | None = None) -> None:
         self.policy = policy
-        self.stats = DecodeStats()
+        self.stats = DecodeStats() if stats is None else stats
         self._buf = bytearray()
         self._offset = 0
 

@@ -27,7 +27,7 @@ from acquisition.nmea import (
     gps_ns_from_time_of_week,
     gps_ns_from_utc,
 )
-from acquisition.pulses import Edge, PulseLine
+from acquisition.pulses import EDGE_SIZE, EDGE_TIME_LIMIT_NS, Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
 from acquisition.syncfilter import Forward, Log, Mode, SyncFilter, SyncFilterConfig
 from recorder.messages import (
@@ -125,7 +125,11 @@ class Acquisition:
     """Decoders + sync filter + recorder, fed one event at a time."""
 
     def __init__(self, config: AcquisitionConfig, log: LogSink,
-                 send_edge: Callable[[Edge], None], board: TimingBoard | None = None) -> None:
+                 send_edge: Callable[[Edge], None], board: TimingBoard | None = None,
+                 pulse_stats: DecodeStats | None = None) -> None:
+        """`pulse_stats`: the pulse link decoder's counts (bytes that were no edge:
+        `LiveSources.pulse_stats`), reported as the pps stream's (the first stream of the
+        link); the counts of the link's garbage never reached the health channel before."""
         self.config = config
         self.log = log
         self.send_edge = send_edge
@@ -144,6 +148,8 @@ class Acquisition:
             "pps": StreamCounters(1.0),
             "ppf": StreamCounters(config.line_rate_hz),
         }
+        if pulse_stats is not None:
+            self.streams["pps"].stats = pulse_stats
         self.links = {source: LinkCounters() for source in SOURCE_STREAMS}
         self._utc_date: dt.date | None = None
         self._last_fix_gps_ns: int | None = None
@@ -241,6 +247,9 @@ class Acquisition:
     def on_edge(self, t_host_ns: int, edge: Edge) -> None:
         """An input edge (PPS, ppf), acted on at its own timestamp."""
         self._start(t_host_ns)
+        if not -EDGE_TIME_LIMIT_NS <= edge.t_ns <= EDGE_TIME_LIMIT_NS:
+            self._edge_time_out_of_range()
+            return
         board_ns = self.board.counter_ns(edge.t_ns)
         self.log(PulseEdgeLog(t_host_ns, edge.line.name, board_ns, edge.seq), Topic.PULSE_IN)
         last = self._last_edge_board_ns
@@ -260,6 +269,14 @@ class Acquisition:
         elif edge.line is PulseLine.PPF:
             self.streams["ppf"].seen(t_host_ns, NS_PER_S)
             self._apply(self.filter.on_ppf(board_ns, t_host_ns))
+
+    def _edge_time_out_of_range(self) -> None:
+        """An edge no timing board gives (`EDGE_TIME_LIMIT_NS`): a framing error of the pulse
+        link, dropped before the board counts it (its count and a forward's time overflowed the
+        log's and the link's 64-bit integers)."""
+        stats = self.streams["pps"].stats
+        stats.framing_errors += 1
+        stats.bytes_skipped += EDGE_SIZE
 
     def _timeline_restarted(self, board_ns: int, t_host_ns: int) -> None:
         """An edge seconds earlier than the one before it: the pulse source came back on an earlier

@@ -179,8 +179,8 @@ def work_cpu_pct(log: Path, k: float) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         cpu0 = time.process_time()
         with FlightRecorder(Path(tmp) / "again.mcap") as rec:
-            acq = Acquisition(config, rec.write, lambda _edge: None)
             edges, clock, next_tick_ns = EdgeStreamDecoder(), EdgeClock(), 0
+            acq = Acquisition(config, rec.write, lambda _edge: None, pulse_stats=edges.stats)
             for t, source, data in reads:
                 if source is Source.INS:
                     frames = [m for line in data.split(b"\r")[:-1]

@@ -53,7 +53,7 @@ class CanOutput:
         except (can.CanError, ValueError, OSError, ImportError) as exc:
             raise ConfigError(f"cannot open CAN {target.interface}:{target.channel}: "
                               f"{exc}") from None
-        except Exception as exc:  # noqa: BLE001 - a python-can plugin's own bug (kvaser
+        except Exception as exc:  # a python-can plugin's own bug (kvaser
             # without its library: a NameError) is still the bus that cannot be opened
             raise ConfigError(f"cannot open CAN {target.interface}:{target.channel}: "
                               f"{type(exc).__name__}: {exc}") from None

@@ -214,7 +214,9 @@ class SyncModeSwitch(LoggedMessage):
 class StreamHealth(LoggedMessage):
     """Per-stream counters, written about once a second while recording; also written at once,
     with `event` set, when a device goes away or comes back (its stream is then the source:
-    gps, scanner, ins, or pulses for the pulse link that carries pps and ppf)."""
+    gps, scanner, ins, or pulses for the pulse link that carries pps and ppf). The pulse
+    link's decode errors (bytes that were no edge, edges with impossible times) are counted
+    in the pps stream's."""
 
     topic: ClassVar[Topic] = Topic.HEALTH
     schema_name: ClassVar[str] = "sisa.StreamHealth"

@@ -86,7 +86,8 @@ def _run(args: argparse.Namespace) -> int:
         with FlightRecorder(args.out, split_duration_s=split_s, split_size_bytes=split_b,
                             metadata={"settings": scn.block.name,
                                       **recording_settings(config)}) as rec:
-            acq = Acquisition(config, rec.write, sources.send_edge)
+            acq = Acquisition(config, rec.write, sources.send_edge,
+                              pulse_stats=sources.pulse_stats)
             _loop(acq, sources, stop, args)
     except RecorderError as exc:  # a recording is kept whatever happens: say how to use it
         raise RecorderError(f"{exc}; the file is readable up to its last complete chunk and "

@@ -147,10 +147,23 @@ def part_path(path: Path, index: int) -> Path:
     return path if index == 0 else path.with_name(f"{path.stem}_{index:03d}{path.suffix}")
 
 
+PART_SUFFIX = r"_(\d{3,})"  # NAME_001: a further part's index after the first part's stem
+
+
+def named_as_part(path: Path) -> tuple[Path, int] | None:
+    """(the first part's name, the index) when `path` is named as a further part of a split
+    recording (part_path's NAME_001.mcap, ...), else None."""
+    path = Path(path)
+    found = re.fullmatch("(.+)" + PART_SUFFIX, path.stem)
+    if found is None or int(found.group(2)) == 0:
+        return None
+    return path.with_name(found.group(1) + path.suffix), int(found.group(2))
+
+
 def split_parts(path: Path) -> list[Path]:
     """The parts of a split recording that exist, in order, given the name of its first part."""
     path = Path(path)
-    pattern = re.compile(re.escape(path.stem) + r"_(\d{3,})" + re.escape(path.suffix) + "$")
+    pattern = re.compile(re.escape(path.stem) + PART_SUFFIX + re.escape(path.suffix) + "$")
     numbered = sorted((int(m.group(1)), p) for p in path.parent.glob(f"{path.stem}_*")
                       if (m := pattern.match(p.name)))
     return ([path] if path.exists() else []) + [p for _, p in numbered]

@@ -90,20 +90,17 @@ def _refuse_part_name(src: Path, out: Path) -> None:
     """OUT named as a further part of a log beside it (flight_001.mcap beside flight.mcap)
     would be read with that log as a part of it: refused, unless IN is a further part itself
     (recovering each part to the numbered names, as the warning below says)."""
-    import re
-
     from recorder.reader import part_label
+    from recorder.writer import named_as_part
 
-    numbered = re.fullmatch(r"(.+)_(\d{3,})", out.stem)
-    if numbered is None or int(numbered.group(2)) == 0:
+    part = named_as_part(out)
+    if part is None or not part[0].is_file():
         return
-    base = out.with_name(numbered.group(1) + out.suffix)
-    if not base.is_file():
-        return
+    base, index = part
     label = part_label(src) if src.is_file() else None
     if label is not None and label.index > 0:
         return
-    raise InputError(f"{out} would be read as part {int(numbered.group(2))} of {base} (readers "
+    raise InputError(f"{out} would be read as part {index} of {base} (readers "
                      f"take the numbered files beside a log as its parts): choose another name")
 
 

@@ -85,9 +85,11 @@ class LinkEvent:
 
 @dataclass(frozen=True)
 class GarbledCanLines:
-    """Lines from a CAN adapter that did not parse as frames (corrupted on its serial link)."""
+    """Lines from a CAN adapter that did not parse as frames (corrupted on its serial link),
+    and their bytes."""
 
     lines: int
+    bytes_skipped: int = 0
 
 
 @dataclass(frozen=True)
@@ -295,10 +297,11 @@ class LiveSources:
             garbled: list[list[can.Message] | GarbledCanLines] = []
             try:
                 if isinstance(bus, BulkSlcanBus):
-                    before = bus.garbled
+                    before, before_bytes = bus.garbled, bus.garbled_bytes
                     frames = bus.recv_ready()
                     if bus.garbled > before:
-                        garbled.append(GarbledCanLines(bus.garbled - before))
+                        garbled.append(GarbledCanLines(bus.garbled - before,
+                                                       bus.garbled_bytes - before_bytes))
                 else:
                     frames = []
                     while (msg := bus.recv(timeout=0.0)) is not None:

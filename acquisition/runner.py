@@ -236,10 +236,12 @@ class Acquisition:
         counters.stats = ins.stats
         counters.drops = ins.frames.lost
 
-    def on_can_garbled(self, t_host_ns: int, lines: int) -> None:
-        """Adapter lines that did not parse as CAN frames: framing errors of the INS stream."""
+    def on_can_garbled(self, t_host_ns: int, lines: int, bytes_skipped: int = 0) -> None:
+        """Adapter lines that did not parse as CAN frames: framing errors of the INS stream,
+        their bytes skipped (6 MB of noise on an SLCAN link showed as 48 bytes before)."""
         self._start(t_host_ns)
         self.ins.stats.framing_errors += lines
+        self.ins.stats.bytes_skipped += bytes_skipped
         self.streams["ins"].stats = self.ins.stats
 
     # --- pulse lines -----------------------------------------------------------------------

@@ -63,6 +63,7 @@ def _reply_end(buffer: bytearray) -> int:
 
 class BulkSlcanBus(slcanBus):
     garbled = 0  # adapter lines that did not parse (counted and skipped by recv_ready)
+    garbled_bytes = 0  # their bytes, and bytes dropped for want of a terminator
 
     def _read(self, timeout: float | None) -> str | None:
         deadline = serial.Timeout(timeout)
@@ -100,21 +101,26 @@ class BulkSlcanBus(slcanBus):
         last = max(self._buffer.rfind(_OK), self._buffer.rfind(_ERROR))
         if last < 0:
             if len(self._buffer) > PENDING_MAX:  # no terminator in all this: no line
-                del self._buffer[:]
-                self.garbled += 1
+                self._drop_pending()
             return []
         lines = _TERMINATOR.split(bytes(self._buffer[:last]))
         del self._buffer[: last + 1]
         if len(self._buffer) > PENDING_MAX:
-            del self._buffer[:]
-            self.garbled += 1
+            self._drop_pending()
         frames: list[can.Message] = []
         for line in lines:
             try:
                 msg = parse_frame_line(line)
             except (ValueError, IndexError):  # IndexError: a line cut short
                 self.garbled += 1
+                self.garbled_bytes += len(line) + 1  # with its terminator
                 continue
             if msg is not None:
                 frames.append(msg)
         return frames
+
+    def _drop_pending(self) -> None:
+        """Bytes past PENDING_MAX without a terminator: one garbled line, dropped."""
+        self.garbled += 1
+        self.garbled_bytes += len(self._buffer)
+        del self._buffer[:]

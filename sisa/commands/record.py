@@ -240,7 +240,8 @@ def dispatch(acq: Acquisition, item: Arrival, edge_clock: EdgeClock) -> None:
         if isinstance(payload, list):
             acq.on_can_frames(item.t_host_ns, payload)
         else:
-            acq.on_can_garbled(item.t_host_ns, cast("GarbledCanLines", payload).lines)
+            garbled = cast("GarbledCanLines", payload)
+            acq.on_can_garbled(item.t_host_ns, garbled.lines, garbled.bytes_skipped)
     elif source == "gps":
         acq.on_gps_bytes(item.t_host_ns, cast(bytes, payload))
     else:

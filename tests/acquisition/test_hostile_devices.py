@@ -289,3 +289,18 @@ def test_sisa_record_survives_a_hostile_pulse_link_and_gps(board: Board, tmp_pat
     info = subprocess.run([sys.executable, "-m", "sisa.cli", "log", "info", str(out)],
                           capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert info.returncode == 0, info.stderr
+
+
+def test_garbled_can_lines_reach_the_health_channel_with_their_bytes() -> None:
+    """`sisa record` hands a read's bad SLCAN lines over as GarbledCanLines: lines are framing
+    errors of the INS stream, and their bytes are bytes skipped (they were not counted)."""
+    from acquisition.live import Arrival, GarbledCanLines, Source
+
+    logged: list[object] = []
+    acq = Acquisition(acquisition_config(load_scenario("bench")),
+                      lambda m, _t: logged.append(m), lambda _e: None)
+    host_ns = 1_700_000_000 * NS_PER_S
+    dispatch(acq, Arrival(host_ns, Source.INS, GarbledCanLines(3, 4200)), EdgeClock())
+    acq.finish(host_ns + NS_PER_S)
+    ins = [m for m in logged if isinstance(m, StreamHealth) and m.stream == "ins"][-1]
+    assert (ins.framing_errors, ins.bytes_skipped) == (3, 4200)

@@ -244,7 +244,7 @@ class CanFrameStats:
 
     lost: int = 0  # missing by sequence position: exact while < 128 records go missing in a row
     # (a jump forward counts once the next frame follows it: a lone frame out of sequence is a
-    # corrupted seq byte, not a loss)
+    # corrupted seq byte, not a loss); with arrival times, never more than the bus could carry
     duplicate: int = 0  # identical to the frame just before (a retransmission)
     foreign: int = 0  # other IDs, extended IDs, remote or error frames: other nodes' traffic
     malformed: int = 0  # one of our IDs with a DLC other than 8
@@ -262,6 +262,11 @@ class _Partial:
 
 
 RESTART_SILENCE_NS = 500_000_000  # silence before a seq-0 frame that marks a device restart
+# the most frames any classic CAN bus carries: 1 Mbit/s over a frame of 8 data bytes without
+# stuffing (111 bits). Frames counted lost, plus those received, cannot outrun it: random
+# sequence numbers (a garbage stream, a foreign node on our IDs) otherwise counted hundreds
+# lost per frame received (53 M for 270 k in a hostile-device sweep)
+MAX_FRAMES_PER_S = 1_000_000 // 111
 
 
 class InsRecordAssembler:
@@ -286,6 +291,7 @@ class InsRecordAssembler:
         self._jump: tuple[int, int] | None = None  # (position, frames skipped) not yet trusted
         self._last_t_ns: int | None = None
         self._frames_fed = 0
+        self._loss_room = 0.0  # frames the bus could have carried unseen (with arrival times)
 
     def feed(self, msg: can.Message, t_ns: int | None = None) -> Decoded[InsRecord] | None:
         """Take one frame off the bus; return a record when this frame completes one. With the
@@ -309,6 +315,9 @@ class InsRecordAssembler:
             return None
         self._last_frame = frame
         if t_ns is not None:
+            if self._last_t_ns is not None:  # the bus time since, less this frame's
+                self._loss_room = min(float(_SEQ_RING), max(0.0, self._loss_room + max(
+                    0, t_ns - self._last_t_ns) * MAX_FRAMES_PER_S / 1e9 - 1))
             silent = self._last_t_ns is not None and t_ns - self._last_t_ns > RESTART_SILENCE_NS
             self._last_t_ns = t_ns
             if silent and frame[1][0] == 0 and index == 0:
@@ -346,13 +355,23 @@ class InsRecordAssembler:
             held_at, skipped = held
             after_held = (position - held_at - 1) % _SEQ_RING
             if after_held < _SEQ_RING // 2 and after_held <= gap:
-                self.frames.lost += skipped + after_held  # the held frame was right
+                self._lose(skipped + after_held)  # the held frame was right
             elif gap < _SEQ_RING // 2:
-                self.frames.lost += max(0, gap - 1)  # it was not, and took one slot
+                self._lose(max(0, gap - 1))  # it was not, and took one slot
             return
         if gap:
             self._jump = (position, gap if gap < _SEQ_RING // 2 else 0)  # 0: a step back
             self._last_position = last
+
+    def _lose(self, frames: int) -> None:
+        """Count frames lost; with arrival times, no more than the bus could have carried
+        since the first frame, less those received (MAX_FRAMES_PER_S)."""
+        if self._last_t_ns is None:
+            self.frames.lost += frames
+            return
+        counted = min(frames, int(self._loss_room))
+        self.frames.lost += counted
+        self._loss_room -= counted
 
     def _place(self, seq: int, index: int, frame: tuple[int, bytes]) -> Decoded[InsRecord] | None:
         partial = self._partial

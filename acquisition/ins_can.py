@@ -291,7 +291,12 @@ class InsRecordAssembler:
         self._jump: tuple[int, int] | None = None  # (position, frames skipped) not yet trusted
         self._last_t_ns: int | None = None
         self._frames_fed = 0
-        self._loss_room = 0.0  # frames the bus could have carried unseen (with arrival times)
+        # frames the bus could have carried unseen (with arrival times), as of the arrival
+        # `_room_t_ns` and the frame count `_room_fed`: brought up to date only when a loss
+        # is counted, not per frame
+        self._loss_room = 0.0
+        self._room_t_ns: int | None = None
+        self._room_fed = 0
 
     def feed(self, msg: can.Message, t_ns: int | None = None) -> Decoded[InsRecord] | None:
         """Take one frame off the bus; return a record when this frame completes one. With the
@@ -315,9 +320,8 @@ class InsRecordAssembler:
             return None
         self._last_frame = frame
         if t_ns is not None:
-            if self._last_t_ns is not None:  # the bus time since, less this frame's
-                self._loss_room = min(float(_SEQ_RING), max(0.0, self._loss_room + max(
-                    0, t_ns - self._last_t_ns) * MAX_FRAMES_PER_S / 1e9 - 1))
+            if self._room_t_ns is None:
+                self._room_t_ns, self._room_fed = t_ns, self._frames_fed
             silent = self._last_t_ns is not None and t_ns - self._last_t_ns > RESTART_SILENCE_NS
             self._last_t_ns = t_ns
             if silent and frame[1][0] == 0 and index == 0:
@@ -366,12 +370,16 @@ class InsRecordAssembler:
     def _lose(self, frames: int) -> None:
         """Count frames lost; with arrival times, no more than the bus could have carried
         since the first frame, less those received (MAX_FRAMES_PER_S)."""
-        if self._last_t_ns is None:
+        if self._last_t_ns is None or self._room_t_ns is None:
             self.frames.lost += frames
             return
-        counted = min(frames, int(self._loss_room))
+        carried = max(0, self._last_t_ns - self._room_t_ns) * MAX_FRAMES_PER_S / 1e9
+        room = min(float(_SEQ_RING), self._loss_room + carried
+                   - (self._frames_fed - self._room_fed))
+        counted = max(0, min(frames, int(room)))
         self.frames.lost += counted
-        self._loss_room -= counted
+        self._loss_room = room - counted
+        self._room_t_ns, self._room_fed = self._last_t_ns, self._frames_fed
 
     def _place(self, seq: int, index: int, frame: tuple[int, bytes]) -> Decoded[InsRecord] | None:
         partial = self._partial

@@ -83,8 +83,9 @@ from postproc.syncio import (
 )
 from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
+from postproc.syncreport import untimed_lines_note
 from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
-from recorder.reader import Paths, read_topics
+from recorder.reader import Paths, log_paths, read_topics
 from sisa.errors import InputError
 from sisa.timescale import (
     NS_PER_DAY,
@@ -349,6 +350,9 @@ class GeorefJob:
         ln = result.lines
         t = ln.t_gps_ns[(ln.status == TimeStatus.OK) & (ln.t_gps_ns >= 0)]
         if t.size == 0:
+            untied = untimed_lines_note(result.report["lines"], log_paths(self.flight))
+            if untied is not None:  # the count alone did not say why
+                return InputError(f"nothing to georeference: {untied}")
             why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ") for v in ln.status)
             said = ", ".join(f"{k} {v}" for v, k in why.most_common())
             return InputError(f"no scan line could be put on GPS time (sync: "

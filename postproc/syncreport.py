@@ -8,6 +8,8 @@ is noise·√leverage, its RMS over the records of a fit is noise·√(mean leve
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -130,6 +132,17 @@ def frames_untied(lines: dict[str, Any]) -> bool:
     return bool(lines.get("frame_pulses_forwarded", 0) > 0
                 and lines.get("frame_pulses_with_counter", 0) == 0
                 and lines["status"].get("no_pulses", 0) > 0)
+
+
+def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
+    """`untied_frames_note` with the header window `flight` was recorded with (or the
+    default), when `frames_untied`; else None. For every command that syncs a log: `georef`
+    and `calibrate` failed with a bare count of no_pulses lines."""
+    if not frames_untied(lines):
+        return None
+    from sisa.acqconfig import header_window_of_log
+
+    return untied_frames_note(lines, *header_window_of_log(flight))
 
 
 def untied_frames_note(lines: dict[str, Any], window_ms: tuple[float, float],

@@ -309,7 +309,8 @@ def _records(data: bytes, limit: int, *, emit_chunks: bool = False) -> Iterator[
                         record_size_limit=None).records
 
 
-def _paths(path_or_paths: Paths) -> list[Path]:
+def log_paths(path_or_paths: Paths) -> list[Path]:
+    """One log file or several (a split recording) as a list."""
     if isinstance(path_or_paths, str | Path):
         return [Path(path_or_paths)]
     return [Path(p) for p in path_or_paths]
@@ -537,7 +538,7 @@ class LogReader:
 
     def __init__(self, path_or_paths: Paths, *,
                  record_size_limit: int = DEFAULT_RECORD_SIZE_LIMIT) -> None:
-        self.paths = _paths(path_or_paths)
+        self.paths = log_paths(path_or_paths)
         if not self.paths:
             raise InputError("no flight log given")
         for path in self.paths:

@@ -4,10 +4,13 @@ fast."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+
 from acquisition.runner import AcquisitionConfig
 from acquisition.syncfilter import SyncFilterConfig
 from emulators.block import resolve_one_of_n
-from emulators.scenario import Scenario
+from emulators.scenario import Scenario, SisaSettings
 
 
 def acquisition_config(scn: Scenario) -> AcquisitionConfig:
@@ -53,3 +56,15 @@ def recorded_header_window_ms(metadata: dict[str, str]) -> tuple[float, float] |
     except (KeyError, ValueError):
         return None
     return (lo, hi) if lo < hi else None
+
+
+def header_window_of_log(flight: Sequence[Path]) -> tuple[tuple[float, float], str | None]:
+    """The header window a flight was recorded with, to explain untimed lines (never to time
+    anything): as the log's recording settings say it, with where from; else the default and
+    None (a log recorded before it kept them)."""
+    from recorder.reader import recording_metadata
+
+    window = recorded_header_window_ms(recording_metadata(flight[0]))
+    if window is None:
+        return SisaSettings().header_window_ms, None
+    return window, f"as {flight[0].name} was recorded"

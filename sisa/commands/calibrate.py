@@ -299,6 +299,7 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     from postproc.syncio import read_scanner_lines
     from postproc.synclog import WANTED as SYNC_WANTED
     from postproc.synclog import sync_input_from_columns
+    from postproc.syncreport import untimed_lines_note
     from recorder.reader import read_topics
 
     sensor = _sensor(args) if sensor is None else sensor
@@ -311,6 +312,9 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     cols = read_topics(paths, merged_wanted(SYNC_WANTED, NAV_WANTED))
     sync = synchronise(sync_input_from_columns(cols),
                        read_scanner_lines(scanner) if scanner is not None else None)
+    untied = untimed_lines_note(sync.report["lines"], paths)
+    if untied is not None:  # observations on untimed lines are left out, and this is why
+        say_warning(args.command, untied)
     traj = nav_from_columns(cols, sync.ins, antenna_offset_m=sensor.mounting.antenna_offset_m)
     dem = None
     if not args.no_dem and (args.dem is not None or _is_run(args.flight)):

@@ -31,20 +31,6 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.set_defaults(handler=_run)
 
 
-def _header_window(flight: list[Path]) -> tuple[tuple[float, float], str | None]:
-    """The sync filter's header window the flight was recorded with, to explain untimed lines
-    (never to time anything): as the log's recording settings say it, with where from; else
-    the default and None (a log recorded before it kept them)."""
-    from emulators.scenario import SisaSettings
-    from recorder.reader import recording_metadata
-    from sisa.acqconfig import recorded_header_window_ms
-
-    window = recorded_header_window_ms(recording_metadata(flight[0]))
-    if window is None:
-        return SisaSettings().header_window_ms, None
-    return window, f"as {flight[0].name} was recorded"
-
-
 def _run(args: argparse.Namespace) -> int:
     from postproc.sync import TimeStatus, read_sync_input, synchronise
     from postproc.syncio import (
@@ -54,7 +40,7 @@ def _run(args: argparse.Namespace) -> int:
         write_line_times,
         write_report,
     )
-    from postproc.syncreport import frames_untied, untied_frames_note
+    from postproc.syncreport import untimed_lines_note
 
     started = time.perf_counter()
     with staged_output_dir(args.out) as out:
@@ -69,8 +55,9 @@ def _run(args: argparse.Namespace) -> int:
                          ln.t_gps_ns, ln.status)
         notes = [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
-        if frames_untied(result.report["lines"]):  # was said only as a count
-            notes.append(untied_frames_note(result.report["lines"], *_header_window(flight)))
+        untied = untimed_lines_note(result.report["lines"], flight)
+        if untied is not None:  # was said only as a count
+            notes.append(untied)
         result.report["notes"] = notes
         write_report(out / "sync_report.json", result.report)
     for note in notes:  # a segment left out by its lines file was gone without a word

@@ -1,7 +1,8 @@
 """A scanner faster than the sync filter's header window (line period 0.11 ms against the
 12 ms default window, docs/sync.md 'Limits'): no frame header is tied to its pulse, every line
 is no_pulses, and `sisa sync` said only the counts. It now says why, in one warning (and in
-sync_report.json's notes)."""
+sync_report.json's notes); `georef` (and `process`) in the one line of their error, `calibrate`
+in a warning before its own."""
 
 from __future__ import annotations
 
@@ -26,8 +27,8 @@ figure_eights = 0
 run_in_s = 1.0
 [terrain]
 margin_m = 300.0
-control_points = 4
-check_points = 2
+control_points = 1
+check_points = 0
 [scanner]
 line_period_ms = 0.11
 integration_time_ms = 0.05
@@ -36,12 +37,12 @@ integration_time_ms = 0.05
 
 @pytest.fixture(scope="module")
 def fast_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """~2 min of flight, one 100 m strip at 9091 lines/s (a few seconds to simulate); the
-    log keeps the window it was recorded with."""
+    """~2 min of flight, one 100 m strip at 9091 lines/s (~10 s to simulate, with images for
+    georef); the log keeps the window it was recorded with."""
     root = tmp_path_factory.mktemp("fast")
     (root / "fast.toml").write_text(FAST)
-    assert main(["simulate", "--scenario", str(root / "fast.toml"), "--out", str(root / "run"),
-                 "--no-images"]) == 0
+    assert main(["simulate", "--scenario", str(root / "fast.toml"), "--out", str(root / "run")]
+                ) == 0
     return root / "run"
 
 
@@ -98,6 +99,36 @@ def test_a_log_without_its_settings_names_the_default_window(
     assert len(said) == 1, err
     assert ("the frame headers show a line period of 0.11 ms; a header window not narrower "
             "(sisa.header_window_ms; the default [-2, 10] is 12 ms wide)") in said[0]
+
+
+WHY = ("the header window (sisa.header_window_ms [-2, 10] as flight.mcap was recorded: 12 ms "
+       "wide) is not narrower than the scanner's line period (0.11 ms, from the frame headers)")
+
+
+def test_georef_says_why_no_line_is_timed(fast_run: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """It failed with "no scan line could be put on GPS time (sync: 15151 no pulses)"."""
+    capsys.readouterr()
+    assert main(["georef", str(fast_run / "flight.mcap"), "--scanner", str(fast_run / "scanner"),
+                 "--dem", str(fast_run / "terrain" / "dem.tif"),
+                 "--out", str(tmp_path / "geo")]) != 0
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 1, said
+    assert said[0].startswith("sisa georef: error: nothing to georeference: ")
+    assert "scan lines not timed (no_pulses)" in said[0]
+    assert WHY in said[0]
+    assert not (tmp_path / "geo").exists()
+
+
+def test_calibrate_warns_why_its_observations_are_left_out(
+        fast_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    capsys.readouterr()
+    assert main(["calibrate", str(fast_run), "--out", str(tmp_path / "cal")]) != 0
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 2, said
+    assert said[0].startswith("sisa calibrate: warning: ")
+    assert WHY in said[0]
+    assert said[1].startswith("sisa calibrate: error: ")
 
 
 def _lines(forwarded: int, named: int, no_pulses: int, period_ns: float | None) -> dict[str, Any]:

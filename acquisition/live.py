@@ -28,6 +28,7 @@ headers' latency window must allow for it (`scenario show` notes when it does no
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import os
 import selectors
 import socket
@@ -323,7 +324,7 @@ class LiveSources:
 
     def _pulses(self, endpoint: str) -> None:
         host, _, port_text = endpoint.removeprefix("tcp://").rpartition(":")
-        if host not in ("127.0.0.1", "localhost", "::1"):
+        if not _is_loopback(host):
             raise InputError(f"pulse endpoint {endpoint}: only loopback addresses are allowed")
         try:
             port = int(port_text)
@@ -389,6 +390,14 @@ class LiveSources:
         for link in self._links.values():
             self._drop_handle(link)
         self._selector.close()
+
+
+def _is_loopback(host: str) -> bool:
+    """localhost, 127.0.0.0/8 or ::1: every address that stays on this machine."""
+    try:
+        return host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def _sleep(wait_s: float) -> list[tuple[selectors.SelectorKey, int]]:

@@ -165,6 +165,10 @@ FOUND_BY_THIS_SUITE = [  # were bugs; fixed
     _case("record --gps {d}/notes.txt --split-mb -1 --out {d}/rec.mcap", "--split-mb -1"),
     _case("record --gps {d}/notes.txt --scanner {d}/notes.txt --out {d}/rec.mcap",
           "--gps and --scanner", "same device"),
+    # recorded nothing with exit 0: a new pty that nothing writes to
+    _case("record --gps /dev/ptmx --out {d}/rec.mcap", "--gps /dev/ptmx: the pty multiplexer"),
+    _case("record --ins slcan:/dev/pts/ptmx --out {d}/rec.mcap",
+          "--ins slcan:/dev/pts/ptmx: the pty multiplexer"),
     # a traceback from the scratch folder's mkdir
     _case("sync {d}/flight.mcap --out /proc/sisa-out", "cannot write in /proc"),
     # wrote a log beside a stale part that readers then joined to it

@@ -98,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+PTY_MULTIPLEXERS = ("/dev/ptmx", "/dev/pts/ptmx")
 MIN_SPLIT_MINUTES = 0.1  # shorter parts are no flight log: a part for every few messages
 MIN_SPLIT_MB = 1.0
 MAX_SPLIT_MINUTES = 100_000.0  # 69 days; longer overflowed the writer's nanoseconds
@@ -125,6 +126,10 @@ def _check_options(args: argparse.Namespace) -> None:
     for name, spec in ports:
         device = os.path.realpath(spec.split(":", 1)[1] if name == "ins" and ":" in spec
                                   else spec)
+        if device in PTY_MULTIPLEXERS:  # it opened, and the recording ran with nothing in it
+            raise InputError(f"--{name} {spec}: the pty multiplexer, not a port: opening it "
+                             "makes a new pty that nothing writes to (give the port itself, "
+                             "/dev/pts/N as `sisa emulate` prints it)")
         if device in seen:
             raise InputError(f"--{seen[device]} and --{name} name the same device {spec}")
         seen[device] = name

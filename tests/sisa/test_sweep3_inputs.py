@@ -257,6 +257,21 @@ def test_record_pulse_endpoint_may_bracket_ipv6_loopback(tmp_path: Path) -> None
               f"cannot connect to pulse endpoint tcp://::1:{port}")
 
 
+def test_record_pulse_endpoint_anywhere_on_loopback(tmp_path: Path) -> None:
+    """127.0.0.2 is loopback as much as 127.0.0.1; it was refused as not."""
+    proc = _child(["record", "--pulses", "tcp://127.0.0.2:9", "--out", str(tmp_path / "r.mcap")])
+    _one_line(proc.returncode, proc.stderr, "record",
+              "cannot connect to pulse endpoint tcp://127.0.0.2:9")
+
+
+@pytest.mark.parametrize("host", ["10.0.0.2", "::2", "[::2]", "example.org", "127.0.0.1.nip.io"])
+def test_record_pulse_endpoint_off_loopback_is_refused(host: str, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]
+                                                       ) -> None:
+    _fails(["record", "--pulses", f"tcp://{host}:4000", "--out", str(tmp_path / "r.mcap")],
+           capsys, tmp_path, "only loopback addresses are allowed")
+
+
 @pytest.mark.parametrize(("option", "value", "says"), [
     ("--split-minutes", "1e300", "--split-minutes 1e+300: at most 100000"),
     ("--split-mb", "1e308", "--split-mb 1e+308: at most 1e+09"),

@@ -8,8 +8,9 @@ lines (`t`, `T`, `r`, `R`: what an INS sends) itself, one pass over the burst in
 python-can's per-frame `recv` (the recorder's largest per-frame cost after the read clock), and
 counts and skips a line that does not parse (python-can raises on it, which would look like a
 lost adapter) or that it does not take (CAN FD lines); replies to commands (an empty OK, `z`/`Z`
-transmit acknowledgements, BEL errors) are not frames and are passed over. Opening, commands
-and sending are python-can's own.
+transmit acknowledgements, BEL errors) are not frames and are passed over, as many as lines
+were written to the adapter; a reply to no command (a flood of bare terminators) is counted
+like a garbled line. Opening, commands and sending are python-can's own.
 """
 
 from __future__ import annotations
@@ -64,6 +65,18 @@ def _reply_end(buffer: bytearray) -> int:
 class BulkSlcanBus(slcanBus):
     garbled = 0  # adapter lines that did not parse (counted and skipped by recv_ready)
     garbled_bytes = 0  # their bytes, and bytes dropped for want of a terminator
+    replies_due = 0  # lines written to the adapter (commands, frames sent) not yet answered
+
+    def _write(self, string: str) -> None:
+        super()._write(string)
+        self.replies_due += 1
+
+    def _answered(self) -> bool:
+        """A reply arrived: True if a written line was waiting for it."""
+        if self.replies_due <= 0:
+            return False
+        self.replies_due -= 1
+        return True
 
     def _read(self, timeout: float | None) -> str | None:
         deadline = serial.Timeout(timeout)
@@ -72,6 +85,7 @@ class BulkSlcanBus(slcanBus):
             if end >= 0:
                 reply = bytes(self._buffer[: end + 1]).decode(errors="replace")
                 del self._buffer[: end + 1]
+                self._answered()
                 return reply
             try:
                 waiting = self.serialPortOrig.in_waiting
@@ -117,6 +131,9 @@ class BulkSlcanBus(slcanBus):
                 continue
             if msg is not None:
                 frames.append(msg)
+            elif not self._answered():  # a reply, to nothing the recorder wrote
+                self.garbled += 1
+                self.garbled_bytes += len(line) + 1
         return frames
 
     def _drop_pending(self) -> None:

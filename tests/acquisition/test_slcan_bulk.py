@@ -5,6 +5,8 @@ import os
 import select
 import time
 
+import can
+
 from acquisition.slcan_bulk import BulkSlcanBus, parse_frame_line
 
 
@@ -91,6 +93,8 @@ def test_lines_that_are_not_classic_frames_raise() -> None:
 def test_replies_between_frames_are_passed_over() -> None:
     bus, master = _bus_on_a_pty()
     try:
+        for _ in range(2):  # two frames sent: their acknowledgements are due, with the open's OK
+            bus.send(can.Message(arbitration_id=0x7FF, data=b"\x01", is_extended_id=False))
         mixed = b"t1018FFEEDDCCBBAA9988\r\rz\r\a" b"T000001022AABB\r"
         assert _ids_after_writing(bus, master, mixed) == [0x101, 0x102]
         assert bus.garbled == 0
@@ -148,6 +152,21 @@ def test_garbled_bytes_are_counted_as_bytes() -> None:
         bad = b"t1038zz11223344556677\r"  # not hex where data is: 22 bytes with its \r
         assert _ids_after_writing(bus, master, bad + b"t1018AABBCCDDEEFF0011\r") == [0x101]
         assert (bus.garbled, bus.garbled_bytes) == (1, len(bad))
+    finally:
+        bus.shutdown()
+        os.close(master)
+
+
+def test_replies_to_nothing_written_are_counted() -> None:
+    """A flood of bare terminators read as OK replies, none of it counted (hostile-device
+    sweep); only as many replies as lines the bus wrote are passed over."""
+    bus, master = _bus_on_a_pty()  # wrote one command: its reply is due
+    try:
+        assert _ids_after_writing(bus, master, b"\r" * 3000 + b"t1018FFEEDDCCBBAA9988\r"
+                                  ) == [0x101]
+        assert (bus.garbled, bus.garbled_bytes) == (2999, 2999)
+        assert _ids_after_writing(bus, master, b"\a\r\a") == []
+        assert (bus.garbled, bus.garbled_bytes) == (3002, 3002)
     finally:
         bus.shutdown()
         os.close(master)

@@ -70,6 +70,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader, breakup_chunk
 
+from recorder.health import HealthTotals
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import (
     MESSAGE_ENCODING,
@@ -231,6 +232,7 @@ class LogStats:
     topics: dict[str, TopicStats] = field(default_factory=dict)
     undecodable: int = 0
     part_notes: list[str] = field(default_factory=list)  # parts of the recording not given
+    health: HealthTotals = field(default_factory=HealthTotals)  # filled by `scan_log`
 
     @property
     def messages(self) -> int:
@@ -1170,10 +1172,17 @@ def read_log(path_or_paths: Paths) -> Iterator[tuple[str, int, dict[str, Any]]]:
 
 
 def scan_log(path_or_paths: Paths) -> LogStats:
-    """Read a whole log without decoding messages, for its statistics."""
+    """Read a whole log for its statistics, decoding only the recorder's health reports."""
     reader = LogReader(path_or_paths)
-    for _ in reader.raw():
-        pass
+    decoders = _Decoders()
+    health = reader.stats.health
+    for channel, msg in reader.raw():
+        if channel.topic == Topic.HEALTH:
+            report = decoders.decode(channel, msg.data)
+            if report is None:
+                health.unreadable += 1
+            else:
+                health.add(report)
     return reader.stats
 
 

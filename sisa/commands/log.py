@@ -59,6 +59,8 @@ def _info(args: argparse.Namespace) -> int:
         print(line)
     for line in _topic_table(stats):
         print(line)
+    for line in _health_lines(stats):
+        print(line)
     for line in _gap_lines(stats, args.gaps):
         print(line)
     return 0
@@ -167,6 +169,29 @@ def _topic_table(stats: LogStats) -> list[str]:
             f"{topic:<20} {t.schema_name:<22} {t.count:>9} {t.rate_hz:>9.2f} {first_s:>9.3f} "
             f"{last_s:>9.3f} {t.usual_interval_ns / 1e6:>9.3f} {_count(t.gap_count):>5} "
             f"{t.lost_by_sequence:>5}")
+    return lines
+
+
+def _health_lines(stats: LogStats) -> list[str]:
+    """The recorder's own counters over the recording (`/sisa/health`), a verdict first: what
+    an operator checks after landing, and did not see without opening the log in a viewer."""
+    from recorder.health import COUNTERS, HEADINGS
+
+    health = stats.health
+    streams = health.ordered()
+    if not streams and not health.unreadable:
+        return []  # a log from before health reports, or another recorder's
+    said = ", ".join(health.problems()) or "no decode error, drop, late edge or disconnect"
+    lines = [f"recorder health (its own counters, totals over the recording): {said}"]
+    if health.unreadable:
+        lines[0] += f" ({health.unreadable} reports unreadable)"
+    if streams:
+        widths = [max(8, len(h)) for h in HEADINGS]
+        lines.append(f"  {'stream':<8} {'messages':>9} "
+                     + " ".join(f"{h:>{w}}" for h, w in zip(HEADINGS, widths, strict=True)))
+        lines += [f"  {t.stream:<8} {t.messages:>9} "
+                  + " ".join(f"{t.counts[c]:>{w}}" for c, w in zip(COUNTERS, widths, strict=True))
+                  for t in streams]
     return lines
 
 

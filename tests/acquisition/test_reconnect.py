@@ -203,6 +203,12 @@ def test_sisa_record_survives_a_gps_that_goes_away_and_comes_back(tmp_path: Path
     final = [h for h in read_messages(out, StreamHealth) if h.stream == "gps" and not h.event]
     assert final[-1].disconnects == final[-1].reconnects == 1
     assert final[-1].link_lost_ns == -1
+    # and `sisa log info` says it, from the periodic reports (the events not counted again)
+    info = subprocess.run([sys.executable, "-m", "sisa.cli", "log", "info", str(out)],
+                          capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    assert "recorder health (its own counters, totals over the recording): 1 disconnect\n" in info
+    gps_row = next(line.split() for line in info.splitlines() if line.startswith("  gps "))
+    assert gps_row[-2:] == ["1", "1"], info  # disconnects, reconnects
 
     # post-processing reads the log with its gap: tables for every INS record, untimed flagged
     from postproc.sync import TimeStatus, sync_log

@@ -1,0 +1,81 @@
+"""What a recording's health reports add up to: per stream, the recorder's own counts of decode
+errors, drops, late edges and outages over the whole flight (`sisa log info`).
+
+Each periodic `sisa.StreamHealth` carries its stream's counters since its recorder started, so
+the last report of a run holds the run's totals. A recorder started again (a new process, its
+counters from zero) shows as counters going down; the runs are added up. Reports with `event`
+set (a device lost or restored) sum a device's streams and are not counted again; a report that
+does not hold the fields as the schema declares them (a damaged or foreign log) is skipped and
+counted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+# the counters a report carries, in the order `sisa log info` shows them
+COUNTERS: Final = ("checksum_errors", "framing_errors", "bytes_skipped", "drops",
+                   "deadline_misses", "disconnects", "reconnects")
+# their headings in `sisa log info` (checksum_errors, framing_errors, deadline_misses shortened)
+HEADINGS: Final = ("checksum", "framing", "bytes_skipped", "drops", "late", "disconnects",
+                   "reconnects")
+STREAM_ORDER: Final = ("gps", "scanner", "ins", "pps", "ppf")
+
+
+@dataclass
+class StreamTotals:
+    stream: str
+    reports: int = 0
+    messages: int = 0  # of the runs before the current one, plus the current run's last report
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTERS, 0))
+    _done_messages: int = 0  # the finished runs' totals
+    _done: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTERS, 0))
+    _last: dict[str, int] = field(default_factory=dict)  # the current run's last report
+
+    def add(self, values: dict[str, int]) -> None:
+        if self._last and values["messages"] < self._last["messages"]:  # a new run
+            self._done_messages += self._last["messages"]
+            for name in COUNTERS:
+                self._done[name] += self._last[name]
+        self._last = values
+        self.reports += 1
+        self.messages = self._done_messages + values["messages"]
+        self.counts = {name: self._done[name] + values[name] for name in COUNTERS}
+
+    @property
+    def decode_errors(self) -> int:
+        return self.counts["checksum_errors"] + self.counts["framing_errors"]
+
+
+@dataclass
+class HealthTotals:
+    streams: dict[str, StreamTotals] = field(default_factory=dict)
+    unreadable: int = 0  # reports without the schema's fields
+
+    def add(self, report: dict[str, Any]) -> None:
+        """One decoded `sisa.StreamHealth`."""
+        stream = report.get("stream")
+        values = {name: report.get(name) for name in ("messages", *COUNTERS)}
+        if not isinstance(stream, str) or not all(
+                type(v) is int and v >= 0 for v in values.values()):
+            self.unreadable += 1
+            return
+        if report.get("event"):
+            return
+        self.streams.setdefault(stream, StreamTotals(stream)).add(
+            {k: v for k, v in values.items() if isinstance(v, int)})
+
+    def ordered(self) -> list[StreamTotals]:
+        known = [self.streams[s] for s in STREAM_ORDER if s in self.streams]
+        return known + [t for s, t in sorted(self.streams.items()) if s not in STREAM_ORDER]
+
+    def problems(self) -> list[str]:
+        """What went wrong, summed over the streams, as phrases ([] for a clean recording)."""
+        streams = self.streams.values()
+        sums = [(sum(t.decode_errors for t in streams), "decode error"),
+                (sum(t.counts["drops"] for t in streams), "drop"),
+                (sum(t.counts["deadline_misses"] for t in streams), "late edge"),
+                (sum(t.counts["disconnects"] for t in streams if t.stream != "ppf"),
+                 "disconnect")]  # pps and ppf share the pulse link: counted once, as pps
+        return [f"{n} {what}{'s' if n != 1 else ''}" for n, what in sums if n]

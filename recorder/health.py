@@ -4,15 +4,18 @@ errors, drops, late edges and outages over the whole flight (`sisa log info`).
 Each periodic `sisa.StreamHealth` carries its stream's counters since its recorder started, so
 the last report of a run holds the run's totals. A recorder started again (a new process, its
 counters from zero) shows as counters going down; the runs are added up. Reports with `event`
-set (a device lost or restored) sum a device's streams and are not counted again; a report that
-does not hold the fields as the schema declares them (a damaged or foreign log) is skipped and
-counted.
+set (a device lost or restored) sum a device's streams and are not counted again. A counter
+the schema gained later is 0 in a log from before it; a report that does not hold the fields as
+the schema declares them (a damaged or foreign log) is skipped and counted.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Final
+
+from recorder.messages import StreamHealth
 
 # the counters a report carries, in the order `sisa log info` shows them
 COUNTERS: Final = ("checksum_errors", "framing_errors", "bytes_skipped", "drops",
@@ -21,6 +24,9 @@ COUNTERS: Final = ("checksum_errors", "framing_errors", "bytes_skipped", "drops"
 HEADINGS: Final = ("checksum", "framing", "bytes_skipped", "drops", "late", "disconnects",
                    "reconnects")
 STREAM_ORDER: Final = ("gps", "scanner", "ins", "pps", "ppf")
+# counters added to the schema later (a default in the dataclass): a log from before has none
+_LATER: Final = {f.name: f.default for f in dataclasses.fields(StreamHealth)
+                 if f.default is not dataclasses.MISSING}
 
 
 @dataclass
@@ -56,7 +62,7 @@ class HealthTotals:
     def add(self, report: dict[str, Any]) -> None:
         """One decoded `sisa.StreamHealth`."""
         stream = report.get("stream")
-        values = {name: report.get(name) for name in ("messages", *COUNTERS)}
+        values = {name: report.get(name, _LATER.get(name)) for name in ("messages", *COUNTERS)}
         if not isinstance(stream, str) or not all(
                 type(v) is int and v >= 0 for v in values.values()):
             self.unreadable += 1

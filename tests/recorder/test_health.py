@@ -51,6 +51,15 @@ def test_events_are_not_counted_again_and_bad_reports_are_counted() -> None:
     assert health.problems() == ["1 disconnect"]
 
 
+def test_a_log_from_before_the_link_counters_is_read() -> None:
+    health = HealthTotals()
+    old = _report("ins", 7, drops=2)
+    del old["disconnects"], old["reconnects"], old["event"]
+    health.add(old)
+    assert health.unreadable == 0
+    assert health.ordered()[0].counts["drops"] == 2
+
+
 def _log_with_reports(path: Path, reports: list[StreamHealth]) -> None:
     with FlightRecorder(path) as rec:
         for r in reports:

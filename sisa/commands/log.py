@@ -1,15 +1,17 @@
 """`sisa log`: look inside a flight log and repair one cut short.
 
-  sisa log info FILE...       per-topic counts, rates, time span and gaps; works on truncated files
+  sisa log info FILE...       per-topic counts, rates, time span and gaps, the recorder's health;
+                              works on truncated files; --json for scripts
   sisa log recover IN OUT     every readable message of IN into a new, complete MCAP file OUT
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, say_warning
 from sisa.errors import InputError
@@ -23,12 +25,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                          "sisa log info runs/bench-sim/flight.mcap")
     actions = parser.add_subparsers(dest="log_command", metavar="ACTION")
     info = add_command(actions, "info", "per-topic counts, rates, time span and gaps of a "
-                       "flight log (also a truncated one)",
+                       "flight log (also a truncated one), and the recorder's health over it",
                        "sisa log info runs/flight.mcap")
     info.add_argument("files", nargs="+", type=Path, metavar="FILE",
                       help=FLIGHT_HELP)
     info.add_argument("--gaps", type=int, default=10, metavar="N",
                       help="list at most N gaps, largest first (default: 10)")
+    info.add_argument("--json", action="store_true",
+                      help="the same as one JSON object on stdout (times in int64 ns), for "
+                           "scripts: e.g. a post-flight check of health.problems")
     info.set_defaults(handler=_info)
     recover = add_command(actions, "recover", "copy every readable message of a truncated or "
                           "damaged flight log into a new, complete MCAP file",
@@ -53,6 +58,9 @@ def _info(args: argparse.Namespace) -> int:
     stats = scan_log(flight_parts(args.files))
     for note in stats.part_notes:  # a part not given: said, and the rest is shown
         say_warning("log", note)
+    if args.json:
+        print(json.dumps(info_document(stats, args.gaps), indent=1))
+        return 0
     for fs in stats.files:
         print(_file_line(fs))
     for line in _summary_lines(stats):
@@ -64,6 +72,38 @@ def _info(args: argparse.Namespace) -> int:
     for line in _gap_lines(stats, args.gaps):
         print(line)
     return 0
+
+
+def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
+    """What `log info` prints, as plain JSON: every time int64 ns on the host clock, counts as
+    integers; the largest `gaps_shown` gaps (all counted in each topic's `gaps`)."""
+    from recorder.reader import topics_in
+
+    largest = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:max(0, gaps_shown)]
+    health = stats.health
+    return {
+        "files": [{"path": str(fs.path), "size_bytes": fs.size_bytes, "complete": fs.complete,
+                   "has_summary": fs.has_summary, "chunks_read": fs.chunks_read,
+                   "chunks_skipped": fs.chunks_skipped, "bytes_skipped": fs.bytes_skipped,
+                   "bytes_unreadable": fs.bytes_unreadable, "problems": list(fs.problems),
+                   "metadata": fs.metadata} for fs in stats.files],
+        "part_notes": list(stats.part_notes),
+        "time": "log time: the recording host's clock, int64 ns since 1970-01-01 UTC",
+        "messages": stats.messages,
+        "undecodable": stats.undecodable,
+        "start_ns": stats.start_ns,
+        "end_ns": stats.end_ns,
+        "topics": {topic: {"schema": t.schema_name, "count": t.count, "rate_hz": t.rate_hz,
+                           "first_ns": t.first_ns, "last_ns": t.last_ns,
+                           "usual_interval_ns": t.usual_interval_ns, "gaps": t.gap_count,
+                           "lost_by_sequence": t.lost_by_sequence}
+                   for topic in topics_in(stats) for t in [stats.topics[topic]]},
+        "largest_gaps": [{"topic": g.topic, "start_ns": g.start_ns, "end_ns": g.end_ns,
+                          "usual_interval_ns": g.usual_ns} for g in largest],
+        "health": {"problems": health.problems(), "unreadable_reports": health.unreadable,
+                   "streams": {t.stream: {"reports": t.reports, "messages": t.messages,
+                                          **t.counts} for t in health.ordered()}},
+    }
 
 
 def _recover(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ without the schema's fields skipped and counted."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +89,12 @@ def test_log_info_shows_the_totals(tmp_path: Path, capsys: pytest.CaptureFixture
                                    "drops", "late", "disconnects", "reconnects"]
     assert out[at + 2].split() == ["gps", "9", "2", "0", "37", "0", "0", "0", "0"]
     assert out[at + 3].split() == ["ins", "128", "0", "0", "0", "0", "1", "0", "0"]
+    assert main(["log", "info", "--json", str(path)]) == 0
+    health = json.loads(capsys.readouterr().out)["health"]
+    assert health["problems"] == ["2 decode errors", "1 late edge"]
+    assert health["streams"]["gps"] == {"reports": 2, "messages": 9, "checksum_errors": 2,
+                                        "framing_errors": 0, "bytes_skipped": 37, "drops": 0,
+                                        "deadline_misses": 0, "disconnects": 0, "reconnects": 0}
 
 
 def test_log_info_says_nothing_of_health_without_reports(

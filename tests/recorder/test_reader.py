@@ -294,6 +294,29 @@ def test_log_info_on_a_truncated_file(flight, tmp_path, capsys):
     assert "/gps/location_fix" in out
 
 
+def test_log_info_json_says_what_the_text_says(flight, tmp_path, capsys):
+    """--json for scripts: the same figures, times as int64 ns, counts as the reader's."""
+    import json
+    from collections import Counter
+
+    data = flight.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    stats = scan_log(cut)
+    assert main(["log", "info", "--json", "--gaps", "3", str(cut)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    (fs,) = doc["files"]
+    assert (fs["complete"], fs["chunks_read"]) == (False, stats.files[0].chunks_read)
+    assert fs["metadata"]["sisa.recording"]["recording_id"]
+    read = Counter(topic for topic, _t, _obj in read_log(cut))
+    assert {t: v["count"] for t, v in doc["topics"].items()} == dict(read)
+    assert doc["messages"] == sum(read.values())
+    assert isinstance(doc["start_ns"], int)
+    assert doc["start_ns"] == min(v["first_ns"] for v in doc["topics"].values())
+    assert len(doc["largest_gaps"]) <= 3
+    assert doc["health"] == {"problems": [], "unreadable_reports": 0, "streams": {}}  # none
+
+
 @pytest.mark.parametrize("content", [None, b"", b"not an mcap at all"])
 def test_log_info_on_bad_input_is_one_line_and_exit_2(tmp_path, capsys, content):
     path = tmp_path / "x.mcap"

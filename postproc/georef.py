@@ -85,6 +85,8 @@ from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
 from postproc.syncreport import untimed_lines_note
 from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
+from recorder.health import HEALTH_WANTED, recording_note
+from recorder.messages import Topic
 from recorder.reader import Paths, log_paths, read_topics
 from sisa.errors import InputError
 from sisa.timescale import (
@@ -264,7 +266,11 @@ class GeorefJob:
     def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
         lines = read_scanner_lines(self.scanner_dir)
         wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
-        cols = read_topics(self.flight, merged_wanted(*wanted), notes=self.warnings)
+        cols = read_topics(self.flight, {**merged_wanted(*wanted), **HEALTH_WANTED},
+                           notes=self.warnings)
+        recording = recording_note(cols[Topic.HEALTH], log_paths(self.flight)[0])
+        if recording is not None:  # the log may hold less than the devices sent
+            self.warnings.append(recording)
         result = synchronise(sync_input_from_columns(cols), lines)
         self.log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
         mounting = self.opt.sensor.mounting

@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Final
 
-from recorder.messages import StreamHealth
+import numpy.typing as npt
+
+from recorder.messages import StreamHealth, Topic
 
 # the counters a report carries, in the order `sisa log info` shows them
 COUNTERS: Final = ("checksum_errors", "framing_errors", "bytes_skipped", "drops",
@@ -24,6 +27,8 @@ COUNTERS: Final = ("checksum_errors", "framing_errors", "bytes_skipped", "drops"
 HEADINGS: Final = ("checksum", "framing", "bytes_skipped", "drops", "late", "disconnects",
                    "reconnects")
 STREAM_ORDER: Final = ("gps", "scanner", "ins", "pps", "ppf")
+# for read_topics: every field of the log's own schema (older ones lack the later counters)
+HEALTH_WANTED: Final[dict[str, None]] = {Topic.HEALTH.value: None}
 # counters added to the schema later (a default in the dataclass): a log from before has none
 _LATER: Final = {f.name: f.default for f in dataclasses.fields(StreamHealth)
                  if f.default is not dataclasses.MISSING}
@@ -72,6 +77,15 @@ class HealthTotals:
         self.streams.setdefault(stream, StreamTotals(stream)).add(
             {k: v for k, v in values.items() if isinstance(v, int)})
 
+    @classmethod
+    def from_columns(cls, columns: dict[str, npt.NDArray[Any]]) -> HealthTotals:
+        """The totals of the reports as read_topics gives them (HEALTH_WANTED)."""
+        totals = cls()
+        names = [name for name in columns if name != "log_time_ns"]
+        for row in zip(*(columns[name].tolist() for name in names), strict=True):
+            totals.add(dict(zip(names, row, strict=True)))
+        return totals
+
     def ordered(self) -> list[StreamTotals]:
         known = [self.streams[s] for s in STREAM_ORDER if s in self.streams]
         return known + [t for s, t in sorted(self.streams.items()) if s not in STREAM_ORDER]
@@ -85,3 +99,13 @@ class HealthTotals:
                 (sum(t.counts["disconnects"] for t in streams if t.stream != "ppf"),
                  "disconnect")]  # pps and ppf share the pulse link: counted once, as pps
         return [f"{n} {what}{'s' if n != 1 else ''}" for n, what in sums if n]
+
+
+def recording_note(columns: dict[str, npt.NDArray[Any]], flight: Path) -> str | None:
+    """The warning of a post-processing command whose log's recorder counted problems (what
+    the log holds may be short of what the devices sent): None for a clean recording."""
+    problems = HealthTotals.from_columns(columns).problems()
+    if not problems:
+        return None
+    return (f"the recorder counted {', '.join(problems)} while recording {flight.name}: records "
+            f"or lines may be missing for it (per stream: sisa log info {flight})")

@@ -300,6 +300,8 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     from postproc.synclog import WANTED as SYNC_WANTED
     from postproc.synclog import sync_input_from_columns
     from postproc.syncreport import untimed_lines_note
+    from recorder.health import HEALTH_WANTED, recording_note
+    from recorder.messages import Topic
     from recorder.reader import read_topics
 
     sensor = _sensor(args) if sensor is None else sensor
@@ -309,7 +311,10 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     scanner = args.scanner
     if scanner is None and _is_run(args.flight) and (args.flight[0] / "scanner").is_dir():
         scanner = args.flight[0] / "scanner"
-    cols = read_topics(paths, merged_wanted(SYNC_WANTED, NAV_WANTED))
+    cols = read_topics(paths, {**merged_wanted(SYNC_WANTED, NAV_WANTED), **HEALTH_WANTED})
+    recording = recording_note(cols[Topic.HEALTH], paths[0])
+    if recording is not None:
+        say_warning(args.command, recording)
     sync = synchronise(sync_input_from_columns(cols),
                        read_scanner_lines(scanner) if scanner is not None else None)
     untied = untimed_lines_note(sync.report["lines"], paths)

@@ -32,7 +32,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from postproc.sync import TimeStatus, read_sync_input, synchronise
+    from postproc.sync import TimeStatus, synchronise
     from postproc.syncio import (
         read_scanner_lines,
         unlisted_line_notes,
@@ -40,20 +40,28 @@ def _run(args: argparse.Namespace) -> int:
         write_line_times,
         write_report,
     )
+    from postproc.synclog import WANTED as SYNC_WANTED
+    from postproc.synclog import sync_input_from_columns
     from postproc.syncreport import untimed_lines_note
+    from recorder.health import HEALTH_WANTED, recording_note
+    from recorder.messages import Topic
+    from recorder.reader import read_topics
 
     started = time.perf_counter()
     with staged_output_dir(args.out) as out:
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
         flight = flight_parts(args.flight)
-        result = synchronise(read_sync_input(flight), lines)
+        cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})
+        recording = recording_note(cols[Topic.HEALTH], flight[0])
+        result = synchronise(sync_input_from_columns(cols), lines)
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}
         ins, ln = result.ins, result.lines
         write_ins_times(out / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
         write_line_times(out / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                          ln.t_gps_ns, ln.status)
-        notes = [] if args.scanner is None else unlisted_line_notes(
+        notes = [] if recording is None else [recording]
+        notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
         untied = untimed_lines_note(result.report["lines"], flight)
         if untied is not None:  # was said only as a count

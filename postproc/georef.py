@@ -85,7 +85,7 @@ from postproc.synclog import WANTED as SYNC_WANTED
 from postproc.synclog import sync_input_from_columns
 from postproc.syncreport import untimed_lines_note
 from postproc.trajfiles import TRAJ_WANTED, read_trajectory_file
-from recorder.health import HEALTH_WANTED, recording_note
+from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
 from recorder.reader import Paths, log_paths, read_topics
 from sisa.errors import InputError
@@ -204,6 +204,7 @@ class GeorefResult:
     skipped: list[SegmentSkip] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     log_fixes: AntennaFixes | None = None  # the flight log's GPS fixes, as read for the sync
+    recording_health: HealthTotals | None = None  # the recorder's counts (`sisa log info`)
 
 
 def _duration_label(ns: int) -> str:
@@ -260,6 +261,7 @@ class GeorefJob:
         self.trajectory_info: dict[str, Any] = {}
         self.swaths: dict[int, SwathOnDem] = {}
         self.log_fixes: AntennaFixes | None = None
+        self.recording_health = HealthTotals()  # the recorder's own counts, from the log
 
     # -- the steps ---------------------------------------------------------------------------
 
@@ -268,7 +270,8 @@ class GeorefJob:
         wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
         cols = read_topics(self.flight, {**merged_wanted(*wanted), **HEALTH_WANTED},
                            notes=self.warnings)
-        recording = recording_note(cols[Topic.HEALTH], log_paths(self.flight)[0])
+        self.recording_health = HealthTotals.from_columns(cols[Topic.HEALTH])
+        recording = recording_note(self.recording_health, log_paths(self.flight)[0])
         if recording is not None:  # the log may hold less than the devices sent
             self.warnings.append(recording)
         result = synchronise(sync_input_from_columns(cols), lines)
@@ -734,9 +737,11 @@ class GeorefJob:
         summary["trajectory"] = self.trajectory_info
         summary["skipped"] = [skip.as_dict() for skip in skipped]
         summary["warnings"] = list(self.warnings)
+        summary["recording_health"] = self.recording_health.as_dict()
         write_json(self.out / "georef_summary.json", summary)
         return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
-                            skipped, list(self.warnings), log_fixes=self.log_fixes)
+                            skipped, list(self.warnings), log_fixes=self.log_fixes,
+                            recording_health=self.recording_health)
 
     def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
         """Shift between every pair of overlapping segment orthos (cells and metres)."""

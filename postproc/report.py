@@ -151,6 +151,19 @@ def _accuracy_tables(acc: dict[str, Any]) -> str:
     return "".join(parts)
 
 
+def _recording(result: GeorefResult) -> str:
+    """The recorder's own counts over the flight (`sisa log info`), a verdict first."""
+    from recorder.health import COUNTERS, HEADINGS
+
+    health = result.recording_health
+    if health is None or not health.streams:
+        return "<p>the log holds no health reports of its recorder</p>"
+    said = health.verdict()
+    rows = [[t.stream, t.messages, *(t.counts[c] for c in COUNTERS)] for t in health.ordered()]
+    return (f"<p>The recorder counted: {html.escape(said)}.</p>"
+            + _table(["stream", "messages", *HEADINGS], rows))
+
+
 def _mosaic(out_dir: Path) -> str:
     png = out_dir / "mosaic_quicklook.png"
     if not png.is_file():
@@ -179,6 +192,7 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
     body += ["<h2>Segments</h2>",
              _table(["segment", "lines", "timed", "georeferenced", "pixels on DEM",
                      "pixel across (m)", "line spacing (m)"], seg_rows),
+             "<h2>Recording</h2>", _recording(result),
              "<h2>Trajectory and footprints</h2>", _map(result, out_dir, mounting),
              "<h2>Attitude</h2>", _attitude(result, mounting),
              "<h2>Time synchronisation</h2>",

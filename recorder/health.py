@@ -86,6 +86,16 @@ class HealthTotals:
             totals.add(dict(zip(names, row, strict=True)))
         return totals
 
+    def verdict(self) -> str:
+        """The problems in one phrase, or that there were none."""
+        return ", ".join(self.problems()) or "no decode error, drop, late edge or disconnect"
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain JSON: the problems' phrases ([] when clean) and each stream's totals."""
+        return {"problems": self.problems(), "unreadable_reports": self.unreadable,
+                "streams": {t.stream: {"reports": t.reports, "messages": t.messages, **t.counts}
+                            for t in self.ordered()}}
+
     def ordered(self) -> list[StreamTotals]:
         known = [self.streams[s] for s in STREAM_ORDER if s in self.streams]
         return known + [t for s, t in sorted(self.streams.items()) if s not in STREAM_ORDER]
@@ -101,10 +111,10 @@ class HealthTotals:
         return [f"{n} {what}{'s' if n != 1 else ''}" for n, what in sums if n]
 
 
-def recording_note(columns: dict[str, npt.NDArray[Any]], flight: Path) -> str | None:
+def recording_note(health: HealthTotals, flight: Path) -> str | None:
     """The warning of a post-processing command whose log's recorder counted problems (what
     the log holds may be short of what the devices sent): None for a clean recording."""
-    problems = HealthTotals.from_columns(columns).problems()
+    problems = health.problems()
     if not problems:
         return None
     return (f"the recorder counted {', '.join(problems)} while recording {flight.name}: records "

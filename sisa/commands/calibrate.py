@@ -300,7 +300,7 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     from postproc.synclog import WANTED as SYNC_WANTED
     from postproc.synclog import sync_input_from_columns
     from postproc.syncreport import untimed_lines_note
-    from recorder.health import HEALTH_WANTED, recording_note
+    from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics
 
@@ -312,7 +312,7 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     if scanner is None and _is_run(args.flight) and (args.flight[0] / "scanner").is_dir():
         scanner = args.flight[0] / "scanner"
     cols = read_topics(paths, {**merged_wanted(SYNC_WANTED, NAV_WANTED), **HEALTH_WANTED})
-    recording = recording_note(cols[Topic.HEALTH], paths[0])
+    recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), paths[0])
     if recording is not None:
         say_warning(args.command, recording)
     sync = synchronise(sync_input_from_columns(cols),

@@ -80,7 +80,6 @@ def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
     from recorder.reader import topics_in
 
     largest = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:max(0, gaps_shown)]
-    health = stats.health
     return {
         "files": [{"path": str(fs.path), "size_bytes": fs.size_bytes, "complete": fs.complete,
                    "has_summary": fs.has_summary, "chunks_read": fs.chunks_read,
@@ -100,9 +99,7 @@ def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
                    for topic in topics_in(stats) for t in [stats.topics[topic]]},
         "largest_gaps": [{"topic": g.topic, "start_ns": g.start_ns, "end_ns": g.end_ns,
                           "usual_interval_ns": g.usual_ns} for g in largest],
-        "health": {"problems": health.problems(), "unreadable_reports": health.unreadable,
-                   "streams": {t.stream: {"reports": t.reports, "messages": t.messages,
-                                          **t.counts} for t in health.ordered()}},
+        "health": stats.health.as_dict(),
     }
 
 
@@ -221,8 +218,8 @@ def _health_lines(stats: LogStats) -> list[str]:
     streams = health.ordered()
     if not streams and not health.unreadable:
         return []  # a log from before health reports, or another recorder's
-    said = ", ".join(health.problems()) or "no decode error, drop, late edge or disconnect"
-    lines = [f"recorder health (its own counters, totals over the recording): {said}"]
+    lines = [f"recorder health (its own counters, totals over the recording): "
+             f"{health.verdict()}"]
     if health.unreadable:
         lines[0] += f" ({health.unreadable} reports unreadable)"
     if streams:

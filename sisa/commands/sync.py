@@ -43,7 +43,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.synclog import WANTED as SYNC_WANTED
     from postproc.synclog import sync_input_from_columns
     from postproc.syncreport import untimed_lines_note
-    from recorder.health import HEALTH_WANTED, recording_note
+    from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics
 
@@ -52,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
         flight = flight_parts(args.flight)
         cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})
-        recording = recording_note(cols[Topic.HEALTH], flight[0])
+        recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
         result = synchronise(sync_input_from_columns(cols), lines)
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}

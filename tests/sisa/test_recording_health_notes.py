@@ -73,7 +73,13 @@ def test_process_puts_it_in_the_summary_and_the_report(faulty: Path,
     assert f"sisa process: warning: the recorder counted {counted} " in capsys.readouterr().err
     summary = json.loads((faulty / "process" / "georef_summary.json").read_text())
     assert sum(w.startswith(f"the recorder counted {counted} ") for w in summary["warnings"]) == 1
-    assert f"the recorder counted {counted} " in (faulty / "process" / "report.html").read_text()
+    report = (faulty / "process" / "report.html").read_text()
+    assert f"the recorder counted {counted} " in report  # the warning
+    assert f"<h2>Recording</h2><p>The recorder counted: {counted}.</p>" in report  # its table
+    assert summary["recording_health"]["problems"] == counted.split(", ")
+    ins = summary["recording_health"]["streams"]["ins"]
+    assert ins["drops"] > 0
+    assert ins["messages"] == summary["ins_records"]  # the records the log holds
 
 
 def test_calibrate_warns_of_it(faulty: Path, tmp_path: Path,

@@ -30,6 +30,7 @@ through pyproj. Nothing here reads simulation truth.
 from __future__ import annotations
 
 import itertools
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
@@ -43,6 +44,7 @@ from scipy.spatial.transform import Rotation, RotationSpline
 
 from postproc.sync import InsTimes
 from postproc.syncconfig import TimeStatus
+from postproc.syncreport import AMBIGUOUS_HINT
 from recorder.messages import Topic
 from recorder.reader import Paths, read_topics
 from sisa.errors import ConfigError, InputError
@@ -240,6 +242,7 @@ class InsSamples:
     t_gps_ns: I64
     r_ned_from_body: F64  # (N, 3, 3) R_b^n
     vel_ned_mps: F64  # (N, 3)
+    left_out: str = ""  # why the log's other records are not here (for an error when too few)
 
 
 @dataclass(frozen=True)
@@ -328,8 +331,9 @@ def fuse_ins_gps(ins: InsSamples, fixes: AntennaFixes, *, antenna_offset_m: npt.
     cfg = config or NavConfig()
     g_b = vector3(antenna_offset_m, "antenna_offset_m")
     if ins.t_gps_ns.size < MIN_RECORDS:
+        why = f" ({ins.left_out})" if ins.left_out else ""
         raise InputError(f"{source}: {ins.t_gps_ns.size} usable INS records (timed and "
-                         "navigating): no attitude to georeference with")
+                         f"navigating){why}: no attitude to georeference with")
     if fixes.t_gps_ns.size < 2:
         raise InputError(f"{source}: {fixes.t_gps_ns.size} usable GPS fixes: need at least 2")
     epoch_ns = int(ins.t_gps_ns[0]) // NS_PER_S * NS_PER_S
@@ -362,7 +366,25 @@ def ins_samples_from_columns(columns: dict[str, Columns], ins_times: InsTimes,
     idx = np.flatnonzero(use)
     idx = idx[sorted_unique(t[idx])]
     return InsSamples(t[idx], body_to_ned_matrix(att[idx, 0], att[idx, 1], att[idx, 2]),
-                      vel[idx])
+                      vel[idx], _left_out(ins_times.status, t, status) if idx.size < MIN_RECORDS
+                      else "")
+
+
+def _left_out(time_status: npt.ArrayLike, t_gps_ns: I64, status: I64) -> str:
+    """Of the log's INS records, how many sync could not time (and why) and how many were not
+    navigating: the reason an error gives when too few are usable."""
+    timed = (np.asarray(time_status) == TimeStatus.OK) & (t_gps_ns >= 0)
+    said = [f"{status.size} in the log"]
+    if (~timed).any():
+        why = Counter(TimeStatus(int(v)).name.lower() for v in np.asarray(time_status)[~timed])
+        said.append(f"{int((~timed).sum())} not timed by sync ("
+                    + ", ".join(f"{k} {v}" for k, v in why.most_common()) + ")")
+        if set(why) == {"ambiguous"}:
+            said[-1] += f": {AMBIGUOUS_HINT}"
+    navigating = ((status & NAVIGATING_BIT) != 0) & ((status & ALIGNING_BIT) == 0)
+    if (timed & ~navigating).any():
+        said.append(f"{int((timed & ~navigating).sum())} timed but not navigating (aligning)")
+    return ", ".join(said)
 
 
 def fixes_from_columns(columns: dict[str, Columns]) -> AntennaFixes:

@@ -134,6 +134,22 @@ def frames_untied(lines: dict[str, Any]) -> bool:
                 and lines["status"].get("no_pulses", 0) > 0)
 
 
+# why INS records stay ambiguous when a log has no mode-1 pattern to speak of (the recorder
+# started with the scanner already recording): 6 s of it left all ambiguous in a real-time
+# bench, 15 s timed every record
+AMBIGUOUS_HINT = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, "
+                  "mode-2 trains alone do not: record a register period (15 s with 4 bits) with "
+                  "the scanner off (docs/sync.md, 'The whole-second ambiguity')")
+
+
+def no_ins_timed_note(ins_status: npt.ArrayLike) -> str | None:
+    """The warning when sync timed no INS record and left every one ambiguous; else None."""
+    status = np.asarray(ins_status)
+    if status.size == 0 or not (status == TimeStatus.AMBIGUOUS).all():
+        return None
+    return f"no INS record timed, all {status.size} ambiguous: {AMBIGUOUS_HINT}"
+
+
 def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
     """`untied_frames_note` with the header window `flight` was recorded with (or the
     default), when `frames_untied`; else None. For every command that syncs a log: `georef`

@@ -44,7 +44,37 @@ def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
     assert len(ins) >= SECONDS * 64 - 2
     np.testing.assert_array_equal(ins, sent[-len(ins):])
     forwarded = read_columns(run / "flight.mcap", Topic.SYNC_FORWARD)
-    assert (forwarded["mode"] == 2).any()  # the scanner was recording
+    assert (forwarded["mode"] == 2).all()  # the scanner was recording from the start
+    _no_mode1_pattern_is_explained(run / "flight.mcap", tmp_path)
+
+
+def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
+    """Recorded with the scanner on from its start, the log has no mode-1 pattern: every INS
+    record stays ambiguous (docs/sync.md, 'The whole-second ambiguity'). `sisa sync` said only
+    "INS records flagged: ambiguous 320", `georef` "0 usable INS records": they say why."""
+    from postproc.georef import merged_wanted
+    from postproc.navigation import NAV_WANTED, nav_from_columns
+    from postproc.sync import synchronise
+    from postproc.synclog import WANTED, sync_input_from_columns
+    from recorder.reader import read_topics
+    from sisa.errors import InputError
+
+    done = subprocess.run([sys.executable, "-m", "sisa.cli", "sync", str(flight), "--out",
+                           str(tmp_path / "sync")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "INS records 0/" in done.stdout
+    hint = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, mode-2 "
+            "trains alone do not: record a register period (15 s with 4 bits) with the scanner "
+            "off (docs/sync.md, 'The whole-second ambiguity')")
+    assert f" ambiguous: {hint}\n" in done.stderr, done.stderr
+    cols = read_topics(flight, merged_wanted(WANTED, NAV_WANTED))
+    ins = synchronise(sync_input_from_columns(cols)).ins
+    with pytest.raises(InputError) as err:
+        nav_from_columns(cols, ins, antenna_offset_m=(0.0, 0.0, 1.0))
+    said = str(err.value)
+    assert said.startswith(f"flight log: 0 usable INS records (timed and navigating) "
+                           f"({ins.status.size} in the log, {ins.status.size} not timed by sync "
+                           f"(ambiguous {ins.status.size}): {hint})"), said
 
 
 def _bench_recording(run: Path) -> subprocess.Popen[str]:

@@ -42,7 +42,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     from postproc.synclog import WANTED as SYNC_WANTED
     from postproc.synclog import sync_input_from_columns
-    from postproc.syncreport import untimed_lines_note
+    from postproc.syncreport import no_ins_timed_note, untimed_lines_note
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics
@@ -63,6 +63,9 @@ def _run(args: argparse.Namespace) -> int:
         notes = [] if recording is None else [recording]
         notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
+        ambiguous = no_ins_timed_note(ins.status)
+        if ambiguous is not None:  # was said only as a count
+            notes.append(ambiguous)
         untied = untimed_lines_note(result.report["lines"], flight)
         if untied is not None:  # was said only as a count
             notes.append(untied)

@@ -61,6 +61,14 @@ def _jit(parallel: bool = False) -> Callable[[_Fn], _Fn]:
                 numba.njit(cache=True, parallel=parallel, error_model="numpy"))
 
 
+def render_on_one_thread() -> None:
+    """Real time: render on the calling thread alone. A parallel kernel waits for a worker on
+    the other core, which the recorder under test is using: blocks of 8 lines, ~2 ms on one
+    thread, then took up to 33 ms, and the emulator sent frame pulses that late (4-18 late
+    edges in 25 s of a bench strip, none with this)."""
+    numba.set_num_threads(1)
+
+
 # ---------------------------------------------------------------------------------------------
 # Frames and the fitted map
 # ---------------------------------------------------------------------------------------------

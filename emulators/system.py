@@ -16,6 +16,7 @@ from acquisition.pulses import Edge, PulseLine
 from emulators.faults import SpuriousPulses, WireFaults, fault_table
 from emulators.gps import GpsReceiver
 from emulators.ins import InsEmulator
+from emulators.render import render_on_one_thread
 from emulators.runtime import Device, Output, Sink
 from emulators.scanner import ScannerEmulator
 from emulators.scenario import Scenario
@@ -51,6 +52,8 @@ class EmulatedSystem:
         if scanner_dir is not None:
             terrain = terrain or Terrain.from_scenario(scn)
             scene = Scene.from_scenario(scn, terrain)
+            if real_time:
+                render_on_one_thread()
         # in real time, render small blocks so a block fits between two frame pulses
         self.scanner = ScannerEmulator(scn, self.traj, terrain, scene, self._rng(Stream.SCANNER),
                                        self.faults, scanner_dir,

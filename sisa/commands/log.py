@@ -17,7 +17,7 @@ from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, 
 from sisa.errors import InputError
 
 if TYPE_CHECKING:
-    from recorder.reader import FileStats, LogStats
+    from recorder.reader import FileStats, Gap, LogStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -79,7 +79,7 @@ def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
     integers; the largest `gaps_shown` gaps (all counted in each topic's `gaps`)."""
     from recorder.reader import topics_in
 
-    largest = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:max(0, gaps_shown)]
+    largest = _largest_gaps(stats, gaps_shown)
     return {
         "files": [{"path": str(fs.path), "size_bytes": fs.size_bytes, "complete": fs.complete,
                    "has_summary": fs.has_summary, "chunks_read": fs.chunks_read,
@@ -232,6 +232,10 @@ def _health_lines(stats: LogStats) -> list[str]:
     return lines
 
 
+def _largest_gaps(stats: LogStats, limit: int) -> list[Gap]:
+    return sorted(stats.gaps, key=lambda g: -g.duration_ns)[:max(0, limit)]
+
+
 def _count(n: int | None) -> str:
     return "-" if n is None else str(n)
 
@@ -240,7 +244,7 @@ def _gap_lines(stats: LogStats, limit: int) -> list[str]:
     total = sum(t.gap_count or 0 for t in stats.topics.values())
     if not total or limit <= 0:
         return []
-    gaps = sorted(stats.gaps, key=lambda g: -g.duration_ns)[:limit]
+    gaps = _largest_gaps(stats, limit)
     lines = [f"gaps longer than 2x the topic's usual interval around them: {total} "
              f"(largest {len(gaps)}; none counted on the sync unit's forwarded pulses, silent "
              "by design)"]

@@ -38,8 +38,6 @@ _LATER: Final = {f.name: f.default for f in dataclasses.fields(StreamHealth)
 class StreamTotals:
     stream: str
     reports: int = 0
-    messages: int = 0  # of the runs before the current one, plus the current run's last report
-    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTERS, 0))
     _done_messages: int = 0  # the finished runs' totals
     _done: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTERS, 0))
     _last: dict[str, int] = field(default_factory=dict)  # the current run's last report
@@ -51,8 +49,14 @@ class StreamTotals:
                 self._done[name] += self._last[name]
         self._last = values
         self.reports += 1
-        self.messages = self._done_messages + values["messages"]
-        self.counts = {name: self._done[name] + values[name] for name in COUNTERS}
+
+    @property
+    def messages(self) -> int:
+        return self._done_messages + self._last.get("messages", 0)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return {name: self._done[name] + self._last.get(name, 0) for name in COUNTERS}
 
     @property
     def decode_errors(self) -> int:

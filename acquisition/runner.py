@@ -163,6 +163,7 @@ class Acquisition:
         self.timeline_restarts = 0  # pulse sources that came back on an earlier timeline
         self._t_host_now_ns = 0
         self._can_batch = _CanBatch()
+        self.forwards_sent = 0
 
     # --- serial ports ----------------------------------------------------------------------
 
@@ -272,6 +273,18 @@ class Acquisition:
             self.streams["ppf"].seen(t_host_ns, NS_PER_S)
             self._apply(self.filter.on_ppf(board_ns, t_host_ns))
 
+    def ppf_may_forward(self, ppf_unseen: int, gap_ns: int | None) -> bool:
+        """Could handling the next ppf forward a pulse, with `ppf_unseen` ppf before it not
+        handled yet, `gap_ns` after the ppf before it (edge time; None: none before)? False
+        only when it surely cannot: the live loop then holds it back with the other arrivals
+        (acquisition.handover). An idle gap (the scanner off and on again, switching modes) or
+        an earlier timeline (a new session) is never held."""
+        if not self._started or self.down_until_board_ns is not None or gap_ns is None:
+            return True
+        if not -TIMELINE_RESTART_NS <= gap_ns <= self.config.sync.idle_after_ns // 2:
+            return True
+        return self.filter.ppf_may_forward(ppf_unseen)
+
     def _edge_time_out_of_range(self) -> None:
         """An edge no timing board gives (`EDGE_TIME_LIMIT_NS`): a framing error of the pulse
         link, dropped before the board counts it (its count and a forward's time overflowed the
@@ -331,6 +344,7 @@ class Acquisition:
         targets = [PulseLine.INS_SYNC] if fwd.to_ins else []
         if fwd.to_gps_event:
             targets.append(PulseLine.GPS_EVENT)
+        self.forwards_sent += 1
         for target in targets:
             self.send_edge(Edge(target, 0, t_out))
             self.log(PulseEdgeLog(self._t_host_now_ns, target.name, fwd.board_ns, 0),

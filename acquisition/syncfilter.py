@@ -597,6 +597,13 @@ class SyncFilter:
         self._resolve_frames(ended=False)
         return self._actions(fwd, logs + self._emit_forwards())
 
+    def ppf_may_forward(self, ppf_unseen: int) -> bool:
+        """Could the ppf after `ppf_unseen` more (none of them forwarded) be forwarded? In
+        mode 1 any ppf may be the one that turns the scanner on and goes at once; in mode 2
+        every n-th (an idle gap before it, which would switch modes, is the caller's to see)."""
+        return (self.mode is Mode.PPS
+                or self._since_forward + ppf_unseen + 1 >= self.config.one_of_n)
+
     def on_header(self, header: FrameHeader, t_host_ns: int) -> list[Action]:
         """A frame header from the scanner's serial port."""
         if self._run is not None and self._run.match_header(header, t_host_ns):

@@ -29,19 +29,19 @@ from typing import Any
 import numpy.typing as npt
 import tomli_w
 
-from acquisition.live import Arrival, Source
-from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
+from acquisition.handover import Handover
+from acquisition.pulses import EdgeStreamDecoder
+from acquisition.rereading import arrivals, raw_reads
 from acquisition.runner import Acquisition
 from acquisition.slcan_bulk import parse_frame_line
 from emulators.scenario import load_scenario, scenario_from_table
 from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
 from recorder.reader import read_columns
-from recorder.replay import BoardModel, CanFrame, RecordedEdge, iter_schedule, survey_log
 from recorder.writer import FlightRecorder
 from sisa.acqconfig import acquisition_config
 from sisa.commands.bench import DRAIN_S, stop_after_hold, wait_for_endpoints
-from sisa.commands.record import TICK_S, EdgeClock, dispatch
+from sisa.commands.record import TICK_S
 from sisa.errors import ConfigError
 
 SUMMARY = re.compile(
@@ -157,44 +157,19 @@ def work_cpu_pct(log: Path, k: float) -> float:
     serial bytes, SLCAN lines, edge messages), parsed and dispatched by the recorder's code into
     a fresh Acquisition and FlightRecorder back to back. CPU per second of log, in %."""
     config = acquisition_config(scenario_from_table(scaled_table(k)))
-    timeline = survey_log([log]).timeline(BoardModel())
-    reads: list[tuple[int, Source, bytes]] = []
-    pending: dict[Source, bytearray] = {}
-    t_read = -1
-    for item in iter_schedule([log]):
-        t = (item.t_log_ns // config.read_interval_ns + 1) * config.read_interval_ns
-        if t != t_read:
-            reads += [(t_read, source, bytes(data)) for source, data in pending.items()]
-            pending, t_read = {}, t
-        data = pending.setdefault(Source(str(item.wire)), bytearray())
-        p = item.payload
-        if isinstance(p, CanFrame):
-            data += b"t%03X%d%s\r" % (p.arbitration_id, len(p.data), p.data.hex().upper().encode())
-        elif isinstance(p, RecordedEdge):
-            data += encode_edge(Edge(PulseLine[p.line], p.link_seq,
-                                     timeline.t_edge_ns(p.board_ns)))
-        else:
-            data += p
-    reads += [(t_read, source, bytes(data)) for source, data in pending.items()]
+    reads = raw_reads([log], config.read_interval_ns)
     with tempfile.TemporaryDirectory() as tmp:
         cpu0 = time.process_time()
         with FlightRecorder(Path(tmp) / "again.mcap") as rec:
-            edges, clock, next_tick_ns = EdgeStreamDecoder(), EdgeClock(), 0
+            edges, next_tick_ns = EdgeStreamDecoder(), 0
             acq = Acquisition(config, rec.write, lambda _edge: None, pulse_stats=edges.stats)
-            for t, source, data in reads:
-                if source is Source.INS:
-                    frames = [m for line in data.split(b"\r")[:-1]
-                              if (m := parse_frame_line(line)) is not None]
-                    dispatch(acq, Arrival(t, source, frames), clock)
-                elif source is Source.PULSES:
-                    for decoded in edges.feed(data):
-                        dispatch(acq, Arrival(t, source, decoded.message), clock)
-                else:
-                    dispatch(acq, Arrival(t, source, data), clock)
-                t_edge = clock.now(t)
-                if t >= next_tick_ns and t_edge is not None:
-                    acq.tick(t, t_edge)
-                    next_tick_ns = t + round(TICK_S * 1e9)
+            handover = Handover(acq)
+            for item in arrivals(reads, edges):
+                handover.put(item)
+                if item.t_host_ns >= next_tick_ns:
+                    handover.tick(item.t_host_ns)
+                    next_tick_ns = item.t_host_ns + round(TICK_S * 1e9)
+            handover.flush()
             acq.finish(reads[-1][0])
         cpu_s = time.process_time() - cpu0
     return 100 * cpu_s / ((reads[-1][0] - reads[0][0]) / 1e9)

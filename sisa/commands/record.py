@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING
 
 from sisa.commands import (
     SubParsers,
@@ -26,8 +26,7 @@ from sisa.outdir import name_taken
 if TYPE_CHECKING:
     from rich.table import Table
 
-    from acquisition.live import Arrival, GarbledCanLines, LinkEvent, LiveSources, Source
-    from acquisition.pulses import Edge
+    from acquisition.live import LinkEvent, LiveSources, Source
     from acquisition.runner import Acquisition
 
 STATUS_PERIOD_S = 1.0
@@ -160,29 +159,14 @@ def _install_stop_handlers() -> list[bool]:
     return stop
 
 
-class EdgeClock:
-    """The edge timeline's 'now', extrapolated from the last edge by the host clock."""
-
-    def __init__(self) -> None:
-        self.t_edge_ns: int | None = None
-        self.t_host_ns = 0
-
-    def seen(self, t_host_ns: int, t_edge_ns: int) -> None:
-        self.t_edge_ns, self.t_host_ns = t_edge_ns, t_host_ns
-
-    def now(self, t_host_ns: int) -> int | None:
-        if self.t_edge_ns is None:
-            return None
-        return self.t_edge_ns + (t_host_ns - self.t_host_ns)
-
-
 def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
           args: argparse.Namespace) -> None:
     from acquisition.clocks import wall_clock_ns
+    from acquisition.handover import Handover
     from acquisition.live import LinkEvent
 
     status = _Status(acq, args.out, args.shown_as or args.out, quiet=args.quiet)
-    edge_clock = EdgeClock()
+    handover = Handover(acq)
     started = time.monotonic()
     next_tick = next_status = started
     down: set[Source] = set()
@@ -192,15 +176,13 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
         now = time.monotonic()
         for item in arrivals:
             if isinstance(item.payload, LinkEvent):
+                handover.flush()
                 _link_event(acq, item.t_host_ns, item.source, item.payload, down)
             else:
                 last_arrival = now
-                dispatch(acq, item, edge_clock)
+                handover.put(item)
         if now >= next_tick:
-            t_host = wall_clock_ns()
-            t_edge = edge_clock.now(t_host)
-            if t_edge is not None:
-                acq.tick(t_host, t_edge)
+            handover.tick(wall_clock_ns())
             next_tick = now + TICK_S
         if now >= next_status:
             status.show()
@@ -212,6 +194,7 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
             print(f"sisa record: every device away for {ALL_GONE_STOP_S:g} s: recording "
                   "ended", file=sys.stderr, flush=True)
             break
+    handover.flush()
     acq.finish(wall_clock_ns())
     status.close()
 
@@ -232,25 +215,6 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
         away_s = (t_host_ns - event.lost_t_host_ns) / 1e9
         print(f"sisa record: {source} reconnected after {away_s:.1f} s", file=sys.stderr,
               flush=True)
-
-
-def dispatch(acq: Acquisition, item: Arrival, edge_clock: EdgeClock) -> None:
-    """One arrival to the acquisition, by its source (Source values: no import per call)."""
-    payload, source = item.payload, item.source
-    if source == "pulses":
-        edge = cast("Edge", payload)
-        edge_clock.seen(item.t_host_ns, edge.t_ns)
-        acq.on_edge(item.t_host_ns, edge)
-    elif source == "ins":
-        if isinstance(payload, list):
-            acq.on_can_frames(item.t_host_ns, payload)
-        else:
-            garbled = cast("GarbledCanLines", payload)
-            acq.on_can_garbled(item.t_host_ns, garbled.lines, garbled.bytes_skipped)
-    elif source == "gps":
-        acq.on_gps_bytes(item.t_host_ns, cast(bytes, payload))
-    else:
-        acq.on_scanner_bytes(item.t_host_ns, cast(bytes, payload))
 
 
 class _Status:

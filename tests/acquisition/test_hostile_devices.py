@@ -31,6 +31,7 @@ import numpy as np
 import pytest
 
 from acquisition.codec import ErrorPolicy
+from acquisition.handover import Handover, dispatch
 from acquisition.live import SEND_TIMEOUT_S, LinkEvent, LinkState, LiveSources
 from acquisition.nmea import (
     FixQuality,
@@ -49,7 +50,6 @@ from recorder.messages import StreamHealth, Topic
 from recorder.reader import read_columns, read_messages
 from recorder.writer import FlightRecorder
 from sisa.acqconfig import acquisition_config
-from sisa.commands.record import EdgeClock, dispatch
 from sisa.nmea import checksum
 from sisa.timescale import NS_PER_S, gps_ns_from_unix_ns
 
@@ -97,14 +97,15 @@ def board() -> Iterator[Board]:
 
 def _acquire(sources: LiveSources, acq: Acquisition, seconds: float) -> list[LinkEvent]:
     """`sisa record`'s loop, briefly: every arrival to the acquisition, link events returned."""
-    clock, events = EdgeClock(), []
+    handover, events = Handover(acq), []
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         for item in sources.poll(0.02):
             if isinstance(item.payload, LinkEvent):
                 events.append(item.payload)
             else:
-                dispatch(acq, item, clock)
+                handover.put(item)
+    handover.flush()
     return events
 
 
@@ -300,7 +301,7 @@ def test_garbled_can_lines_reach_the_health_channel_with_their_bytes() -> None:
     acq = Acquisition(acquisition_config(load_scenario("bench")),
                       lambda m, _t: logged.append(m), lambda _e: None)
     host_ns = 1_700_000_000 * NS_PER_S
-    dispatch(acq, Arrival(host_ns, Source.INS, GarbledCanLines(3, 4200)), EdgeClock())
+    dispatch(acq, Arrival(host_ns, Source.INS, GarbledCanLines(3, 4200)))
     acq.finish(host_ns + NS_PER_S)
     ins = [m for m in logged if isinstance(m, StreamHealth) and m.stream == "ins"][-1]
     assert (ins.framing_errors, ins.bytes_skipped) == (3, 4200)

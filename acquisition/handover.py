@@ -4,7 +4,10 @@ Python work done right after a wake-up costs this kind of host several times wha
 to back (docs/benchmarks.md, "Recorder CPU"): handing each 5 ms read's few items to the decoders,
 the sync filter and the writer at once kept the recorder at 3–5 % of a core for 0.7 % of work.
 So `Handover` holds the arrivals (and the loop's clock ticks) back and hands them over in the
-order they came, in one batch, `HOLD_NS` after the first — with one exception, the sync unit's
+order they came, in one batch, `HOLD_NS` after the first or sooner when `HOLD_UNITS` of work
+are held (CAN frames, edges, 64-byte pieces of serial data: ~3 ms of handling; the loop reads
+nothing while it hands a batch over, so a batch of high rates' 200 ms made every device's host
+times up to 50 ms late and the edges past their deadline) — with one exception, the sync unit's
 real-time duty: a pulse edge that could be forwarded is handed over at once, after everything
 held before it. Which edges could is asked of the acquisition (`Acquisition.ppf_may_forward`),
 counting the ppf still held; a PPS edge always could. Nothing else forwards, so the acquisition
@@ -27,6 +30,8 @@ if TYPE_CHECKING:
     from acquisition.runner import Acquisition
 
 HOLD_NS = 200_000_000
+HOLD_UNITS = 256
+SERIAL_UNIT_BYTES = 64
 
 
 class EdgeClock:
@@ -81,6 +86,7 @@ class Handover:
         self._held: list[Arrival | _Tick] = []
         self._first_held_ns = 0
         self._ppf_held = 0
+        self._units_held = 0
         self._last_ppf_t_ns: int | None = None
         self.batches = 0
 
@@ -94,14 +100,19 @@ class Handover:
                 dispatch(self.acq, item)
                 return
             self._ppf_held += 1
-        self._hold(item, item.t_host_ns)
+            self._hold(item, item.t_host_ns, 1)
+            return
+        payload = item.payload
+        units = (len(payload) if isinstance(payload, list)
+                 else 1 + len(payload) // SERIAL_UNIT_BYTES if isinstance(payload, bytes) else 1)
+        self._hold(item, item.t_host_ns, units)
 
     def tick(self, t_host_ns: int) -> None:
         """The loop's clock (every `TICK_S`): held like an arrival; also what lets a batch go
         when nothing arrives."""
         t_edge_ns = self.edge_clock.now(t_host_ns)
         if t_edge_ns is not None:
-            self._hold(_Tick(t_host_ns, t_edge_ns), t_host_ns)
+            self._hold(_Tick(t_host_ns, t_edge_ns), t_host_ns, 1)
         elif self._held and not 0 <= t_host_ns - self._first_held_ns < self.hold_ns:
             self.flush()
 
@@ -109,7 +120,7 @@ class Handover:
         """Everything held, to the acquisition, in order."""
         if not self._held:
             return
-        held, self._held, self._ppf_held = self._held, [], 0
+        held, self._held, self._ppf_held, self._units_held = self._held, [], 0, 0
         self.batches += 1
         acq = self.acq
         forwards = acq.forwards_sent
@@ -120,11 +131,13 @@ class Handover:
                 dispatch(acq, item)
         acq.streams["ppf"].deadline_misses += acq.forwards_sent - forwards
 
-    def _hold(self, item: Arrival | _Tick, t_host_ns: int) -> None:
+    def _hold(self, item: Arrival | _Tick, t_host_ns: int, units: int) -> None:
         if not self._held:
             self._first_held_ns = t_host_ns
         self._held.append(item)
-        if not 0 <= t_host_ns - self._first_held_ns < self.hold_ns:  # a clock step ends it too
+        self._units_held += units
+        if (self._units_held >= HOLD_UNITS
+                or not 0 <= t_host_ns - self._first_held_ns < self.hold_ns):  # a clock step too
             self.flush()
 
     def _could_forward(self, edge: Edge) -> bool:

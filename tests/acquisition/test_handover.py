@@ -15,7 +15,7 @@ from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine
 from acquisition.rereading import arrivals, raw_reads
 from acquisition.runner import Acquisition, AcquisitionConfig
 from emulators.scenario import load_scenario, scenario_from_table
-from recorder.messages import SyncForward, SyncModeSwitch, SyncSession
+from recorder.messages import RawCanFrames, SyncForward, SyncModeSwitch, SyncSession
 from sisa.acqconfig import acquisition_config
 from sisa.simulation import simulate
 from sisa.timescale import NS_PER_S
@@ -152,3 +152,26 @@ def _with_one_of_n(config: AcquisitionConfig, n: int) -> AcquisitionConfig:
     import dataclasses
 
     return dataclasses.replace(config, sync=dataclasses.replace(config.sync, one_of_n=n))
+
+
+def test_a_batch_is_handed_over_when_its_work_is_held_not_only_its_time() -> None:
+    """At high rates 200 ms is a lot of work, during which the loop reads nothing: a batch also
+    goes when `HOLD_UNITS` are held (CAN frames here), so host times stay near the reads."""
+    import can
+
+    from acquisition.handover import HOLD_NS, HOLD_UNITS
+
+    config = acquisition_config(load_scenario("bench"))
+    logged: list[object] = []
+    acq = Acquisition(config, lambda m, _t: logged.append(m), lambda _e: None)
+    handover = Handover(acq)
+    t0 = 1_800_000_000 * NS_PER_S
+    frames = [can.Message(arbitration_id=0x7F0, data=bytes(8), is_extended_id=False)] * 100
+    reads = HOLD_UNITS // len(frames) + 1
+    for k in range(reads):
+        assert handover.batches == 0
+        assert not any(isinstance(m, RawCanFrames) for m in logged)
+        handover.put(Arrival(t0 + k * 1_000_000, Source.INS, frames))
+    assert (reads - 1) * 1_000_000 < HOLD_NS
+    assert handover.batches == 1
+    assert any(isinstance(m, RawCanFrames) for m in logged)  # handed over, raw CAN logged

@@ -14,7 +14,7 @@ import pytest
 from emulators.truth import read_truth_csv
 from recorder.messages import Topic
 from recorder.reader import DamagedLogWarning, read_columns
-from sisa.commands.bench import stop_after_hold
+from sisa.commands.bench import EMULATOR_LAG, late_edges_note, stop_after_hold
 from sisa.commands.emulate import HELD_LINE
 
 SECONDS = 5
@@ -38,6 +38,9 @@ def test_bench_records_a_run_and_ends_without_losing_its_devices(tmp_path):
     assert " lost " not in done.stderr, done.stderr
     assert "0 decode errors, 0 drops" in done.stdout, done.stdout
     assert "0 disconnects, 0 reconnects" in done.stdout, done.stdout
+    lag = EMULATOR_LAG.search(done.stdout)  # the emulator's own lateness, said beside it
+    assert lag is not None, done.stdout
+    assert f"emulator: latest emission {lag['ms']} ms behind schedule\n" in done.stdout
     # every INS record from the recorder's first to the last one the INS sent, none lost
     ins = read_columns(run / "flight.mcap", Topic.INS_RECORD)["ins_time_ticks"]
     sent = read_truth_csv(run / "truth" / "ins_records.csv")["ins_time_ticks"]
@@ -155,3 +158,19 @@ def _read(path: Path) -> bytes:
         return path.read_bytes()
     except OSError:  # the process has gone
         return b""
+
+
+def test_late_edges_are_told_apart_by_the_emulators_own_lateness():
+    """On a desk the emulator shares the machine: late edges it sent late are not the
+    recorder's doing, and the bench says which side of the link it was."""
+    rec = ("recorded run/flight.mcap: INS 3840, GPS sentences 273, frame headers 2110, PPS 61, "
+           "ppf 2111; 0 decode errors, 0 drops, 26 late edges, 0 disconnects, 0 reconnects, "
+           "1 sync session(s); cpu 1.42 s in 62.2 s (2.3% of a core)\n")
+    behind = late_edges_note(rec, 85.0, 20.0)
+    assert behind is not None
+    assert behind.startswith("the recorder counted 26 late edges; the emulator itself fell 85 ms")
+    on_time = late_edges_note(rec, 3.2, 20.0)
+    assert on_time is not None
+    assert "kept within 3.2 ms" in on_time
+    assert "recorder's side" in on_time
+    assert late_edges_note(rec.replace("26 late edges", "0 late edges"), 85.0, 20.0) is None

@@ -9,6 +9,7 @@ import argparse
 import contextlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
 ANNOUNCE_TIMEOUT_S = 60.0
 MIN_REAL_S = 2.0  # of emulation: a shorter one is over before the recorder has started
 DRAIN_S = 0.5  # after the emulator's last output: a frame header's latency, the read clock
+EMULATOR_LAG = re.compile(r"latest emission (?P<ms>[\d.]+) ms behind schedule")
+RECORDER_LATE = re.compile(r"(?P<n>\d+) late edges")
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -77,6 +80,7 @@ class Ended(NamedTuple):
 def _run(args: argparse.Namespace) -> int:
     from emulators.terrain import Terrain
     from emulators.trajectory import TruthTrajectory
+    from sisa.acqconfig import acquisition_config
     from sisa.commands.scenario import scenario_toml
     from sisa.simulation import write_survey_data
 
@@ -130,6 +134,13 @@ def _run(args: argparse.Namespace) -> int:
         shutil.rmtree(run / "emulator", ignore_errors=True)
     # its summary, told once the run is in place, names the file where it now is
     print(rec_end.stdout.replace(str(run), str(args.out)), end="")
+    lag = EMULATOR_LAG.search(emu_end.stdout)
+    if lag is not None:
+        print(f"emulator: latest emission {lag['ms']} ms behind schedule")
+        deadline_ms = acquisition_config(scn).edge_deadline_ns / 1e6
+        note = late_edges_note(rec_end.stdout, float(lag["ms"]), deadline_ms)
+        if note is not None:
+            print(f"sisa bench: {note}", file=sys.stderr)
     if failed:  # what was recorded is kept (the log is readable up to the failure)
         raise SisaError(f"{failed}; the run so far is in {args.out}")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
@@ -155,6 +166,23 @@ def failure(emu_end: Ended, rec_end: Ended, real_s: float, *, stopped_early: boo
                 "had started, and it was stopped starting: run for longer (--duration, or a "
                 "lower --speed)")
     return f"sisa emulate exited {emu_end.code}, sisa record exited {rec_end.code}"
+
+
+def late_edges_note(recorder_summary: str, emulator_lag_ms: float, deadline_ms: float
+                    ) -> str | None:
+    """When the recorder counted late edges, which side of the link made them late: on a desk
+    the emulator shares the machine with the recorder, and an emulator that fell behind its own
+    schedule sent its edges late, as a busy timing board would."""
+    late = RECORDER_LATE.search(recorder_summary)
+    if late is None or int(late["n"]) == 0:
+        return None
+    said = f"the recorder counted {late['n']} late edges"
+    if emulator_lag_ms >= deadline_ms:
+        return (f"{said}; the emulator itself fell {emulator_lag_ms:.0f} ms behind its schedule "
+                f"at worst, past the {deadline_ms:g} ms deadline: it sent edges late (a busy "
+                "desk machine), which is not the recorder's doing")
+    return (f"{said}, while the emulator kept within {emulator_lag_ms:.1f} ms of its schedule "
+            f"(deadline {deadline_ms:g} ms): they came late on the recorder's side of the link")
 
 
 def _real_seconds(traj: TruthTrajectory, args: argparse.Namespace) -> float:

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 from acquisition.live import Arrival, Source
 from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
-from acquisition.slcan_bulk import parse_frame_line
+from acquisition.slcan_bulk import encode_frame_line, parse_frame_line
 from recorder.reader import Paths
 from recorder.replay import BoardModel, CanFrame, RecordedEdge, iter_schedule, survey_log
 
@@ -33,7 +33,7 @@ def raw_reads(paths: Paths, read_interval_ns: int) -> list[tuple[int, Source, by
         data = pending.setdefault(Source(str(item.wire)), bytearray())
         p = item.payload
         if isinstance(p, CanFrame):
-            data += b"t%03X%d%s\r" % (p.arbitration_id, len(p.data), p.data.hex().upper().encode())
+            data += encode_frame_line(p.arbitration_id, p.is_extended_id, p.data)
         elif isinstance(p, RecordedEdge):
             data += encode_edge(Edge(PulseLine[p.line], p.link_seq,
                                      timeline.t_edge_ns(p.board_ns)))

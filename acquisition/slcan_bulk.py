@@ -56,6 +56,13 @@ def parse_frame_line(line: bytes) -> can.Message | None:
                        data=None if remote else binascii.unhexlify(line[digits + 2:end]))
 
 
+def encode_frame_line(arbitration_id: int, is_extended_id: bool, data: bytes) -> bytes:
+    """The SLCAN line of a classic data frame, with its terminator (`parse_frame_line`'s
+    inverse): what an adapter sends for a frame it received."""
+    ident = b"T%08X" % arbitration_id if is_extended_id else b"t%03X" % arbitration_id
+    return b"%s%d%s\r" % (ident, len(data), data.hex().upper().encode())
+
+
 def _reply_end(buffer: bytearray) -> int:
     """Index of the first reply terminator (OK or ERROR), or −1."""
     ends = [i for i in (buffer.find(_OK), buffer.find(_ERROR)) if i >= 0]

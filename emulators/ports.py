@@ -20,6 +20,7 @@ import can
 
 from acquisition.codec import ErrorPolicy
 from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
+from acquisition.slcan_bulk import encode_frame_line
 
 LOOPBACK = "127.0.0.1"
 
@@ -76,10 +77,8 @@ class SlcanAdapter:
         if not self.is_open:
             self.frames_dropped += 1
             return
-        kind = "T" if msg.is_extended_id else "t"
-        ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
-        line = f"{kind}{ident}{msg.dlc}{bytes(msg.data).hex().upper()}\r".encode()
-        self.port.write(line)
+        self.port.write(encode_frame_line(msg.arbitration_id, msg.is_extended_id,
+                                          bytes(msg.data)))
         self.frames_sent += 1
 
     def _serve(self) -> None:

@@ -7,7 +7,7 @@ import time
 
 import can
 
-from acquisition.slcan_bulk import BulkSlcanBus, parse_frame_line
+from acquisition.slcan_bulk import BulkSlcanBus, encode_frame_line, parse_frame_line
 
 
 def _bus_on_a_pty() -> tuple[BulkSlcanBus, int]:
@@ -170,3 +170,15 @@ def test_replies_to_nothing_written_are_counted() -> None:
     finally:
         bus.shutdown()
         os.close(master)
+
+
+def test_frame_lines_encode_and_parse_back() -> None:
+    """One codec both ways: the emulator's adapter and the bench's re-reading write the lines
+    the recorder parses, standard and extended identifiers alike."""
+    for ident, extended, data in ((0x123, False, b"\x01\x02"), (0x1ABCDE0F, True, bytes(8)),
+                                  (0x7FF, False, b"")):
+        line = encode_frame_line(ident, extended, data)
+        assert line.endswith(b"\r")
+        msg = parse_frame_line(line[:-1])
+        assert msg is not None
+        assert (msg.arbitration_id, msg.is_extended_id, bytes(msg.data)) == (ident, extended, data)

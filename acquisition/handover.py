@@ -113,7 +113,7 @@ class Handover:
         t_edge_ns = self.edge_clock.now(t_host_ns)
         if t_edge_ns is not None:
             self._hold(_Tick(t_host_ns, t_edge_ns), t_host_ns, 1)
-        elif self._held and not 0 <= t_host_ns - self._first_held_ns < self.hold_ns:
+        elif self._held and self._expired(t_host_ns):
             self.flush()
 
     def flush(self) -> None:
@@ -136,9 +136,12 @@ class Handover:
             self._first_held_ns = t_host_ns
         self._held.append(item)
         self._units_held += units
-        if (self._units_held >= HOLD_UNITS
-                or not 0 <= t_host_ns - self._first_held_ns < self.hold_ns):  # a clock step too
+        if self._units_held >= HOLD_UNITS or self._expired(t_host_ns):
             self.flush()
+
+    def _expired(self, t_host_ns: int) -> bool:
+        """The batch is `hold_ns` old, or the host clock stepped back."""
+        return not 0 <= t_host_ns - self._first_held_ns < self.hold_ns
 
     def _could_forward(self, edge: Edge) -> bool:
         if edge.line is not PulseLine.PPF:

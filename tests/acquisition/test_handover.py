@@ -4,6 +4,7 @@ being handed over (never out of a held batch)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -149,8 +150,6 @@ def test_edge_cases_give_the_same_pulses_held_and_at_once() -> None:
 
 
 def _with_one_of_n(config: AcquisitionConfig, n: int) -> AcquisitionConfig:
-    import dataclasses
-
     return dataclasses.replace(config, sync=dataclasses.replace(config.sync, one_of_n=n))
 
 

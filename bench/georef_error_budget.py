@@ -31,9 +31,10 @@ from pyproj import Transformer
 from emulators.render import camera_pose_ecef
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
+from postproc.calib_data import read_ground_points
 from postproc.dem import Dem
 from postproc.raycast import intersect
-from sisa.accuracy import read_ground_points
+from sisa.accuracy import check_points
 from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.gcpsim import TruthProjector, truth_segments
 from sisa.sensor import ARCSEC_RAD
@@ -43,7 +44,7 @@ STEPS = np.array([0.05, 0.05, 0.05, 0.5 * ARCSEC_RAD, 0.5 * ARCSEC_RAD, 0.5 * AR
 COMPONENTS = ("along", "across", "height")
 
 
-def _frame_to(direction):
+def _frame_to(direction: np.ndarray) -> np.ndarray:
     """Rotations taking +z to each unit direction (so one look vector (0, 0, 1) serves all)."""
     z = direction / np.linalg.norm(direction, axis=1, keepdims=True)
     helper = np.where(np.abs(z[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
@@ -59,17 +60,19 @@ class Views:
     def __init__(self, run: Path) -> None:
         self.scn = load_scenario(run / "scenario.toml")
         traj = TruthTrajectory.from_scenario(self.scn)
-        pts = read_ground_points(run / "terrain" / "ground_points.csv")
-        chk = pts["kind"] == "check"
-        to_ecef = Transformer.from_crs(4979, 4978, always_xy=True)
-        x = np.stack(to_ecef.transform(pts["lon_deg"][chk], pts["lat_deg"][chk],
-                                       pts["height_m"][chk]), axis=1)
-        enh = np.stack([pts["easting_m"][chk], pts["northing_m"][chk], pts["height_m"][chk]], 1)
+        self.dem = Dem.read(run / "terrain" / "dem.tif")
+        self.epsg = self.dem.epsg
+        points_csv = run / "terrain" / "ground_points.csv"
+        pts = read_ground_points(points_csv)
+        x = pts.ecef_m[pts.kind == "check"]
+        chk = check_points(points_csv, self.epsg)  # the same points, in the DEM's CRS
+        enh = np.stack([chk["easting_m"], chk["northing_m"], chk["height_m"]], axis=1)
         proj = TruthProjector(self.scn, traj)
         views: list[tuple[int, float, int]] = []
         for seg in truth_segments(run):
             pixel, t = proj.crossing(seg, x)
-            views += [(i, float(pixel[i]), int(t[i])) for i in np.flatnonzero(np.isfinite(pixel))]
+            views += [(int(i), float(pixel[i]), int(t[i]))
+                      for i in np.flatnonzero(np.isfinite(pixel))]
         centre = self.scn.scanner.centre_pixel
         by_point: dict[int, list[tuple[int, float, int]]] = {}
         for v in views:
@@ -90,8 +93,8 @@ class Views:
         # along track: the ground direction of flight, from the heading and grid convergence
         fwd = self.state.ecef_m + 60.0 * np.einsum("nij,nj->ni", self.r_ne, self.state.vel_ned_mps)
         to_map = Transformer.from_crs(4978, 32600 + self._zone(), always_xy=True)
-        e0, n0, _ = to_map.transform(*self.state.ecef_m.T)
-        e1, n1, _ = to_map.transform(*fwd.T)
+        e0, n0 = to_map.transform(*self.state.ecef_m.T)[:2]
+        e1, n1 = to_map.transform(*fwd.T)[:2]
         a = np.stack([np.asarray(e1) - e0, np.asarray(n1) - n0], axis=1)
         self.along = a / np.linalg.norm(a, axis=1, keepdims=True)
         self.right = np.stack([self.along[:, 1], -self.along[:, 0]], axis=1)
@@ -105,11 +108,10 @@ class Views:
                        + np.asarray(ins.attitude_noise_arcsec)[k] ** 2) * ARCSEC_RAD
                for k in range(3)]
         gps = self.scn.gps
-        h, v = gps.horizontal_sigma_m, gps.vertical_sigma_m
-        self.sigma = np.stack([np.full(len(idx), h), np.full(len(idx), h), np.full(len(idx), v),
+        h_m, v_m = gps.horizontal_sigma_m, gps.vertical_sigma_m
+        self.sigma = np.stack([np.full(len(idx), h_m), np.full(len(idx), h_m),
+                               np.full(len(idx), v_m),
                                *att], axis=1)  # (n, 6): δN, δE, δD, δroll, δpitch, δheading
-        self.dem = Dem.read(run / "terrain" / "dem.tif")
-        self.epsg = self.dem.epsg
 
     def _zone(self) -> int:
         return int((float(np.mean(self.state.lon_deg)) + 180.0) // 6.0) + 1

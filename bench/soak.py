@@ -198,8 +198,8 @@ def books(run: Path) -> dict[str, Any]:
             int(t_mid[lst]) + NS_PER_S, ("corrupt_byte", "lost_byte"), "scanner")
 
     fixes_t = truth_table(truth / "gps_fixes.csv")["t_gps_ns"].tolist()
-    logged = [f.t_gps_ns for f in read_messages(flight, GpsFix)]
-    first, lst, missing = in_order(fixes_t, logged)
+    logged_fixes = [f.t_gps_ns for f in read_messages(flight, GpsFix)]
+    first, lst, missing = in_order(fixes_t, logged_fixes)
     row("gps_fixes", "gps", lst - first + 1, missing, int(fixes_t[first]),
         int(fixes_t[lst]) + NS_PER_S, ("corrupt_byte", "lost_byte"), "gps")
 

@@ -54,18 +54,19 @@ class Truth:
 
 
 def _host(t_ns: I64) -> I64:
-    return t_ns - LEAP_NS + HOST_OFFSET_NS + np.rint((t_ns - T0_NS) * HOST_PPM * 1e-6).astype(
-        np.int64)
+    drift_ns: I64 = np.rint((t_ns - T0_NS) * HOST_PPM * 1e-6).astype(np.int64)
+    return t_ns - LEAP_NS + HOST_OFFSET_NS + drift_ns
 
 
 def _board(t_ns: I64) -> I64:
-    return BOARD_START_NS + (t_ns - T0_NS) + np.rint((t_ns - T0_NS) * BOARD_PPM * 1e-6).astype(
-        np.int64)
+    drift_ns: I64 = np.rint((t_ns - T0_NS) * BOARD_PPM * 1e-6).astype(np.int64)
+    return BOARD_START_NS + (t_ns - T0_NS) + drift_ns
 
 
 def _ins_clock(t_ns: I64) -> I64:
     e = t_ns - T0_NS
-    return INS_OFFSET_NS + e + np.rint(e * INS_PPM * 1e-6).astype(np.int64)
+    drift_ns: I64 = np.rint(e * INS_PPM * 1e-6).astype(np.int64)
+    return INS_OFFSET_NS + e + drift_ns
 
 
 def _round(t_ns: I64, step: int) -> I64:
@@ -297,6 +298,10 @@ def main() -> None:
     elif args.faults:
         faults()
     else:
+        shortest_h = (STATIC_S + STRIP_S + TURN_S + 1) / 3600
+        if not args.hours >= shortest_h:  # no strip: nothing to time
+            parser.error(f"--hours {args.hours:g}: a flight of one strip takes at least "
+                         f"{shortest_h:.2f} h")
         speed(args.hours)
 
 

@@ -304,3 +304,23 @@ def test_a_log_whose_tail_went_to_zeros_reads_to_its_last_chunk(log, tmp_path):
     assert fs.truncated
     assert fs.chunks_read == 35
     assert any("zeros from byte" in p for p in fs.problems)
+
+
+def test_log_info_shows_metadata_damage_made_unprintable_escaped_and_cut(tmp_path, capsys):
+    """A damaged Metadata record can hold a terminal's escape sequences, a line break or
+    thousands of characters: log info prints them escaped and cut, on the file's own line,
+    and plain values as they are."""
+    path = tmp_path / "flight.mcap"
+    hostile = {"scenario": "bench", "note": "\x1b[2J\x1b[31mred", "crew": "a\nb",
+               "long": "x" * 5000}
+    with FlightRecorder(path, chunk_size=4096, metadata=hostile) as rec:
+        rec.write(GpsFix(T0_NS, 10**18, 41.0, 2.0, 600.0, 1, 8, 0.9))
+    assert main(["log", "info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out
+    meta_line = next(line for line in out.splitlines() if "scenario=bench" in line)
+    assert r"note='\x1b[2J\x1b[31mred'" in meta_line
+    assert r"crew='a\nb'" in meta_line
+    assert "long='xxx" in meta_line
+    assert "x" * 200 not in meta_line
+    assert len(meta_line) < 600

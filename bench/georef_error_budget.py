@@ -31,7 +31,6 @@ from pyproj import Transformer
 from emulators.render import camera_pose_ecef
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.calib_data import read_ground_points
 from postproc.dem import Dem
 from postproc.raycast import intersect
 from sisa.accuracy import check_points
@@ -62,10 +61,8 @@ class Views:
         traj = TruthTrajectory.from_scenario(self.scn)
         self.dem = Dem.read(run / "terrain" / "dem.tif")
         self.epsg = self.dem.epsg
-        points_csv = run / "terrain" / "ground_points.csv"
-        pts = read_ground_points(points_csv)
-        x = pts.ecef_m[pts.kind == "check"]
-        chk = check_points(points_csv, self.epsg)  # the same points, in the DEM's CRS
+        chk = check_points(run / "terrain" / "ground_points.csv", self.epsg)
+        x = chk["ecef_m"]
         enh = np.stack([chk["easting_m"], chk["northing_m"], chk["height_m"]], axis=1)
         proj = TruthProjector(self.scn, traj)
         views: list[tuple[int, float, int]] = []

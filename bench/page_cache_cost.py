@@ -53,8 +53,6 @@ def write_file(path: Path, mb: int, behind: bool) -> None:
             if behind and done % CHUNK == 0:
                 start_writeback(fd, started, done - started, SYNC_FILE_RANGE_WRITE)
                 started = done
-                # the flag stays a flag: this offset once shared its name, and the write-behind
-                # stopped at 64 MB when the offset was 0
                 drop_to = started - LAG_CHUNKS * CHUNK
                 if drop_to > dropped:
                     os.posix_fadvise(fd, dropped, drop_to - dropped, os.POSIX_FADV_DONTNEED)

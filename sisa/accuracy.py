@@ -300,13 +300,14 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
 
 def check_points(path: Path, epsg: int) -> dict[str, Any]:
     """The check points of a ground points file (calib_data's reader: one-line errors for a
-    damaged file), as id, easting_m, northing_m, height_m (ellipsoidal) in `epsg`."""
+    damaged file), as id, easting_m, northing_m, height_m (ellipsoidal) in `epsg`, and ecef_m."""
     points = read_ground_points(path)
     check = points.kind == "check"
     lat, lon, h = ecef_to_geodetic(points.ecef_m[check])
     east, north = Transformer.from_crs(4326, epsg, always_xy=True).transform(lon, lat)
     return {"id": points.ids[check], "easting_m": np.asarray(east, dtype=np.float64),
-            "northing_m": np.asarray(north, dtype=np.float64), "height_m": h}
+            "northing_m": np.asarray(north, dtype=np.float64), "height_m": h,
+            "ecef_m": points.ecef_m[check]}
 
 
 def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
@@ -338,7 +339,7 @@ def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, An
     gp_csv = run / "terrain" / "ground_points.csv"
     chk = check_points(gp_csv, result.epsg) if gp_csv.is_file() else {
         "id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
-        "height_m": np.zeros(0)}
+        "height_m": np.zeros(0), "ecef_m": np.zeros((0, 3))}
     for seg in result.segments:
         stats, found = segment_accuracy(truth, seg, chk, seed=seg.segment)
         per_segment.append({"segment": seg.segment, **stats.summary()})

@@ -22,13 +22,12 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sisa.errors import ConfigError
+from sisa.errors import ConfigError, one_line_text_problem
 from sisa.sensor import (
     Mounting,
     ScannerGeometry,
     StrictModel,
     first_non_finite,
-    one_line_text_problem,
     validation_text,
 )
 from sisa.timescale import parse_gps_datetime

@@ -31,8 +31,7 @@ from postproc.navigation import ecef_to_geodetic, geodetic_to_ecef
 from postproc.sync import LineTimes
 from postproc.syncconfig import TimeStatus
 from postproc.syncio import FRAME_COUNTER_MAX, SEGMENT_MAX
-from sisa.errors import InputError
-from sisa.sensor import one_line_text_problem
+from sisa.errors import InputError, one_line_text_problem
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]

@@ -25,8 +25,7 @@ from postproc.calib_problem import PointSet
 from postproc.calib_surface import GivenHeights, Surface, intersect_rays
 from postproc.navigation import Trajectory, ecef_to_geodetic
 from postproc.sensorfile import SensorModel
-from sisa.errors import InputError
-from sisa.sensor import shown_value
+from sisa.errors import InputError, shown_value
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

@@ -26,14 +26,12 @@ from typing import Any
 import tomli_w
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sisa.errors import InputError
+from sisa.errors import InputError, one_line_text_problem, shown_value
 from sisa.sensor import (
     Mounting,
     ScannerGeometry,
     StrictModel,
     first_non_finite,
-    one_line_text_problem,
-    shown_value,
     validation_text,
 )
 

@@ -15,12 +15,13 @@ Conventions (docs/conventions.md):
 from __future__ import annotations
 
 import math
-import unicodedata
 from typing import Annotated, Any
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from sisa.errors import shown_value
 
 ARCSEC_RAD = np.pi / (180.0 * 3600.0)
 R_NOMINAL_C_TO_B = np.diag([1.0, -1.0, -1.0])
@@ -178,25 +179,3 @@ def toml_location(loc: tuple[int | str, ...]) -> str:
     return where
 
 
-def shown_value(value: Any, max_chars: int = 60) -> str:
-    """A value for a one-line message: numbers with :.12g (a 300-digit integer would flood it),
-    text as a repr cut to max_chars."""
-    if isinstance(value, bool):
-        return str(value)
-    if isinstance(value, int | float):
-        try:
-            return f"{value:.12g}"
-        except OverflowError:  # an int past float range (TOML integers go to 4300 digits)
-            return "an integer too large for a float"
-    text = repr(value)
-    return text if len(text) <= max_chars else text[:max_chars - 1] + "…"
-
-
-def one_line_text_problem(text: str) -> str | None:
-    """What keeps text from printing as part of one line: a control, format (e.g. bidi
-    override) or line/paragraph separator character, or None."""
-    for i, ch in enumerate(text):
-        if unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Zl", "Zp"):
-            return (f"must be printable text on one line: character {i + 1} is {ch!r} "
-                    "(a control or formatting character)")
-    return None

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, say_warning
-from sisa.errors import InputError
+from sisa.errors import InputError, shown_text
 
 if TYPE_CHECKING:
     from recorder.reader import FileStats, Gap, LogStats
@@ -170,25 +170,11 @@ def _file_line(fs: FileStats) -> str:
     if fs.bytes_skipped:
         state += f" ({fs.bytes_skipped} damaged bytes passed over)"
     meta = fs.metadata.get("sisa.recording", {})
-    extra = ", ".join(f"{_meta_text(k)}={_meta_text(v)}" for k, v in meta.items()
+    extra = ", ".join(f"{shown_text(k)}={shown_text(v)}" for k, v in meta.items()
                       if k not in ("first_part",))
     lines = [f"{fs.path}: {size}, {state}"] + ([f"  {extra}"] if extra else [])
     lines += [f"  problem: {p}" for p in fs.problems]
     return "\n".join(lines)
-
-
-META_CHARS = 120  # a metadata key or value printed as it is up to this long
-
-
-def _meta_text(text: str) -> str:
-    """A recording's metadata as the log holds it, unless it would not print as part of a
-    line: a damaged record can hold control characters (a terminal's escape sequences) or
-    thousands of characters, shown then as a cut repr."""
-    from sisa.sensor import one_line_text_problem, shown_value
-
-    if len(text) <= META_CHARS and one_line_text_problem(text) is None:
-        return text
-    return shown_value(text, META_CHARS)
 
 
 def _utc(t_ns: int) -> str:

@@ -2,12 +2,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from sisa.errors import one_line_text_problem, shown_value
 from sisa.sensor import (
     ARCSEC_RAD,
     Mounting,
     ScannerGeometry,
-    one_line_text_problem,
-    shown_value,
     toml_location,
 )
 

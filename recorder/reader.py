@@ -82,7 +82,7 @@ from recorder.writer import (
     TOPIC_TYPES,
     part_path,
 )
-from sisa.errors import DecodeError, InputError
+from sisa.errors import DecodeError, InputError, shown_text
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_RECORD_SIZE_LIMIT: Final = 256 * 2**20  # our chunks are 64 KiB; 256 MiB is corruption
@@ -497,9 +497,11 @@ def _refuse_mixed(labels: list[PartLabel]) -> None:
 
 
 def _which(label: PartLabel) -> str:
+    """The recording a part says it is of, in words (its metadata shown safely: damage can
+    leave anything there)."""
     if label.recording_id:
-        return f"id {label.recording_id}"
-    return f"no recording id, first part {label.first_part}"
+        return f"id {shown_text(label.recording_id)}"
+    return f"no recording id, first part {shown_text(label.first_part)}"
 
 
 def _missing_notes(labels: list[PartLabel]) -> list[str]:
@@ -514,16 +516,16 @@ def _missing_notes(labels: list[PartLabel]) -> list[str]:
     for before, after in pairwise(labels):
         if after.index > before.index + 1:
             what, verb = _parts_phrase(first, before.index + 1, after.index)
-            notes.append(f"{what} of the split recording {first.first_part} {verb} not given "
-                         f"(between {before.path} and {after.path}): the log is read without "
-                         f"{'it' if verb == 'is' else 'them'}, a hole in the flight")
+            notes.append(f"{what} of the split recording {shown_text(first.first_part)} {verb} "
+                         f"not given (between {before.path} and {after.path}): the log is read "
+                         f"without {'it' if verb == 'is' else 'them'}, a hole in the flight")
     return notes
 
 
 def _parts_phrase(label: PartLabel, start: int, stop: int) -> tuple[str, str]:
     """('part 2 (flight_002.mcap)', 'is') or ('parts 0-1 (flight.mcap, flight_001.mcap)',
     'are'): parts start..stop-1 of label's recording, with their file names."""
-    names = [part_path(Path(label.first_part), i).name for i in range(start, stop)]
+    names = [shown_text(part_path(Path(label.first_part), i).name) for i in range(start, stop)]
     if len(names) > _NAMES_SHOWN:
         names = [*names[:_NAMES_SHOWN - 1], "...", names[-1]]
     if stop - start == 1:

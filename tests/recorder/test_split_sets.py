@@ -249,3 +249,34 @@ def test_recover_of_a_first_part_says_the_further_parts_are_not_in_its_output(
     single = _record(tmp_path / "single", n=100, split_s=None)
     assert main(["log", "recover", str(single[0]), str(tmp_path / "single.mcap")]) == 0
     assert capsys.readouterr().err == ""  # a log of one file: nothing to say
+
+
+def test_part_metadata_damage_made_unprintable_is_shown_escaped_in_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The names and ids the parts' metadata give go into one-line messages: damage there (a
+    line break, a terminal's escape sequence) is shown escaped, and the parts still compare
+    as they are."""
+    real = writer_module._Part.create.__func__  # type: ignore[attr-defined]
+    damaged = {"first_part": "fl\nig\x1b[2Jht.mcap", "recording_id": "id\x1b[31m\n2"}
+
+    def create(cls: type, path: Path, chunk_size: int, metadata: dict[str, str]) -> object:
+        return real(cls, path, chunk_size, {**metadata, **damaged})
+
+    monkeypatch.setattr(writer_module._Part, "create", classmethod(create))
+    parts = _record(tmp_path / "a")
+    other = _record(tmp_path / "b", T0_NS + 100 * 10**9, name="other.mcap")
+    monkeypatch.undo()
+    assert recording_metadata(parts[0])["first_part"] == damaged["first_part"]
+    notes = scan_log([parts[0], parts[3]]).part_notes  # parts 1-2 not given
+    assert notes == [r"parts 1-2 ('fl\nig\x1b[2Jht_001.mcap', 'fl\nig\x1b[2Jht_002.mcap') of "
+                     r"the split recording 'fl\nig\x1b[2Jht.mcap' are not given (between "
+                     f"{parts[0]} and {parts[3]}): the log is read without them, a hole in "
+                     "the flight"]
+    good = _record(tmp_path / "c")
+    shutil.copy(other[2], tmp_path / "c" / "flight_002.mcap")  # a damaged part among good ones
+    assert main(["log", "info", str(good[0])]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "\x1b" not in err
+    assert r"(id 'id\x1b[31m\n2')" in err

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 from acquisition.live import Arrival, Source
 from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
-from acquisition.slcan_bulk import encode_frame_line, parse_frame_line
+from acquisition.slcan_bulk import encode_frame_line, parse_frame_lines
 from recorder.reader import Paths
 from recorder.replay import BoardModel, CanFrame, RecordedEdge, iter_schedule, survey_log
 
@@ -48,9 +48,8 @@ def arrivals(reads: list[tuple[int, Source, bytes]], edges: EdgeStreamDecoder,
     """The reads as `LiveSources.poll` hands them out (edges decoded by `edges`, whose counts
     the acquisition reports)."""
     for t, source, data in reads:
-        if source is Source.INS:
-            yield Arrival(t, source, [m for line in data.split(b"\r")[:-1]
-                                      if (m := parse_frame_line(line)) is not None])
+        if source is Source.INS:  # every line a frame, each ending in a terminator
+            yield Arrival(t, source, parse_frame_lines(data[:-1])[0])
         elif source is Source.PULSES:
             for decoded in edges.feed(data):
                 yield Arrival(t, source, decoded.message)

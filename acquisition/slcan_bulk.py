@@ -63,6 +63,25 @@ def encode_frame_line(arbitration_id: int, is_extended_id: bool, data: bytes) ->
     return b"%s%d%s\r" % (ident, len(data), data.hex().upper().encode())
 
 
+def parse_frame_lines(block: bytes) -> tuple[list[can.Message], list[bytes], list[bytes]]:
+    """The lines of `block` (terminated lines, the last terminator left off) as (frames, lines
+    that do not parse, other lines: replies or anything else that is no frame)."""
+    frames: list[can.Message] = []
+    broken: list[bytes] = []
+    others: list[bytes] = []
+    for line in _TERMINATOR.split(block):
+        try:
+            msg = parse_frame_line(line)
+        except (ValueError, IndexError):  # IndexError: a line cut short
+            broken.append(line)
+            continue
+        if msg is not None:
+            frames.append(msg)
+        else:
+            others.append(line)
+    return frames, broken, others
+
+
 def _reply_end(buffer: bytearray) -> int:
     """Index of the first reply terminator (OK or ERROR), or −1."""
     ends = [i for i in (buffer.find(_OK), buffer.find(_ERROR)) if i >= 0]
@@ -124,23 +143,14 @@ class BulkSlcanBus(slcanBus):
             if len(self._buffer) > PENDING_MAX:  # no terminator in all this: no line
                 self._drop_pending()
             return []
-        lines = _TERMINATOR.split(bytes(self._buffer[:last]))
+        frames, broken, others = parse_frame_lines(bytes(self._buffer[:last]))
         del self._buffer[: last + 1]
         if len(self._buffer) > PENDING_MAX:
             self._drop_pending()
-        frames: list[can.Message] = []
-        for line in lines:
-            try:
-                msg = parse_frame_line(line)
-            except (ValueError, IndexError):  # IndexError: a line cut short
-                self.garbled += 1
-                self.garbled_bytes += len(line) + 1  # with its terminator
-                continue
-            if msg is not None:
-                frames.append(msg)
-            elif not self._answered():  # a reply, to nothing the recorder wrote
-                self.garbled += 1
-                self.garbled_bytes += len(line) + 1
+        # a reply to nothing the recorder wrote is garbled too; each line with its terminator
+        for line in broken + [line for line in others if not self._answered()]:
+            self.garbled += 1
+            self.garbled_bytes += len(line) + 1
         return frames
 
     def _drop_pending(self) -> None:

@@ -9,6 +9,7 @@ set given out of order was read so, and `log recover` of a first part hid the ot
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -53,16 +54,22 @@ def _mixed(folder: Path, a: list[Path], b: list[Path]) -> list[Path]:
     return split_parts(folder / "flight.mcap")
 
 
-@pytest.fixture
-def without_ids(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The recorder as it was before parts carried a recording id."""
+def _part_metadata_edited(monkeypatch: pytest.MonkeyPatch,
+                          edit: Callable[[dict[str, str]], dict[str, str]]) -> None:
+    """The recorder writing each part's metadata as `edit` makes it."""
     real = writer_module._Part.create.__func__  # type: ignore[attr-defined]
 
     def create(cls: type, path: Path, chunk_size: int, metadata: dict[str, str]) -> object:
-        return real(cls, path, chunk_size,
-                    {k: v for k, v in metadata.items() if k != "recording_id"})
+        return real(cls, path, chunk_size, edit(metadata))
 
     monkeypatch.setattr(writer_module._Part, "create", classmethod(create))
+
+
+@pytest.fixture
+def without_ids(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recorder as it was before parts carried a recording id."""
+    _part_metadata_edited(monkeypatch, lambda metadata: {
+        k: v for k, v in metadata.items() if k != "recording_id"})
 
 
 def test_every_part_carries_its_recorders_own_recording_id(tmp_path: Path) -> None:
@@ -257,13 +264,8 @@ def test_part_metadata_damage_made_unprintable_is_shown_escaped_in_one_line(
     """The names and ids the parts' metadata give go into one-line messages: damage there (a
     line break, a terminal's escape sequence) is shown escaped, and the parts still compare
     as they are."""
-    real = writer_module._Part.create.__func__  # type: ignore[attr-defined]
     damaged = {"first_part": "fl\nig\x1b[2Jht.mcap", "recording_id": "id\x1b[31m\n2"}
-
-    def create(cls: type, path: Path, chunk_size: int, metadata: dict[str, str]) -> object:
-        return real(cls, path, chunk_size, {**metadata, **damaged})
-
-    monkeypatch.setattr(writer_module._Part, "create", classmethod(create))
+    _part_metadata_edited(monkeypatch, lambda metadata: {**metadata, **damaged})
     parts = _record(tmp_path / "a")
     other = _record(tmp_path / "b", T0_NS + 100 * 10**9, name="other.mcap")
     monkeypatch.undo()

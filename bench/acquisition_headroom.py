@@ -33,7 +33,7 @@ from acquisition.handover import Handover
 from acquisition.pulses import EdgeStreamDecoder
 from acquisition.rereading import arrivals, raw_reads
 from acquisition.runner import Acquisition
-from acquisition.slcan_bulk import parse_frame_line
+from acquisition.slcan_bulk import encode_frame_line, parse_frame_line
 from emulators.scenario import load_scenario, scenario_from_table
 from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
@@ -181,7 +181,7 @@ def wake_penalty_us(tasks: int = 400, sleep_s: float = 0.005) -> tuple[float, fl
     its read clock. On a shared VM the second is often several times the first (caches and
     the core given to others while we slept): that factor, not the work, moves the CPU figure
     from hour to hour, so it is printed beside it."""
-    lines = [b"t1%02X8%s" % (i, bytes(range(i, i + 8)).hex().upper().encode()) for i in range(20)]
+    lines = [encode_frame_line(0x100 + i, False, bytes(range(i, i + 8)))[:-1] for i in range(20)]
 
     def task() -> None:
         for line in lines:

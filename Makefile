@@ -10,7 +10,7 @@ DEMO   := runs/bench-demo
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml postproc/_orthokernels.c
+$(VENV)/.installed: pyproject.toml postproc/products/_orthokernels.c
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'

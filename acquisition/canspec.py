@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 
 def parse_can_spec(text: str) -> tuple[str, str]:

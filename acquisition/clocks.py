@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from sisa.timescale import unix_ns_from_gps_ns
+from sisa.core.timescale import unix_ns_from_gps_ns
 
 PPM = 1e-6
 

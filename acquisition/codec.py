@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Generic, TypeVar
 
-from sisa.errors import DecodeError
+from sisa.core.errors import DecodeError
 
 MessageT = TypeVar("MessageT")
 

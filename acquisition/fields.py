@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from enum import Enum
 from functools import cached_property
 
-from sisa.errors import DecodeError, EncodeError, SisaError
+from sisa.core.errors import DecodeError, EncodeError, SisaError
 
 _EDGE_SLACK_LSB = 1e-6  # so that a range edge such as 1000 m/s at 1 mm/s counts as an exact LSB
 

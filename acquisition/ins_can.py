@@ -37,7 +37,7 @@ import can
 from acquisition.checksums import crc8_sae_j1850
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
 from acquisition.fields import Field, Layout, LayoutError
-from sisa.errors import EncodeError
+from sisa.core.errors import EncodeError
 
 TICK_NS = 100
 TICKS_MASK = (1 << 48) - 1  # the INS clock and the latch wrap at 48 bits

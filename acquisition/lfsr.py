@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Final
 
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 MIN_BITS: Final = 2
 MAX_BITS: Final = 32

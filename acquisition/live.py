@@ -46,7 +46,7 @@ from acquisition.clocks import wall_clock_ns
 from acquisition.codec import DecodeStats, ErrorPolicy
 from acquisition.pulses import Edge, EdgeStreamDecoder, encode_edge
 from acquisition.slcan_bulk import BulkSlcanBus
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 
 READ_SIZE = 65536
 RETRY_FIRST_S = 0.2  # first reopen attempt this long after the loss ...

@@ -24,9 +24,9 @@ from functools import cached_property
 from typing import Any, ClassVar, Generic, TypeVar
 
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
-from sisa.errors import DecodeError, EncodeError
-from sisa.nmea import checksum
-from sisa.timescale import GPS_EPOCH, NS_PER_DAY, NS_PER_S, NS_PER_WEEK
+from sisa.core.errors import DecodeError, EncodeError
+from sisa.core.nmea import checksum
+from sisa.core.timescale import GPS_EPOCH, NS_PER_DAY, NS_PER_S, NS_PER_WEEK
 
 T = TypeVar("T")
 E = TypeVar("E", bound=Enum)

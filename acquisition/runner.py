@@ -43,7 +43,7 @@ from recorder.messages import (
     StreamHealth,
     Topic,
 )
-from sisa.timescale import NS_PER_S, gps_ns_from_unix_ns
+from sisa.core.timescale import NS_PER_S, gps_ns_from_unix_ns
 
 LogSink = Callable[[LoggedMessage, Topic | None], None]
 GATE_DELAY_NS = 1_000  # the box's input → output propagation

@@ -26,7 +26,7 @@ from enum import IntEnum
 from acquisition.checksums import crc16_ccitt_false
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy, report_error
 from acquisition.fields import Field, Layout, WireType
-from sisa.errors import EncodeError
+from sisa.core.errors import EncodeError
 
 SYNC = b"\xa5\x5a"
 CRC_BYTES = 2

@@ -69,8 +69,8 @@ from typing import Final, TypeAlias
 from acquisition.lfsr import Lfsr, check_taps, default_taps
 from acquisition.scanner_header import FrameHeader
 from recorder.messages import LoggedMessage, SyncForward, SyncModeSwitch, SyncPps, SyncSession
-from sisa.errors import ConfigError
-from sisa.timescale import NS_PER_S
+from sisa.core.errors import ConfigError
+from sisa.core.timescale import NS_PER_S
 
 GATE_DELAY_NS: Final = 1_000  # input edge → output edge of the box
 PERIOD_WINDOW: Final = 15  # recent ppf intervals whose median estimates the line period

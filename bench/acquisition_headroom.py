@@ -39,10 +39,10 @@ from emulators.trajectory import TruthTrajectory
 from recorder.messages import Topic
 from recorder.reader import read_columns
 from recorder.writer import FlightRecorder
-from sisa.acqconfig import acquisition_config
 from sisa.commands.bench import DRAIN_S, stop_after_hold, wait_for_endpoints
 from sisa.commands.record import TICK_S
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
+from sisa.wiring.acqconfig import acquisition_config
 
 SUMMARY = re.compile(
     r"INS (\d+), GPS sentences (\d+), frame headers (\d+), PPS (\d+), ppf (\d+); (\d+) decode "

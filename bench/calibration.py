@@ -9,7 +9,7 @@ Table 3) are simulated without images the first time (≈ 3–5 min each) and ke
 (3 cm σ); and `bellmunt-garrotxa-sensor`, the seed's Bellmunt flight (659 m, 426 km/h, phase)
 carrying the Garrotxa sensor, a second flight for the delay. The adjustment uses what a user
 has: sync and navigation from the flight log, line times from the sync (lines numbered in
-frame-header order: no image files). The measurements come from the truth (sisa.gcpsim).
+frame-header order: no image files). The measurements come from the truth (sisa.wiring.gcpsim).
 Figures:
 
 1. Seed configuration (code GPS; 111 control points, 97 of them on the border seen once, 96
@@ -20,7 +20,7 @@ Figures:
    correlations; then with an exact survey, without ties and DEM, and with more tie points.
 2. Time delay (phase GPS, 85 ms injected): estimated with the boresight known, estimated with
    it, estimated with it from two flights of different H/v adjusted together
-   (postproc.calib_flights), and the seed's sweep (seed 003 §5: ±100 ms, minimum RMS of the
+   (postproc.calibration.flights), and the seed's sweep (seed 003 §5: ±100 ms, minimum RMS of the
    control points).
 3. Antenna offset (phase GPS, the sensor file's offset 1.5 m short along track): per-strip GPS
    shifts alternate with the flying direction; the offset is then estimated.
@@ -41,30 +41,30 @@ from typing import Any
 import numpy as np
 
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
-from postproc.calib_data import GroundPoints, SegmentClock, read_ground_points
-from postproc.calib_flights import join_flights
-from postproc.calib_params import Group, parse_groups
-from postproc.calib_report import high_correlations, look_angles, parameter_rows
-from postproc.calibrate import (
+from postproc.calibration.adjust import (
     CalibrationInput,
     CalibrationOptions,
     CalibrationResult,
     calibrate,
     sweep_delay,
 )
-from postproc.dem import Dem
-from postproc.georef import merged_wanted
-from postproc.navigation import NAV_WANTED, nav_from_columns
-from postproc.sensorfile import SensorModel
-from postproc.sync import SyncResult, synchronise
-from postproc.synclog import WANTED as SYNC_WANTED
-from postproc.synclog import sync_input_from_columns
+from postproc.calibration.data import GroundPoints, SegmentClock, read_ground_points
+from postproc.calibration.flights import join_flights
+from postproc.calibration.params import Group, parse_groups
+from postproc.calibration.report import high_correlations, look_angles, parameter_rows
+from postproc.georef.dem import Dem
+from postproc.georef.job import merged_wanted
+from postproc.georef.navigation import NAV_WANTED, nav_from_columns
+from postproc.georef.sensorfile import SensorModel
+from postproc.sync.flightlog import WANTED as SYNC_WANTED
+from postproc.sync.flightlog import sync_input_from_columns
+from postproc.sync.pipeline import SyncResult, synchronise
 from recorder.reader import read_topics
 from sisa.commands.process import sensor_of
 from sisa.commands.scenario import scenario_toml
-from sisa.gcpsim import SimSettings, SimulatedObservations, simulate_observations
-from sisa.sensor import Mounting
-from sisa.simulation import simulate
+from sisa.core.sensor import Mounting
+from sisa.wiring.gcpsim import SimSettings, SimulatedObservations, simulate_observations
+from sisa.wiring.simulation import simulate
 
 # A second flight for the delay: the seed's Bellmunt block (659 m above ground, 426 km/h: H/v
 # 5.6 s against Garrotxa's 29.6 s) flown with the Garrotxa sensor (its Table 3 values), so that

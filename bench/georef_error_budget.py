@@ -1,5 +1,5 @@
 """Garrotxa error budget: how GPS code noise and INS attitude errors reach the ground at the
-check points. A Monte-Carlo through the real ray–DEM intersection (postproc.raycast) against the
+check points. A Monte-Carlo through the real ray–DEM intersection (postproc.georef.raycast) against the
 linear propagation of the scenario's stated error model, per component along track, across
 track and in height, in metres and pixels.
 
@@ -31,12 +31,12 @@ from pyproj import Transformer
 from emulators.render import camera_pose_ecef
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.dem import Dem
-from postproc.raycast import intersect
-from sisa.accuracy import check_points
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.gcpsim import TruthProjector, truth_segments
-from sisa.sensor import ARCSEC_RAD
+from postproc.georef.dem import Dem
+from postproc.georef.raycast import intersect
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.sensor import ARCSEC_RAD
+from sisa.wiring.accuracy import check_points
+from sisa.wiring.gcpsim import TruthProjector, truth_segments
 
 SEED_PX = {"along": 1.26, "across": 1.34, "height": 0.6}
 STEPS = np.array([0.05, 0.05, 0.05, 0.5 * ARCSEC_RAD, 0.5 * ARCSEC_RAD, 0.5 * ARCSEC_RAD])

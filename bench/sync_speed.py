@@ -7,7 +7,7 @@
 
 Speed: the log arrays of a flight of --hours are synthesised directly at full size (INS at 64 Hz,
 a 16 ms scanner over 300 s strips with 30 s turns, 1 Hz PPS gated by a 4-bit LFSR, 1 of 64 frames
-tagged), with the emulators' default clocks and noise, then `postproc.sync.synchronise` is timed
+tagged), with the emulators' default clocks and noise, then `postproc.sync.pipeline.synchronise` is timed
 (the core sync: reading the MCAP file is not included). Target: a 5-hour flight (~1.2 M INS
 records, ~1 M lines) in < 5 s with a peak of < 1 GB. The synthetic flight's own truth checks the
 result.
@@ -34,8 +34,8 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.lfsr import Lfsr
-from postproc.sync import SyncResult, read_sync_input, synchronise
-from postproc.synclog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
+from postproc.sync.flightlog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
+from postproc.sync.pipeline import SyncResult, read_sync_input, synchronise
 
 I64 = npt.NDArray[np.int64]
 NS = 1_000_000_000
@@ -186,7 +186,7 @@ def speed(hours: float) -> None:
 
 
 def accuracy(run: Path) -> None:
-    from postproc.syncio import read_scanner_lines
+    from postproc.sync.files import read_scanner_lines
 
     _with_tests()
     from tests.postproc.test_sync import accuracy_lines
@@ -214,7 +214,7 @@ def ensemble(count: int) -> None:
     import tempfile
 
     from emulators.scenario import scenario_from_table
-    from sisa.simulation import simulate
+    from sisa.wiring.simulation import simulate
 
     _with_tests()
     from tests.postproc.test_sync import (
@@ -249,7 +249,7 @@ def faults() -> None:
     import tempfile
 
     from emulators.scenario import scenario_from_table
-    from sisa.simulation import simulate
+    from sisa.wiring.simulation import simulate
 
     _with_tests()
     from tests.postproc.test_sync import (

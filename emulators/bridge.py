@@ -18,7 +18,7 @@ from acquisition.canspec import parse_can_spec
 from acquisition.pulses import Edge
 from emulators.ports import PtyPort, PulseEndpoint, SlcanAdapter
 from emulators.runtime import Output, Port
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -44,8 +44,8 @@ from emulators.runtime import Device, Output, Port
 from emulators.scenario import GpsSolution, Scenario
 from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.timescale import NS_PER_S
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.timescale import NS_PER_S
 
 PTT_LATENCY_NS = 25_000_000
 TTT_LATENCY_NS = 30_000_000

@@ -61,7 +61,7 @@ from emulators.runtime import Device, Output, Port
 from emulators.scenario import FaultProfile, InsSettings, Scenario
 from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.timescale import NS_PER_S, seconds_since
+from sisa.core.timescale import NS_PER_S, seconds_since
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

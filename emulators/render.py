@@ -38,8 +38,8 @@ from rasterio.errors import NotGeoreferencedWarning
 from emulators.scenario import ScannerSettings
 from emulators.terrain import Scene, Terrain, bilinear_at
 from emulators.trajectory import TrajectoryState
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.sensor import Mounting
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.sensor import Mounting
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]

@@ -40,7 +40,7 @@ from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.outdir import partial_path
+from sisa.core.outdir import partial_path
 
 I64 = npt.NDArray[np.int64]
 U16 = npt.NDArray[np.uint16]

@@ -22,21 +22,21 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
-from sisa.errors import ConfigError, one_line_text_problem
-from sisa.sensor import (
+from sisa.core.errors import ConfigError, one_line_text_problem
+from sisa.core.sensor import (
     Mounting,
     ScannerGeometry,
     StrictModel,
     first_non_finite,
     validation_text,
 )
-from sisa.timescale import parse_gps_datetime
+from sisa.core.timescale import parse_gps_datetime
 
 PRESETS = ("bench", "garrotxa", "bellmunt")
 
 # --- limits that keep every derived time, duration and array bounded -----------------------------
 
-# GPS time is int64 ns from the GPS epoch (sisa.timescale), so nothing can start before it (and
+# GPS time is int64 ns from the GPS epoch (sisa.core.timescale), so nothing can start before it (and
 # int64 would end in 2262). The binding upper limit is NMEA: RMC dates carry a two-digit year read
 # as 1980..2079 (acquisition/nmea.py, DateDdMmYy). A flight lasts at most MAX_FLIGHT_H, and UTC
 # runs behind GPS time, so a start before the last day of 2079 keeps every sentence datable.

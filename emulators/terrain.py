@@ -37,7 +37,7 @@ from scipy import fft as sfft
 from emulators.block import block_extent_en_m, block_figures, strip_lines
 from emulators.localplane import LocalPlane
 from emulators.scenario import Scenario
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]

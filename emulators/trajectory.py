@@ -4,7 +4,7 @@ Every emulator (GPS, INS, scanner) and every accuracy check samples this one mod
 self-consistent to far better than any sensor: velocity and acceleration are the exact
 derivatives of one position spline, and body rates the exact derivatives of one attitude spline.
 
-Construction (all float seconds are relative to the scenario start, `sisa.timescale`):
+Construction (all float seconds are relative to the scenario start, `sisa.core.timescale`):
 1. Plan the horizontal path in the block's local plane (`LocalPlane`) as lines and arcs with a
    speed profile: static alignment, take-off roll, straight climb-out, figure-eights, holding
    circles if the climb is not finished in time, a Dubins transit, then for each strip a run-in,
@@ -41,8 +41,8 @@ from emulators.scenario import (
     _PLAN_SMOOTHING_SIGMA_S,
     Scenario,
 )
-from sisa.frames import body_rates_from_euler_rates, ned_to_ecef_matrix
-from sisa.timescale import NS_PER_S, ns_from_seconds_since, seconds_since
+from sisa.core.frames import body_rates_from_euler_rates, ned_to_ecef_matrix
+from sisa.core.timescale import NS_PER_S, ns_from_seconds_since, seconds_since
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

@@ -17,7 +17,7 @@ from typing import IO, Any, Final
 
 import numpy as np
 
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 
 SPILL_ROWS: Final = 100_000  # rows held in memory per table before they go to a temporary file
 ROWS_MARK: Final = "# rows: "  # in the commented header: a table cut short is told by its count

@@ -82,7 +82,7 @@ from recorder.writer import (
     TOPIC_TYPES,
     part_path,
 )
-from sisa.errors import DecodeError, InputError, shown_text
+from sisa.core.errors import DecodeError, InputError, shown_text
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 DEFAULT_RECORD_SIZE_LIMIT: Final = 256 * 2**20  # our chunks are 64 KiB; 256 MiB is corruption

@@ -26,8 +26,8 @@ from recorder.writer import (
     link_new,
     refuse_existing,
 )
-from sisa.errors import InputError, RecorderError
-from sisa.outdir import partial_path
+from sisa.core.errors import InputError, RecorderError
+from sisa.core.outdir import partial_path
 
 
 @dataclass(frozen=True)

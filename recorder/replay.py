@@ -31,7 +31,7 @@ from typing import Any, Final
 
 from recorder.messages import CAN_EXTENDED_FLAG, Topic
 from recorder.reader import LogReader, LogStats, Paths
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 
 REORDER_WINDOW_NS: Final = 2_000_000_000  # a CAN batch is written ≤ ~0.3 s after its first frame
 PPM: Final = 1e-6

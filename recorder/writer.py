@@ -54,8 +54,8 @@ from recorder.messages import (
     Topic,
     json_schema,
 )
-from sisa.errors import ConfigError, EncodeError, InputError, RecorderError
-from sisa.outdir import partial_path
+from sisa.core.errors import ConfigError, EncodeError, InputError, RecorderError
+from sisa.core.outdir import partial_path
 
 RECORDER_ID: Final = f"sisa-recorder/{sisa.__version__}"
 MESSAGE_ENCODING: Final = "json"

@@ -19,7 +19,7 @@ from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
 from sisa.commands import warning_line
-from sisa.errors import InputError, SisaError
+from sisa.core.errors import InputError, SisaError
 
 Handler = Callable[[argparse.Namespace], int]
 

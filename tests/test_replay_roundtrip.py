@@ -7,7 +7,7 @@ log times) is the recorder's own and is ignored. Everything the devices said mus
 raw bytes per stream, every decoded message, the pulse edges on the timing board. So must the
 sync unit's log, except what depends on when the host looked: the instant a scanner-off switch was
 noticed (a tick or the next pulse), which header the filter matched by host latency (the frame
-counter itself must agree), the health windows. And the sync log (`postproc.sync.sync_log`) must
+counter itself must agree), the health windows. And the sync log (`postproc.sync.pipeline.sync_log`) must
 give every INS record and every line the same GPS time.
 
 The flight starts now (GPS time from the host clock): a receiver's first time tags come before
@@ -34,15 +34,15 @@ import numpy as np
 import pytest
 
 from emulators.scenario import scenario_from_table
-from postproc.sync import sync_log
+from postproc.sync.pipeline import sync_log
 from recorder.messages import FrameHeaderLog, RawBytes, StreamHealth, Topic
 from recorder.reader import read_log, read_messages
 from recorder.replay import Wire, iter_schedule
 from recorder.writer import FlightRecorder
 from sisa.cli import main
 from sisa.commands.scenario import scenario_toml
-from sisa.simulation import simulate
-from sisa.timescale import NS_PER_S, datetime_from_gps_ns, gps_ns_from_unix_ns
+from sisa.core.timescale import NS_PER_S, datetime_from_gps_ns, gps_ns_from_unix_ns
+from sisa.wiring.simulation import simulate
 
 RATE = 2.0
 SISA = [sys.executable, "-m", "sisa.cli"]

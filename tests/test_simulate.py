@@ -9,9 +9,9 @@ from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
 from recorder.messages import SyncForward, SyncModeSwitch, SyncPps, SyncSession, Topic
 from recorder.reader import read_columns, read_messages
-from sisa.acqconfig import acquisition_config
-from sisa.simulation import simulate
-from sisa.timescale import NS_PER_S
+from sisa.core.timescale import NS_PER_S
+from sisa.wiring.acqconfig import acquisition_config
+from sisa.wiring.simulation import simulate
 
 
 @pytest.fixture(scope="module")

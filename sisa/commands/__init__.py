@@ -10,8 +10,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.errors import InputError
-from sisa.outdir import name_taken
+from sisa.core.errors import InputError
+from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
@@ -144,7 +144,7 @@ def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
     """Written whole (a temporary file renamed), so a script polling for it never reads half."""
     import json
 
-    from sisa.outdir import partial_path
+    from sisa.core.outdir import partial_path
 
     tmp = partial_path(path)
     try:

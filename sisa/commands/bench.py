@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
 from sisa.commands.emulate import HELD_LINE, check_span
-from sisa.errors import InputError, SisaError
-from sisa.outdir import staged_output_dir
+from sisa.core.errors import InputError, SisaError
+from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.trajectory import TruthTrajectory
@@ -80,9 +80,9 @@ class Ended(NamedTuple):
 def _run(args: argparse.Namespace) -> int:
     from emulators.terrain import Terrain
     from emulators.trajectory import TruthTrajectory
-    from sisa.acqconfig import acquisition_config
     from sisa.commands.scenario import scenario_toml
-    from sisa.simulation import write_survey_data
+    from sisa.wiring.acqconfig import acquisition_config
+    from sisa.wiring.simulation import write_survey_data
 
     scn = scenario_from_args(args)
     traj = TruthTrajectory.from_scenario(scn)

@@ -21,8 +21,8 @@ from sisa.commands import (
     scenario_from_args,
     write_endpoints,
 )
-from sisa.errors import InputError
-from sisa.outdir import name_taken
+from sisa.core.errors import InputError
+from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario

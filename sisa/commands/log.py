@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, say_warning
-from sisa.errors import InputError, shown_text
+from sisa.core.errors import InputError, shown_text
 
 if TYPE_CHECKING:
     from recorder.reader import FileStats, Gap, LogStats

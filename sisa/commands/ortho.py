@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from sisa.commands import SubParsers, add_command, terminal_progress
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 
-# postproc.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL (a test checks)
+# postproc.products.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL (a test checks)
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
 
 
@@ -53,8 +53,14 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    from postproc.igm import EnviRaster, igm_epsg, igm_pixel_spacing_m
-    from postproc.ortho import OrthoGrid, SwathIndex, common_lines, nice_cell_m, orthorectify
+    from postproc.products.igm import EnviRaster, igm_epsg, igm_pixel_spacing_m
+    from postproc.products.ortho import (
+        OrthoGrid,
+        SwathIndex,
+        common_lines,
+        nice_cell_m,
+        orthorectify,
+    )
 
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff"):

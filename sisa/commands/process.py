@@ -18,12 +18,12 @@ from typing import TYPE_CHECKING, Any
 
 from sisa.commands import SubParsers, add_command, flight_parts, say_warning
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
-from sisa.errors import InputError
-from sisa.outdir import staged_output_dir
+from sisa.core.errors import InputError
+from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
-    from postproc.sensorfile import SensorModel
+    from postproc.georef.sensorfile import SensorModel
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -45,8 +45,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:
     """The sensor file a run's scenario implies (its true geometry and mounting, or the nominal
     ones)."""
-    from postproc.sensorfile import SensorModel
-    from sisa.sensor import Mounting, ScannerGeometry
+    from postproc.georef.sensorfile import SensorModel
+    from sisa.core.sensor import Mounting, ScannerGeometry
 
     geometry = ScannerGeometry(**{k: getattr(scn.scanner, k)
                                   for k in ScannerGeometry.model_fields})
@@ -90,9 +90,9 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from emulators.scenario import load_scenario
-    from postproc.jsonio import write_json
-    from postproc.report import write_report
-    from sisa.accuracy import run_accuracy
+    from postproc.georef.report import write_report
+    from sisa.core.jsonio import write_json
+    from sisa.wiring.accuracy import run_accuracy
 
     started = time.perf_counter()
     run: Path = args.run

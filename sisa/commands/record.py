@@ -20,8 +20,8 @@ from sisa.commands import (
     new_file_arg,
     scenario_from_args,
 )
-from sisa.errors import InputError, RecorderError
-from sisa.outdir import name_taken
+from sisa.core.errors import InputError, RecorderError
+from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -65,7 +65,7 @@ def _run(args: argparse.Namespace) -> int:
     from acquisition.live import LiveSources
     from acquisition.runner import Acquisition
     from recorder.writer import FlightRecorder
-    from sisa.acqconfig import acquisition_config, recording_settings
+    from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
     if not any((args.gps, args.scanner, args.ins, args.pulses)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
@@ -249,7 +249,7 @@ class _Status:
                           str(c.gaps), str(c.stats.errors), str(c.drops), str(c.deadline_misses),
                           f"{state} ({link.reconnects} reconnects)" if link.disconnects
                           else state)
-        from sisa.timescale import gps_time_label
+        from sisa.core.timescale import gps_time_label
 
         free_gb = shutil.disk_usage(self.out.parent).free / 1e9
         pps = self.acq.last_pps_gps_ns

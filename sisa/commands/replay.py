@@ -31,7 +31,7 @@ from sisa.commands import (
     flight_parts,
     write_endpoints,
 )
-from sisa.errors import ConfigError, InputError
+from sisa.core.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
     import can
@@ -355,7 +355,7 @@ class _Display:
     def show(self, t_log_ns: int, state: str) -> None:
         if self.progress is None or self.task is None:
             return
-        from sisa.timescale import datetime_from_gps_ns, gps_week_and_tow_ns
+        from sisa.core.timescale import datetime_from_gps_ns, gps_week_and_tow_ns
 
         t_gps = self.gps.gps_ns(t_log_ns)
         when = "GPS time unknown"

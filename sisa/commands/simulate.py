@@ -16,7 +16,7 @@ from sisa.commands import (
     check_seed,
     scenario_from_args,
 )
-from sisa.outdir import staged_output_dir
+from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
@@ -49,7 +49,7 @@ def error_free(scn: Scenario) -> Scenario:
 
 def _run(args: argparse.Namespace) -> int:
     from sisa.commands.scenario import scenario_toml
-    from sisa.simulation import simulate
+    from sisa.wiring.simulation import simulate
 
     scn = scenario_from_args(args)
     check_seed(args.seed)

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, say_warning
-from sisa.outdir import staged_output_dir
+from sisa.core.outdir import staged_output_dir
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -32,17 +32,17 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from postproc.sync import TimeStatus, synchronise
-    from postproc.syncio import (
+    from postproc.sync.files import (
         read_scanner_lines,
         unlisted_line_notes,
         write_ins_times,
         write_line_times,
         write_report,
     )
-    from postproc.synclog import WANTED as SYNC_WANTED
-    from postproc.synclog import sync_input_from_columns
-    from postproc.syncreport import no_ins_timed_note, untimed_lines_note
+    from postproc.sync.flightlog import WANTED as SYNC_WANTED
+    from postproc.sync.flightlog import sync_input_from_columns
+    from postproc.sync.pipeline import TimeStatus, synchronise
+    from postproc.sync.report import no_ins_timed_note, untimed_lines_note
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sisa.commands import add_command, add_scenario_args, scenario_from_args
-from sisa.outdir import staged_output_dir
+from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.trajectory import TruthTrajectory

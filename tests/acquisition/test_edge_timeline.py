@@ -8,8 +8,8 @@ from acquisition.pulses import Edge, PulseLine
 from acquisition.runner import Acquisition
 from emulators.scenario import load_scenario
 from recorder.messages import LoggedMessage, SyncSession, Topic
-from sisa.acqconfig import acquisition_config
-from sisa.timescale import NS_PER_S
+from sisa.core.timescale import NS_PER_S
+from sisa.wiring.acqconfig import acquisition_config
 
 T0_NS = 1_465_549_000 * NS_PER_S  # a whole GPS second
 HOST_OFFSET_NS = 315_964_800 * NS_PER_S - 18 * NS_PER_S  # host (Unix) clock of a GPS time

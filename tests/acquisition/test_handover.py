@@ -17,9 +17,9 @@ from acquisition.rereading import arrivals, raw_reads
 from acquisition.runner import Acquisition, AcquisitionConfig
 from emulators.scenario import load_scenario, scenario_from_table
 from recorder.messages import RawCanFrames, SyncForward, SyncModeSwitch, SyncSession
-from sisa.acqconfig import acquisition_config
-from sisa.simulation import simulate
-from sisa.timescale import NS_PER_S
+from sisa.core.timescale import NS_PER_S
+from sisa.wiring.acqconfig import acquisition_config
+from sisa.wiring.simulation import simulate
 
 TICK_NS = 100_000_000
 Step = Arrival | int  # an int: the loop's clock tick at that host time

@@ -49,9 +49,9 @@ from emulators.scenario import load_scenario
 from recorder.messages import StreamHealth, Topic
 from recorder.reader import read_columns, read_messages
 from recorder.writer import FlightRecorder
-from sisa.acqconfig import acquisition_config
-from sisa.nmea import checksum
-from sisa.timescale import NS_PER_S, gps_ns_from_unix_ns
+from sisa.core.nmea import checksum
+from sisa.core.timescale import NS_PER_S, gps_ns_from_unix_ns
+from sisa.wiring.acqconfig import acquisition_config
 
 ROOT = Path(__file__).resolve().parents[2]
 LEAP_S = 18

@@ -31,7 +31,7 @@ from acquisition.ins_can import (
     frames_from_raw,
     record_bus_load,
 )
-from sisa.errors import DecodeError, EncodeError
+from sisa.core.errors import DecodeError, EncodeError
 
 FAST = settings(max_examples=60, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

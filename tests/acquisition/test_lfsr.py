@@ -3,7 +3,7 @@ import itertools
 import pytest
 
 from acquisition.lfsr import MAXIMAL_TAPS, Lfsr, default_taps, is_maximal
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 
 def _brute_force_states(bits, taps, state=1):

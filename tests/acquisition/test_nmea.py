@@ -42,8 +42,8 @@ from acquisition.nmea import (
     ttt_from_gps_ns,
     zda_from_gps_ns,
 )
-from sisa.errors import DecodeError
-from sisa.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK, parse_gps_datetime
+from sisa.core.errors import DecodeError
+from sisa.core.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK, parse_gps_datetime
 
 LEAP_1998_S = 12
 FLIGHT = parse_gps_datetime("1998-07-23T08:15:30")

@@ -21,7 +21,7 @@ from acquisition.scanner_header import (
     crc16_ccitt_false,
     encode_header,
 )
-from sisa.errors import DecodeError, EncodeError
+from sisa.core.errors import DecodeError, EncodeError
 
 FAST = settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

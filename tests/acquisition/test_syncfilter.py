@@ -29,7 +29,7 @@ from acquisition.syncfilter import (
     SyncFilterConfig,
 )
 from recorder.messages import SyncForward, SyncModeSwitch, SyncPps, SyncSession
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 MS = 1_000_000
 S = 1_000_000_000

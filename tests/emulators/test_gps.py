@@ -21,8 +21,8 @@ from emulators.ports import PtyPort
 from emulators.runtime import Device, Output, Port, Runner
 from emulators.scenario import scenario_from_table
 from emulators.trajectory import TruthTrajectory
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.timescale import NS_PER_S, NS_PER_WEEK, utc_datetime_from_gps_ns
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.timescale import NS_PER_S, NS_PER_WEEK, utc_datetime_from_gps_ns
 
 
 class EventSource(Device):

@@ -34,7 +34,7 @@ from emulators.runtime import Device, Output, Port, Runner
 from emulators.scenario import Scenario, scenario_from_table
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.timescale import NS_PER_S, seconds_since
+from sisa.core.timescale import NS_PER_S, seconds_since
 
 ATTITUDE_LSB_RAD = 1e-7
 ZERO_ERRORS = {"attitude_bias_arcsec": [0.0, 0.0, 0.0],

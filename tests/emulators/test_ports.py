@@ -95,7 +95,7 @@ def test_can_target_refuses_udp_multicast_and_bad_forms():
     import pytest
 
     from emulators.bridge import CanTarget
-    from sisa.errors import ConfigError
+    from sisa.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="loopback"):
         CanTarget.parse("udp_multicast:224.0.0.1")

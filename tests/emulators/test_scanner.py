@@ -36,7 +36,7 @@ from emulators.scenario import Scenario, load_scenario, scenario_from_table
 from emulators.terrain import Scene, Terrain, band_centres_nm
 from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.frames import ned_to_ecef_matrix
+from sisa.core.frames import ned_to_ecef_matrix
 
 SHORT = {"block": {"strip_length_m": 600.0}}  # two 10 s strips: 625 lines each
 # A raw scanner recording has no georeferencing, and GDAL says so when it opens one.

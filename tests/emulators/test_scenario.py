@@ -6,7 +6,7 @@ import pytest
 
 from emulators.block import block_extent_en_m, block_figures, strip_lines
 from emulators.scenario import PRESETS, FaultProfile, load_scenario, scenario_from_table
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 
 @pytest.mark.parametrize("name", PRESETS)

@@ -27,7 +27,7 @@ from emulators.scenario import (
 )
 from emulators.terrain import _dem_bounds_utm
 from sisa.cli import main
-from sisa.errors import ConfigError
+from sisa.core.errors import ConfigError
 
 # (TOML body after `base = "bench"`, text the one-line error must hold)
 BAD = {

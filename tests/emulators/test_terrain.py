@@ -412,7 +412,7 @@ def test_ground_targets_wider_than_the_block_are_a_config_error() -> None:
     numpy 'high - low < 0' traceback from `sisa truth` and `sisa simulate`."""
     from emulators.scenario import scenario_from_table
     from emulators.terrain import Terrain, ground_points
-    from sisa.errors import ConfigError
+    from sisa.core.errors import ConfigError
 
     scn = scenario_from_table({"base": "bench", "terrain": {"texture_cell_m": 100.0}})
     with pytest.raises(ConfigError, match="ground points need"):

@@ -24,7 +24,7 @@ from emulators.trajectory import (
     _dubins,
     _Pose,
 )
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 
 H_NS = 1_000_000  # 1 ms finite-difference step
 CALM = {"turbulence_attitude_deg": 0.0, "turbulence_height_m": 0.0}

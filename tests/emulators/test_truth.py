@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from emulators.truth import TruthTable, read_truth_csv
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 
 
 def _table(spill_rows: int) -> TruthTable:

@@ -52,8 +52,8 @@ from acquisition.scanner_header import (
     ScannerMode,
     encode_header,
 )
-from sisa.errors import DecodeError
-from sisa.timescale import parse_gps_datetime
+from sisa.core.errors import DecodeError
+from sisa.core.timescale import parse_gps_datetime
 from tests.fuzz import Fuzzer, Tally, ci_settings, run_fuzzer
 
 T2000 = parse_gps_datetime("2000-01-01T00:00:00")

@@ -37,12 +37,12 @@ import tomli_w
 from hypothesis import strategies as st
 
 from emulators.scenario import PRESETS, Scenario, load_scenario
-from postproc.sensorfile import SensorModel
+from postproc.georef.sensorfile import SensorModel
 from recorder.messages import InsRecordLog
 from recorder.reader import LogReader, read_log, read_messages, read_topics, scan_log
 from recorder.recover import recover
 from recorder.writer import FlightRecorder
-from sisa.errors import ConfigError, InputError, SisaError
+from sisa.core.errors import ConfigError, InputError, SisaError
 from tests.fuzz import CORPUS, Fuzzer, ci_settings, run_fuzzer, time_limit
 from tests.fuzz.test_fuzz_codecs import NMEA, PULSES, SCANNER, check_any_bytes, check_can_frames
 from tests.recorder import T0_NS, sample_messages
@@ -223,8 +223,8 @@ def data_is_mcap(data: bytes) -> bool:
 
 
 def _sync_columns(path: Path) -> Any:
-    """What time synchronisation reads from a log (postproc.synclog.WANTED), streaming."""
-    from postproc.synclog import WANTED
+    """What time synchronisation reads from a log (postproc.sync.flightlog.WANTED), streaming."""
+    from postproc.sync.flightlog import WANTED
 
     return read_topics(path, WANTED)
 

@@ -1,4 +1,4 @@
-"""Bad calibration inputs (postproc.calib_data, calib_setup): every one a one-line InputError
+"""Bad calibration inputs (postproc.calibration.data, calib_setup): every one a one-line InputError
 naming the file, the row and the field, numbers short (:g), and no numpy warning on the way."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from postproc.calib_data import ImageObservations, read_ground_points, read_observations
-from postproc.calib_setup import Notes, check_sensor_fits
-from postproc.sensorfile import SensorModel
-from sisa.errors import InputError
+from postproc.calibration.data import ImageObservations, read_ground_points, read_observations
+from postproc.calibration.setup import Notes, check_sensor_fits
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.errors import InputError
 
 POINTS = "id,kind,lat_deg,lon_deg,height_m\nA,control,41.6,2.0,300.0\n"
 OBS = "id,segment,line,pixel,sigma_px\nA,0,10.5,100.25,0.3\n"
@@ -150,9 +150,9 @@ def test_an_adjustment_gone_astray_is_no_sensor_file() -> None:
     """The calibrated sensor file is checked as one is read: a boresight beyond 180° or a
     focal length gone below zero was written (or a pydantic traceback) for `sisa georef` to
     refuse later."""
-    from postproc.calib_params import base_state
-    from postproc.calibrate import calibrated_sensor
-    from postproc.sensorfile import SensorModel
+    from postproc.calibration.adjust import calibrated_sensor
+    from postproc.calibration.params import base_state
+    from postproc.georef.sensorfile import SensorModel
 
     sensor = SensorModel(name="CASI")
     st = base_state(sensor, 1)

@@ -1,4 +1,4 @@
-"""Calibration adjustment (postproc.calibrate) on a synthetic block with its own forward model.
+"""Calibration adjustment (postproc.calibration.adjust) on a synthetic block with its own forward model.
 
 The block here is built independently of the emulators and of postproc's model: straight
 strips at constant speed over a tangent plane, wavy attitude, points on a bilinear DEM, and a
@@ -20,7 +20,13 @@ import numpy.typing as npt
 import pytest
 from pyproj import Transformer
 
-from postproc.calib_data import (
+from postproc.calibration.adjust import (
+    CalibrationInput,
+    CalibrationOptions,
+    calibrate,
+    sweep_delay,
+)
+from postproc.calibration.data import (
     GroundPoints,
     ImageObservations,
     SegmentClock,
@@ -28,21 +34,15 @@ from postproc.calib_data import (
     read_observations,
     write_observations,
 )
-from postproc.calib_flights import join_flights
-from postproc.calib_model import boresight_matrix, rot_xyz
-from postproc.calib_params import Group, PriorSigmas, parse_groups
-from postproc.calib_report import load_check, report_json, sensor_toml
-from postproc.calibrate import (
-    CalibrationInput,
-    CalibrationOptions,
-    calibrate,
-    sweep_delay,
-)
-from postproc.dem import Dem
-from postproc.navigation import Pose
-from postproc.sensorfile import SensorModel
-from sisa.errors import ConfigError, InputError
-from sisa.sensor import Mounting, ScannerGeometry, rot_x, rot_y, rot_z
+from postproc.calibration.flights import join_flights
+from postproc.calibration.model import boresight_matrix, rot_xyz
+from postproc.calibration.params import Group, PriorSigmas, parse_groups
+from postproc.calibration.report import load_check, report_json, sensor_toml
+from postproc.georef.dem import Dem
+from postproc.georef.navigation import Pose
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.errors import ConfigError, InputError
+from sisa.core.sensor import Mounting, ScannerGeometry, rot_x, rot_y, rot_z
 
 AS = math.pi / (180 * 3600)
 LAT0, LON0, H_GROUND = 42.15, 2.50, 500.0
@@ -345,7 +345,7 @@ def test_model_puts_a_point_right_of_track_below_the_centre_pixel() -> None:
                             np.array([pixel, pixel]), np.array([0.3, 0.3]))
     clock = SegmentClock({0: block.t0[0] + np.arange(block.lines(), dtype=np.int64)
                           * block.period_ns})
-    from postproc.calibrate import build
+    from postproc.calibration.adjust import build
 
     adj = build(CalibrationInput(NavTrajectory(block), clock, pts, obs, nominal_sensor()),
                 CalibrationOptions(groups=(Group.DELAY,)))

@@ -1,4 +1,4 @@
-"""postproc.dem: reading GeoTIFF DEMs, checked against rasterio/GDAL (cell centres, windows,
+"""postproc.georef.dem: reading GeoTIFF DEMs, checked against rasterio/GDAL (cell centres, windows,
 masks), pyproj (geoid sampling) and the emulator's own terrain sampler."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from rasterio.windows import from_bounds
 
 from emulators.scenario import load_scenario
 from emulators.terrain import Terrain
-from postproc.dem import Dem, DemVoidWarning, band_note
-from sisa.errors import InputError
+from postproc.georef.dem import Dem, DemVoidWarning, band_note
+from sisa.core.errors import InputError
 
 UTM31N = 32631
 

@@ -19,14 +19,14 @@ from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
-from postproc import dem as dem_module
-from postproc import raycast
-from postproc.dem import Dem, DemVoidWarning, dem_extent, height_range
-from postproc.raycast import CastStats, GroundPoints, intersect, reference_intersect
+from postproc.georef import dem as dem_module
+from postproc.georef import raycast
+from postproc.georef.dem import Dem, DemVoidWarning, dem_extent, height_range
+from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
 from sisa.cli import main
-from sisa.errors import InputError
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.sensor import R_NOMINAL_C_TO_B
+from sisa.core.errors import InputError
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.sensor import R_NOMINAL_C_TO_B
 
 F64 = npt.NDArray[np.float64]
 UTM31N = 32631

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from emulators.scanner import BilSegmentWriter
-from postproc.igm import EnviRaster, HeaderBehindWarning
-from postproc.ortho import GltWriter, OrthoGrid
-from sisa.errors import InputError
+from postproc.products.igm import EnviRaster, HeaderBehindWarning
+from postproc.products.ortho import GltWriter, OrthoGrid
+from sisa.core.errors import InputError
 from tests.postproc.test_igm import EPSG, synthetic_strip, write_igm, write_raw
 
 LINES, PIXELS, BANDS = 40, 9, 4  # write_raw's uint16 image: 72 bytes a line

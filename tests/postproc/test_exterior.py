@@ -1,4 +1,4 @@
-"""Exterior orientation per scan line (postproc.exterior) against hand-worked cases and
+"""Exterior orientation per scan line (postproc.georef.exterior) against hand-worked cases and
 independent rotations (scipy's Euler sequences, closed-form WGS84), and its CSV table."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import numpy.typing as npt
 import pytest
 from scipy.spatial.transform import Rotation
 
-from postproc.exterior import exterior_orientation, write_eo_csv
-from postproc.navigation import Pose, nav_from_columns
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.sensor import Mounting
-from sisa.timescale import NS_PER_S
+from postproc.georef.exterior import exterior_orientation, write_eo_csv
+from postproc.georef.navigation import Pose, nav_from_columns
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.sensor import Mounting
+from sisa.core.timescale import NS_PER_S
 from tests.postproc.test_navigation import (
     G_B,
     H0,

@@ -13,11 +13,11 @@ from typing import Any
 
 import pytest
 
-import postproc.georef as georef_module
-from postproc import raycast
-from postproc.georef import GeorefJob, GeorefOptions
-from postproc.sensorfile import SensorModel
-from sisa.errors import InputError
+import postproc.georef.job as georef_module
+from postproc.georef import raycast
+from postproc.georef.job import GeorefJob, GeorefOptions
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.errors import InputError
 from tests.postproc.test_trajectory_coverage import (  # noqa: F401 (its fixture, by name)
     run as coverage_run,
 )

@@ -24,15 +24,15 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.dem import Dem
-from postproc.georef import (
+from postproc.georef.dem import Dem
+from postproc.georef.job import (
     GeorefJob,
     GeorefOptions,
     SegmentResult,
     SwathOnDem,
 )
-from postproc.sensorfile import SensorModel
-from sisa.errors import InputError
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.errors import InputError
 from tests.postproc.test_georef_dem_cover import BOUNDS, georef, seven_run, warned
 
 __all__ = ["seven_run"]  # the run's fixture, simulated once per session

@@ -16,7 +16,7 @@ import rasterio
 from pyproj import CRS
 from rasterio.errors import NotGeoreferencedWarning
 
-from postproc.igm import (
+from postproc.products.igm import (
     IGM_BAND_NAMES,
     EnviRaster,
     IgmWriter,
@@ -25,8 +25,8 @@ from postproc.igm import (
     replace_file,
     write_geolocation_vrt,
 )
-from postproc.ortho import OrthoGrid
-from sisa.errors import InputError
+from postproc.products.ortho import OrthoGrid
+from sisa.core.errors import InputError
 
 EPSG = 32631  # UTM 31N (Garrotxa, Bellmunt)
 GDALWARP = shutil.which("gdalwarp")

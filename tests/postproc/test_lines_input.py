@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from postproc.syncio import read_scanner_lines
-from sisa.errors import InputError
+from postproc.sync.files import read_scanner_lines
+from sisa.core.errors import InputError
 
 LINES_CSV = "# the scanner's record\nline_index,frame_counter\n0,7\n1,8\n2,9\n"
 NAME = "segment_000.lines.csv"

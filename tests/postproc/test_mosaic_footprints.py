@@ -13,12 +13,12 @@ from pyproj import Geod, Transformer
 from rasterio.errors import NotGeoreferencedWarning
 from scipy.spatial import cKDTree
 
-from postproc.footprints import footprint_feature, write_footprints_geojson
-from postproc.igm import igm_bounds
-from postproc.mosaic import mosaic
-from postproc.ortho import OrthoGrid, orthorectify
-from postproc.quicklook import rgb_bands, write_quicklook
-from sisa.errors import InputError
+from postproc.products.footprints import footprint_feature, write_footprints_geojson
+from postproc.products.igm import igm_bounds
+from postproc.products.mosaic import mosaic
+from postproc.products.ortho import OrthoGrid, orthorectify
+from postproc.products.quicklook import rgb_bands, write_quicklook
+from sisa.core.errors import InputError
 from tests.postproc.test_igm import EPSG, Strip, synthetic_strip, write_igm, write_raw
 
 PIXELS = 64

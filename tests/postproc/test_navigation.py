@@ -1,4 +1,4 @@
-"""The navigation solution (postproc.navigation) against an analytic flight and a simulated run.
+"""The navigation solution (postproc.georef.navigation) against an analytic flight and a simulated run.
 
 The synthetic flight (`Synthetic`) is written here, independently of the emulators: a straight
 strip, then a serpentine of ±30° course swings, with attitude and height turbulence, heading
@@ -21,7 +21,7 @@ from pyproj import Transformer
 from emulators.scenario import Scenario, load_scenario
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
-from postproc.navigation import (
+from postproc.georef.navigation import (
     ALIGNING_BIT,
     NAV_WANTED,
     NAVIGATING_BIT,
@@ -30,15 +30,15 @@ from postproc.navigation import (
     nav_from_columns,
     nav_from_log,
 )
-from postproc.sync import InsTimes, SyncResult, synchronise
-from postproc.syncconfig import TimeStatus
-from postproc.synclog import WANTED as SYNC_WANTED
-from postproc.synclog import sync_input_from_columns
+from postproc.sync.config import TimeStatus
+from postproc.sync.flightlog import WANTED as SYNC_WANTED
+from postproc.sync.flightlog import sync_input_from_columns
+from postproc.sync.pipeline import InsTimes, SyncResult, synchronise
 from recorder.messages import Topic
 from recorder.reader import read_topics
-from sisa.errors import ConfigError, InputError
-from sisa.frames import body_to_ned_matrix, euler_from_body_to_ned, ned_to_ecef_matrix
-from sisa.timescale import NS_PER_S, parse_gps_datetime
+from sisa.core.errors import ConfigError, InputError
+from sisa.core.frames import body_to_ned_matrix, euler_from_body_to_ned, ned_to_ecef_matrix
+from sisa.core.timescale import NS_PER_S, parse_gps_datetime
 
 MM = 1e-3
 ARCSEC = math.pi / (180 * 3600)
@@ -410,7 +410,7 @@ velocity_noise_mps = 0.0
 @pytest.fixture(scope="module")
 def error_free_run(tmp_path_factory: pytest.TempPathFactory
                    ) -> tuple[Scenario, Path, dict[str, Any], SyncResult]:
-    from sisa.simulation import simulate
+    from sisa.wiring.simulation import simulate
 
     work = tmp_path_factory.mktemp("nav_error_free")
     toml = work / "error_free.toml"

@@ -18,10 +18,10 @@ import pytest
 import rasterio
 from scipy.spatial import cKDTree
 
-import postproc.ortho as ortho
-from postproc.igm import CutShortWarning, EnviRaster, open_igm
-from postproc.ortho import OrthoGrid, SwathIndex, orthorectify
-from sisa.errors import InputError
+import postproc.products.ortho as ortho
+from postproc.products.igm import CutShortWarning, EnviRaster, open_igm
+from postproc.products.ortho import OrthoGrid, SwathIndex, orthorectify
+from sisa.core.errors import InputError
 from tests.postproc.test_igm import (
     EPSG,
     WAVELENGTHS_NM,
@@ -414,7 +414,7 @@ def test_the_ortho_starts_without_numba() -> None:
     import subprocess
     import sys
 
-    got = subprocess.run([sys.executable, "-c", "import sys, postproc.ortho; "
+    got = subprocess.run([sys.executable, "-c", "import sys, postproc.products.ortho; "
                           "print(sorted(m for m in sys.modules if m.split('.')[0] == 'numba'))"],
                          capture_output=True, text=True, check=True)
     assert got.stdout.strip() == "[]"

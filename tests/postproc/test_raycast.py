@@ -1,4 +1,4 @@
-"""postproc.raycast: the fast ray–DEM intersection against independent oracles — its own slow
+"""postproc.georef.raycast: the fast ray–DEM intersection against independent oracles — its own slow
 reference (pyproj at every point), the emulator's forward model (emulators.render), and
 hand-worked cases — on the bench terrain and on a synthetic steep DEM with cliffs and a narrow
 ridge that occludes rays."""
@@ -15,10 +15,10 @@ from pyproj import Transformer
 from emulators.render import exact_ground_point
 from emulators.scenario import load_scenario
 from emulators.terrain import Terrain
-from postproc.dem import Dem
-from postproc.raycast import CastStats, GroundPoints, intersect, reference_intersect
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
+from postproc.georef.dem import Dem
+from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 
 F64 = npt.NDArray[np.float64]
 UTM31N = 32631

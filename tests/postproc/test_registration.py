@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import rasterio
 
-from postproc.registration import register_strips, tile_shift
+from postproc.georef.registration import register_strips, tile_shift
 from tests.postproc.test_dem import north_up
 
 

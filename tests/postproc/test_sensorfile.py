@@ -2,9 +2,9 @@
 
 import pytest
 
-from postproc.sensorfile import SensorModel
-from sisa.errors import InputError
-from sisa.sensor import Mounting, ScannerGeometry
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.errors import InputError
+from sisa.core.sensor import Mounting, ScannerGeometry
 
 
 def test_round_trip_keeps_every_value(tmp_path):

@@ -1,4 +1,4 @@
-"""Time synchronisation (postproc.sync, `sisa sync`): every INS record and every scan line in
+"""Time synchronisation (postproc.sync.pipeline, `sisa sync`): every INS record and every scan line in
 GPS time, checked against the simulation truth (tests may read it; postproc never does) and
 against the noise model, plus unit tests of each stage on hand-made inputs.
 
@@ -26,16 +26,17 @@ from acquisition.scanner_header import BODY as HEADER_BODY
 from acquisition.syncfilter import GATE_DELAY_NS as BOX_GATE_DELAY_NS
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
 from emulators.truth import read_truth_csv
-from postproc import insclock, lines, pulses, syncio
-from postproc.clockmap import ptt_of_seconds
-from postproc.insclock import PieceStart, ins_timeline
-from postproc.linefit import prediction_rms, robust_line
-from postproc.pattern import PatternConfig, match_blocks, score_shifts
-from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
-from postproc.syncio import read_scanner_lines
-from postproc.synclog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
-from sisa.errors import InputError
-from sisa.simulation import simulate
+from postproc.sync import files as syncio
+from postproc.sync import insclock, lines, pulses
+from postproc.sync.clockmap import ptt_of_seconds
+from postproc.sync.files import read_scanner_lines
+from postproc.sync.flightlog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
+from postproc.sync.insclock import PieceStart, ins_timeline
+from postproc.sync.linefit import prediction_rms, robust_line
+from postproc.sync.pattern import PatternConfig, match_blocks, score_shifts
+from postproc.sync.pipeline import SyncResult, TimeStatus, read_sync_input, synchronise
+from sisa.core.errors import InputError
+from sisa.wiring.simulation import simulate
 from tests.recorder import overwrite_middle
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -27,13 +27,13 @@ import pytest
 from acquisition.nmea import FixQuality, encode, gga_from_fix, ptt_from_gps_ns, zda_from_gps_ns
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.navigation import ecef_to_geodetic
-from postproc.trajfiles import read_trajectory_file, sbet_trajectory
+from postproc.georef.navigation import ecef_to_geodetic
+from postproc.georef.trajfiles import read_trajectory_file, sbet_trajectory
 from recorder.messages import Topic
 from sisa.cli import main
-from sisa.errors import InputError
-from sisa.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK
+from sisa.core.errors import InputError
+from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.core.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK
 from tests.postproc import simulated_once
 from tests.postproc.test_navigation import G_B, SYN, T0_NS
 from tests.postproc.test_trajfiles import T_POS, antenna_llh, write_pos, write_sbet
@@ -248,7 +248,7 @@ def test_image_cut_mid_line_georeferences_its_whole_lines(
     """A segment image shorter than its header (a copy interrupted): the job no longer fails
     whole; the lines before the cut are georeferenced as from the intact file, the rest are
     named in one warning (stderr and summary)."""
-    from postproc.igm import EnviRaster
+    from postproc.products.igm import EnviRaster
 
     scanner = tmp_path / "scanner"
     scanner.mkdir()
@@ -364,14 +364,14 @@ def _nmea_columns(leap_s: int, host_offset_ns: int, seconds: int = 40,
 @pytest.mark.parametrize(("leap_s", "host_offset_ns"), [(18, 0), (18, 3_700_000_000),
                                                         (13, -250_000_000), (0, 0)])
 def test_leap_seconds_read_from_the_receivers_messages(leap_s: int, host_offset_ns: int) -> None:
-    from postproc.trajfiles import leap_seconds_from_log
+    from postproc.georef.trajfiles import leap_seconds_from_log
 
     assert leap_seconds_from_log(_nmea_columns(leap_s, host_offset_ns)) == leap_s
     assert leap_seconds_from_log(_nmea_columns(leap_s, host_offset_ns, zda=False)) == leap_s
 
 
 def test_leap_seconds_unknown_without_the_receivers_messages() -> None:
-    from postproc.trajfiles import leap_seconds_from_log
+    from postproc.georef.trajfiles import leap_seconds_from_log
 
     assert leap_seconds_from_log({}) is None
     cols = _nmea_columns(18, 0, seconds=2)  # too few to tell

@@ -1,4 +1,4 @@
-"""External trajectories (postproc.trajfiles): real files of both formats written here, read
+"""External trajectories (postproc.georef.trajfiles): real files of both formats written here, read
 back, and compared with values computed independently (closed-form WGS84, calendar arithmetic,
 the analytic flight of test_navigation).
 
@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from postproc.navigation import PiecewiseTrajectory
-from postproc.trajfiles import (
+from postproc.georef.navigation import PiecewiseTrajectory
+from postproc.georef.trajfiles import (
     PartialRecordWarning,
     read_rtklib_pos,
     read_sbet,
@@ -27,9 +27,9 @@ from postproc.trajfiles import (
     sbet_trajectory,
 )
 from recorder.messages import Topic
-from sisa.errors import InputError
-from sisa.frames import euler_from_body_to_ned
-from sisa.timescale import NS_PER_S
+from sisa.core.errors import InputError
+from sisa.core.frames import euler_from_body_to_ned
+from sisa.core.timescale import NS_PER_S
 from tests.postproc.test_navigation import (
     ARCSEC,
     ATT_TOL_RAD,

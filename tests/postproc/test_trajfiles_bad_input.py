@@ -1,4 +1,4 @@
-"""Bad trajectory files (postproc.trajfiles) found by a bad-input sweep of `sisa georef
+"""Bad trajectory files (postproc.georef.trajfiles) found by a bad-input sweep of `sisa georef
 --trajectory`: each is one clear line (file, line or record, field), never a traceback, a
 misplaced blame or a silently wrong IGM.
 
@@ -21,9 +21,9 @@ import pytest
 
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.trajfiles import read_rtklib_pos, read_sbet, read_trajectory_file
-from sisa.errors import InputError
-from sisa.timescale import NS_PER_S
+from postproc.georef.trajfiles import read_rtklib_pos, read_sbet, read_trajectory_file
+from sisa.core.errors import InputError
+from sisa.core.timescale import NS_PER_S
 from tests.postproc.test_navigation import G_B, SYN, T0_NS, wgs84_ecef
 from tests.postproc.test_trajectory_coverage import (
     _antenna,

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from recorder.messages import GpsFix, InsRecordLog
 from recorder.writer import FlightRecorder
-from sisa.errors import RecorderError
+from sisa.core.errors import RecorderError
 
 
 def ins(t_ns: int, i: int) -> InsRecordLog:

@@ -19,7 +19,7 @@ from recorder.reader import read_columns, read_log, scan_log
 from recorder.recover import recover
 from recorder.writer import FlightRecorder
 from sisa.cli import main
-from sisa.errors import RecorderError
+from sisa.core.errors import RecorderError
 from tests.recorder.crash_child import fix, ins, kill_many
 from tests.recorder.fakedisk import Disk
 

@@ -28,7 +28,7 @@ from recorder.messages import Topic
 from recorder.reader import read_columns, scan_log
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
-from sisa.errors import RecorderError
+from sisa.core.errors import RecorderError
 from tests.recorder.crash_child import fix, ins
 from tests.recorder.fakedisk import Disk
 

@@ -3,7 +3,7 @@ finishing (writing the summary, closing), at random moments and at exact steps (
 k-th file of a split set is created, at the k-th fsync).
 
 Every file left must be readable by `sisa log info` (alone and as a set), by `sisa log recover`
-and by the post-processor's reader (`postproc.synclog.read_sync_input`); every part but the last
+and by the post-processor's reader (`postproc.sync.flightlog.read_sync_input`); every part but the last
 must be complete; the per-topic sequence runs on across parts without a gap; and the messages
 kept reach to within 1.5 s of the kill.
 
@@ -204,7 +204,7 @@ def run_batch(folder: Path, plans: list[Plan], seed: int) -> list[Killed]:
 
 def check_killed(run: Killed, scratch: Path, capsys: pytest.CaptureFixture[str]) -> float:
     """Every check on one killed recording; returns the loss before the kill in seconds."""
-    from postproc.synclog import read_sync_input
+    from postproc.sync.flightlog import read_sync_input
     from recorder.reader import scan_log
     from recorder.writer import split_parts
     from sisa.cli import main

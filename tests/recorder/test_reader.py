@@ -14,7 +14,7 @@ from recorder.messages import GpsFix, InsRecordLog, PulseEdgeLog, RawBytes, Topi
 from recorder.reader import DamagedLogWarning, LogReader, read_columns, read_log, scan_log
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 from tests.recorder import T0_NS, sample_messages, write_sample_log
 from tests.recorder.crash_child import kill_many
 

@@ -36,7 +36,7 @@ from recorder.replay import (
     survey_log,
 )
 from recorder.writer import FlightRecorder, split_parts
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 from tests.recorder import T0_NS
 
 MS = 1_000_000

@@ -28,7 +28,7 @@ from recorder.recover import recover
 from recorder.writer import FlightRecorder, part_path, split_parts
 from sisa.cli import main
 from sisa.commands import flight_parts
-from sisa.errors import InputError
+from sisa.core.errors import InputError
 from tests.recorder import T0_NS
 
 STEP_NS = 10_000_000  # one message every 10 ms

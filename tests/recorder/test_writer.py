@@ -34,7 +34,7 @@ from recorder.writer import (
     split_parts,
     topics_markdown,
 )
-from sisa.errors import ConfigError, EncodeError, InputError
+from sisa.core.errors import ConfigError, EncodeError, InputError
 from tests.recorder import T0_NS, sample_messages, write_sample_log
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "flight-log.md"

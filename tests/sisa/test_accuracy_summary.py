@@ -7,8 +7,8 @@ import json
 
 import numpy as np
 
-from postproc.jsonio import write_json
-from sisa.accuracy import CheckPoint, check_point_summary
+from sisa.core.jsonio import write_json
+from sisa.wiring.accuracy import CheckPoint, check_point_summary
 
 
 def _point(pid: str, err_m: list[float]) -> CheckPoint:

@@ -278,8 +278,8 @@ def test_record_status_names_the_file_as_shown_and_counts_disk_where_it_is(monke
 
     from acquisition.runner import Acquisition
     from emulators.scenario import load_scenario
-    from sisa.acqconfig import acquisition_config
     from sisa.commands.record import _Status
+    from sisa.wiring.acqconfig import acquisition_config
 
     acq = Acquisition(acquisition_config(load_scenario("bench")), lambda _m, _t: None,
                       lambda _e: None)
@@ -323,8 +323,8 @@ def test_own_warnings_are_one_line_and_others_keep_their_form(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The console script says SISA's warnings as it says its errors; a library's warning
     keeps Python's form (file, line, category) so it can be traced."""
-    from postproc.dem import DemVoidWarning
-    from postproc.trajfiles import PartialRecordWarning
+    from postproc.georef.dem import DemVoidWarning
+    from postproc.georef.trajfiles import PartialRecordWarning
     from sisa.cli import _one_line_warning
 
     for category in (PartialRecordWarning, DemVoidWarning):
@@ -359,7 +359,7 @@ def test_a_warning_during_a_command_is_named_by_the_command(monkeypatch, capsys)
     (noticed in a bad-input sweep); after the command, a warning is the toolkit's again."""
     import warnings
 
-    from postproc.dem import DemVoidWarning
+    from postproc.georef.dem import DemVoidWarning
     from sisa import cli
     from sisa.commands import scenario
 

@@ -3,7 +3,7 @@
 import numpy as np
 from pyproj import Transformer
 
-from sisa.frames import (
+from sisa.core.frames import (
     body_to_ned_matrix,
     euler_from_body_to_ned,
     ned_to_ecef_matrix,

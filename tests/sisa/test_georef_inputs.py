@@ -17,7 +17,7 @@ import rasterio
 
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from sisa.timescale import NS_PER_S
+from sisa.core.timescale import NS_PER_S
 from tests.postproc.test_trajectory_coverage import georef, summary, write_truth_sbet
 from tests.postproc.test_trajectory_coverage import (  # noqa: F401 (its fixture, by name)
     run as coverage_run,

@@ -16,8 +16,8 @@ import pytest
 import rasterio
 from rasterio.enums import ColorInterp
 
-from postproc.igm import open_igm
-from postproc.ortho import TIFF_COMPRESSIONS, nice_cell_m
+from postproc.products.igm import open_igm
+from postproc.products.ortho import TIFF_COMPRESSIONS, nice_cell_m
 from sisa import cli
 from sisa.commands.ortho import COMPRESSIONS
 from tests.postproc.test_igm import synthetic_strip

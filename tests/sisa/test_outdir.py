@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from sisa.errors import InputError, RecorderError
-from sisa.outdir import staged_output_dir
+from sisa.core.errors import InputError, RecorderError
+from sisa.core.outdir import staged_output_dir
 
 
 def _make(out: Path, taken_by: str | None = None, fail: bool = False) -> Path:

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from sisa.errors import one_line_text_problem, shown_value
-from sisa.sensor import (
+from sisa.core.errors import one_line_text_problem, shown_value
+from sisa.core.sensor import (
     ARCSEC_RAD,
     Mounting,
     ScannerGeometry,

@@ -14,11 +14,11 @@ import pytest
 from pydantic import ValidationError
 
 from emulators.scenario import PRESETS, load_scenario
-from postproc.sensorfile import MAX_NAME_CHARS, SensorModel
+from postproc.georef.sensorfile import MAX_NAME_CHARS, SensorModel
 from sisa.cli import main
 from sisa.commands.process import sensor_of
-from sisa.errors import InputError
-from sisa.sensor import Mounting, ScannerGeometry
+from sisa.core.errors import InputError
+from sisa.core.sensor import Mounting, ScannerGeometry
 
 # (sensor file text, the field the one-line error must name)
 BAD = {
@@ -129,8 +129,8 @@ def test_defaults_and_every_preset_validate(tmp_path: Path) -> None:
 
 def test_a_calibrated_name_at_the_limit_still_loads(tmp_path: Path) -> None:
     """`sisa calibrate` appends ' (calibrated)' to the name it was given: its output loads."""
-    from postproc.calib_params import State
-    from postproc.calibrate import calibrated_sensor
+    from postproc.calibration.adjust import calibrated_sensor
+    from postproc.calibration.params import State
 
     given = SensorModel(name="n" * MAX_NAME_CHARS)
     zero = np.zeros(3)

@@ -312,7 +312,7 @@ def test_socketcand_is_refused_before_python_can_fails_on_it(command: list[str],
 def test_a_log_under_the_longest_name_is_recorded(tmp_path: Path) -> None:
     """A 255-byte file name is one the file system takes; the recorder's hidden scratch name
     for it (the name plus '.partial-PID-...') was longer: 'cannot create'. Every scratch name
-    is now made by sisa.outdir.partial_path, which shortens the name inside it."""
+    is now made by sisa.core.outdir.partial_path, which shortens the name inside it."""
     path = tmp_path / ("m" * 250 + ".mcap")
     write_sample_log(path)
     assert path.is_file()

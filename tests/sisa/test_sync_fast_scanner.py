@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from postproc.syncreport import frames_untied, untied_frames_note
+from postproc.sync.report import frames_untied, untied_frames_note
 from sisa.cli import main
 
 FAST = """base = "bench"

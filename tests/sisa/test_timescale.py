@@ -3,7 +3,7 @@ import datetime as dt
 import numpy as np
 import pytest
 
-from sisa import timescale as ts
+from sisa.core import timescale as ts
 
 
 def test_gps_epoch_is_zero_and_a_sunday():

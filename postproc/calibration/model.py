@@ -1,0 +1,177 @@
+"""The line-scanner observation model that calibration adjusts (docs/calibration.md).
+
+For an observation at fractional line ℓ of segment s:
+    t      = t_s(ℓ) + τ                               (line time, interpolated, plus the delay)
+    R_b^e' = R_b^e(t)·A_s(t)                          (A: per-strip attitude offset and drift)
+    r_pc   = r_INS(t) + R_b^e'·a^b − R_b^e(t)·Δg^b + Δr_gps   (ECEF)
+    p^c    = (R_b^e'·R_c^b)ᵀ·(X − r_pc)               (the point in the camera frame)
+    u = −f'·p_x/p_z,  v = −f'·p_y/p_z                 (focal-plane coordinates, f' = f + δf)
+Across track the predicted pixel is c + (v − y0')/pitch. Along track a pushbroom line sees only
+u = x0' (x0' = x0 + δx0, y0' = y0 + δy0): the misclosure u − x0' at the observed line, divided by
+the focal-plane motion per line du/dℓ (taken from the trajectory at ±1 line), is the equivalent
+line offset. Residuals are observed − modelled, in lines (along) and pixels (across).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from postproc.calibration.params import State
+from postproc.georef.navigation import Trajectory
+from postproc.georef.sensorfile import SensorModel
+from sisa.core.frames import ned_to_ecef_matrix
+from sisa.core.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B, rot_x, rot_y, rot_z
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Bool = npt.NDArray[np.bool_]
+
+ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def r_ecef_from_enu(ecef_m: F64) -> F64:
+    """R from local east-north-up at an ECEF point to ECEF (3, 3)."""
+    x, y, z = (float(v) for v in ecef_m)
+    lon = np.arctan2(y, x)
+    lat = np.arctan2(z, np.hypot(x, y) * (1.0 - 6.69437999014e-3))  # geodetic, to ~1e-6 rad
+    return np.asarray(ned_to_ecef_matrix(lat, lon) @ ENU_TO_NED, np.float64)
+
+
+def rot_xyz(angles_rad: F64) -> F64:
+    """Rx(a0)·Ry(a1)·Rz(a2) for (N, 3) angles → (N, 3, 3)."""
+    a, b, c = angles_rad[:, 0], angles_rad[:, 1], angles_rad[:, 2]
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    m = np.empty((angles_rad.shape[0], 3, 3))
+    m[:, 0, 0], m[:, 0, 1], m[:, 0, 2] = cb * cc, -cb * sc, sb
+    m[:, 1, 0] = sa * sb * cc + ca * sc
+    m[:, 1, 1] = -sa * sb * sc + ca * cc
+    m[:, 1, 2] = -sa * cb
+    m[:, 2, 0] = -ca * sb * cc + sa * sc
+    m[:, 2, 1] = ca * sb * sc + sa * cc
+    m[:, 2, 2] = ca * cb
+    return m
+
+
+def boresight_matrix(boresight_arcsec: F64) -> F64:
+    """R_c^b = R_nom·Rx(ω)·Ry(φ)·Rz(κ), as sisa.core.sensor.Mounting."""
+    w, p, k = (float(a) * ARCSEC_RAD for a in boresight_arcsec)
+    return np.asarray(R_NOMINAL_C_TO_B @ rot_x(w) @ rot_y(p) @ rot_z(k), np.float64)
+
+
+@dataclass(frozen=True)
+class ObsGeometry:
+    """The fixed part of every observation (one row each)."""
+
+    point: I64  # row of the point in the problem's point arrays
+    seg_k: I64  # index into the layout's segments
+    t_line_ns: I64  # interpolated tag time of the observed line
+    dt_mid_s: F64  # seconds from the strip's mid time (drift)
+    period_ns: F64  # local line period
+    line: F64
+    pixel: F64
+    sigma_px: F64
+
+
+class Projection(NamedTuple):
+    u_m: F64
+    v_m: F64
+    p_cam_m: F64  # (N, 3)
+    r_ecef_from_camera: F64  # (N, 3, 3)
+    centre_m: F64  # (N, 3) perspective centre, local (ECEF − origin)
+    focal_m: float
+
+
+class Pose(NamedTuple):
+    ins_m: F64  # (N, 3) ECEF − origin
+    r_ecef_from_body: F64
+    valid: Bool
+
+
+class CameraModel:
+    """Projection of points into the observed lines, for a given parameter state."""
+
+    def __init__(self, traj: Trajectory, sensor: SensorModel, obs: ObsGeometry,
+                 origin_ecef_m: F64) -> None:
+        self.traj = traj
+        self.sensor = sensor
+        self.obs = obs
+        self.origin = np.asarray(origin_ecef_m, np.float64)
+        self.r_enu = r_ecef_from_enu(self.origin)
+        self.lever = np.asarray(sensor.mounting.lever_arm_m, np.float64)
+        sc = sensor.scanner
+        self.pitch_m = sc.pixel_pitch_um * 1e-6
+        self.centre_px = sc.centre_pixel
+        self._cache: dict[int, Pose] = {}
+
+    def pose(self, t_ns: I64) -> Pose:
+        p = self.traj.pose_at(t_ns)
+        return Pose(p.ins_ecef_m - self.origin, p.r_ecef_from_body, p.valid)
+
+    def pose_at_delay(self, delay_ms: float) -> Pose:
+        """Pose at every observation's line time + delay (cached per whole ns)."""
+        key = round(delay_ms * 1e6)
+        if key not in self._cache:
+            if len(self._cache) > 8:
+                self._cache.clear()
+            self._cache[key] = self.pose(self.obs.t_line_ns + np.int64(key))
+        return self._cache[key]
+
+    def project(self, st: State, x_m: F64, pose: Pose) -> Projection:
+        """x_m: (N, 3) the observed point of every row, ECEF − origin."""
+        k = self.obs.seg_k
+        ang = (st.attitude_arcsec[k] + st.drift_arcsec_per_s[k] * self.obs.dt_mid_s[:, None])
+        r_be = pose.r_ecef_from_body
+        r_be_att = r_be @ rot_xyz(ang * ARCSEC_RAD)
+        shift = self.r_enu @ (st.gps_block_enu_m + st.gps_strip_enu_m[k]).T
+        centre = (pose.ins_m + r_be_att @ self.lever - r_be @ st.antenna_delta_m + shift.T)
+        r_ce = r_be_att @ boresight_matrix(st.boresight_arcsec)
+        p = np.einsum("nji,nj->ni", r_ce, x_m - centre)
+        f = (self.sensor.scanner.focal_length_mm + st.selfcal[0]) * 1e-3
+        return Projection(-f * p[:, 0] / p[:, 2], -f * p[:, 1] / p[:, 2], p, r_ce, centre, f)
+
+    def principal_point_m(self, st: State) -> tuple[float, float]:
+        x0, y0 = self.sensor.scanner.principal_point_um
+        return (x0 + st.selfcal[1]) * 1e-6, (y0 + st.selfcal[2]) * 1e-6
+
+    def rates(self, st: State, x_m: F64) -> F64:
+        """du/dℓ (m per line) at every observation, from the poses one line either side."""
+        half = np.rint(self.obs.period_ns).astype(np.int64)
+        t = self.obs.t_line_ns + np.int64(round(st.delay_ms * 1e6))
+        u1 = self.project(st, x_m, self.pose(t + half)).u_m
+        u0 = self.project(st, x_m, self.pose(t - half)).u_m
+        return np.asarray((u1 - u0) / 2.0, np.float64)
+
+    def residuals(self, st: State, x_m: F64, pose: Pose, rate: F64) -> tuple[F64, F64]:
+        """(along in lines, across in pixels), observed − modelled."""
+        pr = self.project(st, x_m, pose)
+        x0, y0 = self.principal_point_m(st)
+        along = (pr.u_m - x0) / rate
+        across = self.obs.pixel - (self.centre_px + (pr.v_m - y0) / self.pitch_m)
+        return along, across
+
+    def point_jacobian(self, st: State, x_m: F64, pose: Pose, rate: F64) -> F64:
+        """d(along, across)/dX, shape (N, 2, 3)."""
+        pr = self.project(st, x_m, pose)
+        p, f = pr.p_cam_m, pr.focal_m
+        z = p[:, 2]
+        du = -f * np.stack([1.0 / z, np.zeros_like(z), -p[:, 0] / z**2], axis=1)
+        dv = -f * np.stack([np.zeros_like(z), 1.0 / z, -p[:, 1] / z**2], axis=1)
+        rt = np.swapaxes(pr.r_ecef_from_camera, 1, 2)  # dp/dX
+        d_along = np.einsum("ni,nij->nj", du, rt) / rate[:, None]
+        d_across = -np.einsum("ni,nij->nj", dv, rt) / self.pitch_m
+        return np.stack([d_along, d_across], axis=1)
+
+    def ray(self, st: State, pose: Pose) -> tuple[F64, F64]:
+        """Perspective centre (local) and unit ECEF direction of every observed (line, pixel)."""
+        dummy = np.zeros((self.obs.line.size, 3))
+        pr = self.project(st, dummy, pose)
+        x0, y0 = self.principal_point_m(st)
+        look = np.stack([np.full(self.obs.pixel.size, x0),
+                         (self.obs.pixel - self.centre_px) * self.pitch_m + y0,
+                         np.full(self.obs.pixel.size, -pr.focal_m)], axis=1)
+        d = np.einsum("nij,nj->ni", pr.r_ecef_from_camera, look)
+        return pr.centre_m, d / np.linalg.norm(d, axis=1, keepdims=True)

@@ -1,0 +1,115 @@
+"""PNG quicklooks of an ortho GeoTIFF or a raw ENVI segment.
+
+True colour from the bands nearest 640/550/460 nm (wavelengths from the bands' `wavelength`
+metadata, which GDAL reads from the ENVI header and SISA writes into its GeoTIFFs, else from
+"(… nm)" in the band descriptions), a 2–98 % stretch per band over valid pixels, nodata
+transparent. The raster is read decimated (GDAL reads only the lines and blocks it needs), so
+a quicklook of a 10 GB segment stays small in memory.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+import rasterio
+from rasterio.enums import Resampling
+from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+
+from sisa.core.errors import InputError
+from sisa.core.outdir import partial_path
+
+U8 = npt.NDArray[np.uint8]
+
+RGB_NM: Final = (640.0, 550.0, 460.0)
+STRETCH_PCT: Final = (2.0, 98.0)
+MAX_SIZE_PX: Final = 1024
+_NM_IN_TEXT: Final = re.compile(r"([0-9]+(?:\.[0-9]*)?)\s*(nm|nanometers)\b", re.IGNORECASE)
+
+
+def band_wavelengths_nm(ds: Any) -> list[float | None]:
+    """Per band: `wavelength` metadata (nm, or µm if the units say so), else "(x nm)" in the
+    description, else None."""
+    out: list[float | None] = []
+    for b in range(1, ds.count + 1):
+        tags = ds.tags(b)
+        units = tags.get("wavelength_units", ds.tags().get("wavelength_units", "nm")).lower()
+        try:
+            wl: float | None = float(tags["wavelength"]) * (1e3 if units.startswith("micro")
+                                                            else 1.0)
+        except (KeyError, ValueError):
+            m = _NM_IN_TEXT.search(ds.descriptions[b - 1] or "")
+            wl = float(m.group(1)) if m else None
+        out.append(wl)
+    return out
+
+
+def rgb_bands(wavelengths_nm: Sequence[float | None]) -> tuple[int, int, int]:
+    """1-based bands nearest 640, 550, 460 nm; without wavelengths bands 1, 2, 3 (or the one
+    band three times)."""
+    n = len(wavelengths_nm)
+    known = [(b + 1, w) for b, w in enumerate(wavelengths_nm) if w is not None]
+    if known and n >= 3:
+
+        def nearest(target_nm: float) -> int:
+            return min(known, key=lambda bw: abs(bw[1] - target_nm))[0]
+
+        return nearest(RGB_NM[0]), nearest(RGB_NM[1]), nearest(RGB_NM[2])
+    return (1, 2, 3) if n >= 3 else (1, 1, 1)
+
+
+def stretch(values: npt.NDArray[Any], valid: npt.NDArray[np.bool_]) -> U8:
+    """2–98 % of the valid values onto 0–255."""
+    if not valid.any():
+        return np.zeros(values.shape, dtype=np.uint8)
+    lo, hi = np.percentile(values[valid].astype(np.float64), STRETCH_PCT)
+    hi = hi if hi > lo else lo + 1.0
+    scaled = (values.astype(np.float64) - lo) * (255.0 / (hi - lo))
+    out: U8 = np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
+    return out
+
+
+def write_quicklook(src: Path, png: Path, *, max_size_px: int = MAX_SIZE_PX) -> tuple[int, int]:
+    """Write an RGBA PNG, longest side ≤ max_size_px; returns its (height, width)."""
+    src, png = Path(src), Path(png)
+    if max_size_px < 1:
+        raise InputError(f"quicklook size must be at least 1 pixel, got {max_size_px}")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(src) as ds:  # no GDAL_CACHEMAX Env: it made this read 300x slower
+                bands = rgb_bands(band_wavelengths_nm(ds))
+                scale = max(ds.height, ds.width) / max_size_px
+                shape = (max(1, round(ds.height / max(scale, 1.0))),
+                         max(1, round(ds.width / max(scale, 1.0))))
+                data = ds.read(list(bands), out_shape=(3, *shape),
+                               resampling=Resampling.nearest, masked=True)
+    except RasterioIOError as exc:
+        raise InputError(f"{src}: unreadable raster: {exc}") from None
+    mask = np.asarray(np.ma.getmaskarray(data).any(axis=0), dtype=np.bool_)
+    if np.issubdtype(data.dtype, np.floating):
+        mask |= ~np.isfinite(np.ma.getdata(data)).all(axis=0)
+    valid = ~mask
+    rgba = np.empty((4, *shape), dtype=np.uint8)
+    for k in range(3):
+        rgba[k] = stretch(np.ma.getdata(data[k]), valid)
+    rgba[3] = np.where(valid, 255, 0)
+    _write_png(png, rgba)
+    return shape
+
+
+def _write_png(png: Path, rgba: U8) -> None:
+    tmp = partial_path(png)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(
+                tmp, "w", driver="PNG", width=rgba.shape[2], height=rgba.shape[1], count=4,
+                dtype="uint8") as out:
+            out.write(rgba)
+    os.replace(tmp, png)

@@ -1,0 +1,185 @@
+"""Time synchronisation: every INS record and every scan line in GPS time (seed §3.5, §5.3).
+
+    inp = read_sync_input(paths)                  # one streaming pass over the flight log
+    result = synchronise(inp, lines=read_scanner_lines(folder))
+    result.ins.t_gps_ns, result.ins.status        # per INS record, in log order
+    result.lines.t_gps_ns, result.lines.status    # per scan line
+    result.report                                 # pulses, matches, margins, clock models
+
+The pieces, each in its own module: `clockmap` (host clock and timing board → GPS), `pulses`
+(GPS time of every forwarded pulse), `insclock` (INS counters, clock pieces, latches), `pattern`
+(whole-second ambiguity), `insfit` (clock fits, record times), `lines` (scan lines).
+
+Never a silent wrong time: an item whose time cannot be established has t_gps_ns = −1 and a
+TimeStatus saying why. Post-processing reads only the flight log (and the scanner's own lines
+files), never simulation truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from postproc.sync import lines as ln
+from postproc.sync.clockmap import ClockMap, board_map, host_map
+from postproc.sync.coarse import coarse_latches
+from postproc.sync.config import SyncConfig, TimeStatus
+from postproc.sync.flightlog import InsColumns, SyncInput, read_sync_input
+from postproc.sync.insclock import TICK_NS, InsTimeline, ins_timeline
+from postproc.sync.insfit import ClockRun, fit_runs
+from postproc.sync.insrecords import latch_noise_s, tag_records
+from postproc.sync.pattern import BlockMatch
+from postproc.sync.pulses import SisaPulses, sisa_pulses
+from postproc.sync.report import ins_report, line_report, pulse_report
+from recorder.reader import Paths
+from sisa.core.errors import InputError
+from sisa.core.timescale import NS_PER_S
+
+__all__ = ["InsTimes", "LineTimes", "SyncConfig", "SyncResult", "TimeStatus", "read_sync_input",
+           "sync_log", "synchronise"]
+
+I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
+WINDOW_OF_PERIOD = 0.45  # the coarse search stays inside half the LFSR period
+
+
+@dataclass(frozen=True)
+class InsTimes:
+    """Per INS record, in log order."""
+
+    seq: I64
+    counter: I64
+    t_gps_ns: I64  # measurement epoch, GPS ns; −1 unless status is OK
+    status: I64  # TimeStatus
+
+
+@dataclass(frozen=True)
+class LineTimes:
+    """Per scan line (files' order, or header order without the files)."""
+
+    segment: I64
+    line: I64
+    frame_counter: I64
+    t_gps_ns: I64  # mid-exposure, GPS ns; −1 unless status is OK
+    status: I64
+
+
+@dataclass(frozen=True)
+class InsSolution:
+    """The INS side in full, for reports and tests: timeline, latches, blocks and fits.
+    Runs index latches (timeline.latch_record order) and pulses (pulse_t_s order)."""
+
+    timeline: InsTimeline
+    latch_x_s: F64  # INS clock seconds of each latch in its piece
+    pulse_t_s: F64  # usable forwarded pulses, GPS seconds of the flight epoch, sorted
+    pulse_mode: I64  # their sync mode (1: gated PPS, 2: frame pulse)
+    runs: list[ClockRun]
+    blocks: list[BlockMatch]
+    run_of_record: I64
+    record_x_s: F64
+    noise_s: float
+
+
+@dataclass(frozen=True)
+class SyncResult:
+    ins: InsTimes
+    lines: LineTimes
+    report: dict[str, Any]
+    ins_solution: InsSolution
+    segment_fits: list[ln.SegmentFit]
+
+
+def flight_epoch_ns(inp: SyncInput, host: ClockMap) -> int:
+    """A whole GPS second at the start of the log: the origin of the float seconds inside."""
+    firsts = [a[0] for a in (inp.ins.t_host_ns, inp.headers.t_host_ns, inp.gps.fix_t_host_ns,
+                             inp.gps.tag_t_host_ns) if a.size]
+    start = int(host.gps_ns(np.array([min(firsts)], dtype=np.int64))[0]) if firsts else 0
+    return start // NS_PER_S * NS_PER_S
+
+
+def _pattern_config(cfg: SyncConfig, lfsr_bits: I64) -> SyncConfig:
+    if lfsr_bits.size == 0:
+        return cfg
+    period_s = float(2 ** int(lfsr_bits.min()) - 1)
+    window = min(cfg.pattern.window_s, WINDOW_OF_PERIOD * period_s)
+    return dataclasses.replace(cfg, pattern=dataclasses.replace(cfg.pattern, window_s=window))
+
+
+def solve_ins(ins: InsColumns, pulses: SisaPulses, host: ClockMap, epoch_ns: int,
+              cfg: SyncConfig) -> tuple[InsTimes, InsSolution]:
+    """Clock pieces, pattern match, fits and record times."""
+    res = cfg.ins_clock_resolution_ns
+    tl = ins_timeline(ins, res // TICK_NS if res is not None else None)
+    lat = coarse_latches(tl, ins.t_host_ns, host, epoch_ns)
+    usable = np.flatnonzero(pulses.usable)
+    order = usable[np.argsort(pulses.t_gps_ns[usable], kind="stable")]
+    y_s = (pulses.t_gps_ns[order] - epoch_ns).astype(np.float64) / NS_PER_S
+    noise = latch_noise_s(tl, cfg.tag_lsb_ns)
+    runs, blocks = fit_runs(lat, y_s, cfg, noise, tl.resolution_ticks * TICK_NS * 1e-9)
+    t, status, run = tag_records(tl, lat, runs, epoch_ns, noise, cfg)
+    times = InsTimes(tl.seq, ins.counter, t, status)
+    x_rec = tl.seconds(tl.clock_ticks, tl.piece)
+    sol = InsSolution(tl, lat.x_s, y_s, pulses.mode[order], runs, blocks, run, x_rec, noise)
+    return times, sol
+
+
+def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
+                host: ClockMap, epoch_ns: int, cfg: SyncConfig
+                ) -> tuple[LineTimes, list[ln.SegmentFit], dict[str, Any]]:
+    """Unwrap counters, place the timed frames, fit each segment, time every line."""
+    hdr = inp.headers
+    lines = table if table is not None else ln.lines_from_headers(hdr)
+    modulus = ln.counter_modulus(hdr.frame_counter, lines.frame_counter, pulses.frame_counter)
+    period_s = ln.measured_header_period_s(hdr, modulus)
+    u_hdr = ln.unwrap_headers(hdr, modulus, 1.0 if period_s is None else period_s)
+    fwd, seg_f, u_f = ln.place_forwards(pulses, hdr, u_hdr, ln.hdr_gps(hdr, host), modulus)
+    segments = np.unique(hdr.segment)
+    refs = np.array([u_hdr[hdr.segment == s][0] for s in segments.tolist()], dtype=np.int64)
+    fits = ln.segment_fits(seg_f, u_f, pulses.t_gps_ns[fwd], segments, refs, epoch_ns)
+    u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
+    t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
+    frame_pulse = pulses.mode == 2
+    counts = {"frame_counter_modulus": modulus, "frames_dropped": ln.frame_drops(lines, modulus),
+              # the sync filter names a forwarded frame by the header it tied to it on host
+              # time; none named at all is the symptom syncreport.untied_frames_note explains
+              "frame_pulses_forwarded": int(np.count_nonzero(frame_pulse)),
+              "frame_pulses_with_counter": int(np.count_nonzero(
+                  frame_pulse & (pulses.frame_counter >= 0))),
+              "frame_pulses_placed": int(fwd.size),
+              "header_line_period_ns": None if period_s is None else round(period_s * 1e9, 3)}
+    return LineTimes(lines.segment, lines.line, lines.frame_counter, t, status), fits, counts
+
+
+def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
+                config: SyncConfig | None = None) -> SyncResult:
+    """GPS time of every INS record and every scan line of one flight log."""
+    if inp.ins.counter.size == 0 and inp.headers.segment.size == 0:
+        raise InputError("the log has no INS records and no frame headers: nothing to time")
+    cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
+    g = inp.gps
+    host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns)
+    board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
+                      g.tag_t_gps_ns, g.tag_is_ptt)
+    pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
+                                 max_board_gap_s=cfg.max_board_gap_s)
+    epoch = flight_epoch_ns(inp, host)
+    ins_times, sol = solve_ins(inp.ins, pulses, host, epoch, cfg)
+    line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)
+    report = {
+        "flight_epoch_gps_ns": epoch,
+        "config": dataclasses.asdict(cfg),
+        "pulses": pulse_report(inp.sisa, pulses, pstats, sol, host, board),
+        "ins": ins_report(ins_times, sol),
+        "lines": line_report(line_times, fits, lcounts),
+    }
+    return SyncResult(ins_times, line_times, report, sol, fits)
+
+
+def sync_log(paths: Paths, lines: ln.LineTable | None = None,
+             config: SyncConfig | None = None) -> SyncResult:
+    """`synchronise` on a flight log read from disk."""
+    return synchronise(read_sync_input(paths), lines, config)

@@ -1,0 +1,187 @@
+"""The sync report: what was found, matched and rejected, and how good each fit is.
+
+Every figure is plain JSON (ints, floats, strings), so `sync_report.json` can be read anywhere.
+Predicted errors come from the noise model through the fit: one latch ↔ pulse pair has
+`noise_s` (latch truncation and tag rounding, uniform); a record's time error from its clock fit
+is noise·√leverage, its RMS over the records of a fit is noise·√(mean leverage).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from postproc.sync.clockmap import ClockMap
+from postproc.sync.config import TimeStatus
+from postproc.sync.flightlog import SisaColumns
+from postproc.sync.pulses import PulseSource, SisaPulses
+
+if TYPE_CHECKING:
+    from postproc.sync.lines import SegmentFit
+    from postproc.sync.pipeline import InsSolution, InsTimes, LineTimes
+
+I64 = npt.NDArray[np.int64]
+NS = 1e9
+# the sync filter ties a header on time alone only in a window narrower than its shortest line
+# period: the period less the 5 % grid tolerance (acquisition.syncfilter, interval_tolerance)
+NARROW_OF_PERIOD = 0.95
+
+
+def status_counts(status: I64) -> dict[str, int]:
+    return {s.name.lower(): int(np.count_nonzero(status == s)) for s in TimeStatus
+            if np.any(status == s)}
+
+
+def _map_summary(m: ClockMap | None) -> dict[str, Any] | None:
+    if m is None:
+        return None
+    return {"pairs": m.line.n, "residual_rms_ns": round(m.residual_rms_ns, 3),
+            "rate_ppm": round(m.drift_ppm, 6), "span_s": round(m.line.x_max - m.line.x_min, 3)}
+
+
+def pulse_report(sisa: SisaColumns, pulses: SisaPulses, stats: dict[str, int],
+                 sol: InsSolution, host: ClockMap, board: ClockMap | None) -> dict[str, Any]:
+    empty = np.zeros(0, dtype=np.int64)
+    claimed = np.concatenate([empty, *(r.latches for r in sol.runs)])
+    pulses_hit = np.unique(np.concatenate([empty, *(r.pulses for r in sol.runs)]))
+    usable = int(np.count_nonzero(pulses.usable))
+    latches = sol.timeline.latch_record.size
+    return {
+        "sync_sessions": int(sisa.session_lfsr_bits.size),
+        "pps_seen": int(sisa.pps_board_ns.size),
+        "pps_rejected_as_spurious": int(np.count_nonzero(sisa.pps_spurious)),
+        "forwarded": int(pulses.t_gps_ns.size),
+        "forwarded_mode1": int(np.count_nonzero(pulses.mode == 1)),
+        "forwarded_mode2": int(np.count_nonzero(pulses.mode == 2)),
+        "timed_by": {s.name.lower(): int(np.count_nonzero(pulses.source == s))
+                     for s in PulseSource},
+        "usable": usable,
+        "rejected": int(pulses.t_gps_ns.size - usable),
+        **stats,
+        "ins_latches": latches,
+        "ins_latches_matched": int(claimed.size),
+        "ins_latches_unmatched": int(latches - claimed.size),
+        "forwarded_without_latch": int(usable - len(pulses_hit)),
+        "host_map": _map_summary(host),
+        "board_map": _map_summary(board),
+    }
+
+
+def _block(b: Any, sol: InsSolution) -> dict[str, Any]:
+    s = b.score
+    return {"piece": b.piece, "latches": b.stop - b.first, "best": s.best, "second": s.second,
+            "margin": s.margin, "resolved": b.resolved,
+            "shift_s": None if np.isnan(s.shift_s) else round(s.shift_s, 6)}
+
+
+def _run(i: int, sol: InsSolution) -> dict[str, Any]:
+    r = sol.runs[i]
+    recs = sol.record_x_s[sol.run_of_record == i]
+    lev = float(np.mean(r.line.leverage(recs))) if recs.size else float("nan")
+    return {
+        "piece": r.piece, "latches": int(r.latches.size), "records": int(recs.size),
+        "ins_clock_span_s": [round(r.line.x_min, 6), round(r.line.x_max, 6)],
+        "ins_clock_fast_ppm": round((1.0 / r.line.slope - 1.0) * 1e6, 6),
+        "residual_rms_ns": round(r.line.sigma * NS, 3),
+        "noise_model_latch_rms_ns": round(sol.noise_s * NS, 3),
+        "predicted_record_rms_ns": None if np.isnan(lev) else round(
+            float(max(r.line.sigma, sol.noise_s) * np.sqrt(lev)) * NS, 3),
+    }
+
+
+def ins_report(times: InsTimes, sol: InsSolution) -> dict[str, Any]:
+    tl = sol.timeline
+    return {
+        **tl.counts,
+        "counter_modulus": tl.counter_modulus,
+        "clock_resolution_ns": tl.resolution_ticks * 100,
+        "record_period_ns": round(tl.period_ticks * 100, 3),
+        "clock_pieces": int(tl.piece_first.size),
+        "status": status_counts(times.status),
+        "blocks_resolved": sum(b.resolved for b in sol.blocks),
+        "blocks": [_block(b, sol) for b in sol.blocks],
+        "clock_models": [_run(i, sol) for i in range(len(sol.runs))],
+    }
+
+
+def _segment(f: SegmentFit, times: LineTimes) -> dict[str, Any]:
+    sel = times.segment == f.segment
+    out: dict[str, Any] = {"segment": f.segment, "lines": int(np.count_nonzero(sel)),
+                           "frames_timed": f.frames_timed, "frames_rejected": f.frames_rejected,
+                           "status": status_counts(times.status[sel])}
+    if f.line is not None:
+        out |= {"line_period_ns": round(f.line.slope * NS, 3),
+                "period_borrowed": f.borrowed_period,
+                "residual_rms_ns": round(f.line.sigma * NS, 3)}
+    return out
+
+
+def line_report(times: LineTimes, fits: list[SegmentFit], counts: dict[str, Any]
+                ) -> dict[str, Any]:
+    return {"lines": int(times.t_gps_ns.size), **counts, "status": status_counts(times.status),
+            "segments": [_segment(f, times) for f in fits]}
+
+
+def frames_untied(lines: dict[str, Any]) -> bool:
+    """Frame pulses were forwarded, not one names its frame, and lines went untimed for it:
+    the sync filter tied no frame header to its pulse (`lines`: the report's "lines")."""
+    return bool(lines.get("frame_pulses_forwarded", 0) > 0
+                and lines.get("frame_pulses_with_counter", 0) == 0
+                and lines["status"].get("no_pulses", 0) > 0)
+
+
+# why INS records stay ambiguous when a log has no mode-1 pattern to speak of (the recorder
+# started with the scanner already recording): 6 s of it left all ambiguous in a real-time
+# bench, 15 s timed every record
+AMBIGUOUS_HINT = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, "
+                  "mode-2 trains alone do not: record a register period (15 s with 4 bits) with "
+                  "the scanner off (docs/sync.md, 'The whole-second ambiguity')")
+
+
+def no_ins_timed_note(ins_status: npt.ArrayLike) -> str | None:
+    """The warning when sync timed no INS record and left every one ambiguous; else None."""
+    status = np.asarray(ins_status)
+    if status.size == 0 or not (status == TimeStatus.AMBIGUOUS).all():
+        return None
+    return f"no INS record timed, all {status.size} ambiguous: {AMBIGUOUS_HINT}"
+
+
+def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
+    """`untied_frames_note` with the header window `flight` was recorded with (or the
+    default), when `frames_untied`; else None. For every command that syncs a log: `georef`
+    and `calibrate` failed with a bare count of no_pulses lines."""
+    if not frames_untied(lines):
+        return None
+    from sisa.wiring.acqconfig import header_window_of_log
+
+    return untied_frames_note(lines, *header_window_of_log(flight))
+
+
+def untied_frames_note(lines: dict[str, Any], window_ms: tuple[float, float],
+                       window_from: str | None) -> str:
+    """Why every line is no_pulses when `frames_untied`: the filter ties a header to its pulse
+    on host time alone only in a header window narrower than a line period (docs/sync.md,
+    Limits). The period is the headers' own (host times); the window `sisa.header_window_ms`
+    as the log's recording settings give it (`window_from` says so), or (None) the default."""
+    head = (f"{lines['status']['no_pulses']} scan lines not timed (no_pulses): none of the "
+            f"{lines['frame_pulses_forwarded']} forwarded frame pulses carries its frame counter")
+    period_ns = lines.get("header_line_period_ns")
+    lo, hi = window_ms
+    width = hi - lo
+    if period_ns is None or width < NARROW_OF_PERIOD * period_ns * 1e-6:
+        return f"{head} (no frame header was tied to its pulse; docs/sync.md, Limits)"
+    period = f"{period_ns * 1e-6:.3g} ms"
+    fix = ("set sisa.header_window_ms (and sisa.read_interval_ms) narrower than a line period "
+           "(docs/sync.md, Limits)")
+    if window_from is None:
+        return (f"{head}: the frame headers show a line period of {period}; a header window "
+                f"not narrower (sisa.header_window_ms; the default [{lo:g}, {hi:g}] is "
+                f"{width:g} ms wide) ties no frame header to its pulse on host time: {fix}")
+    return (f"{head}: the header window (sisa.header_window_ms [{lo:g}, {hi:g}] "
+            f"{window_from}: {width:g} ms wide) is not narrower than the scanner's line period "
+            f"({period}, from the frame headers), so frame headers cannot be tied to pulses on "
+            f"host time: {fix}")

@@ -1,0 +1,74 @@
+"""Output folders that appear whole or not at all, and never replace an existing one."""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from sisa.core.errors import InputError, RecorderError
+
+SCRATCH_NAME_CHARS = 200  # of the output's name in its scratch name (names: 255 bytes)
+
+
+def partial_path(final: Path, tag: str = "") -> Path:
+    """The hidden name a file or folder is made under beside `final` (same file system: the
+    last rename is atomic), this process's (`tag` to tell several apart), and short enough
+    for any name the file system takes for `final`."""
+    return final.with_name(f".{final.name[:SCRATCH_NAME_CHARS]}.partial-{os.getpid()}{tag}")
+
+
+def name_taken(path: Path, what: str = "") -> bool:
+    """Whether `path` is taken (a dangling symlink too); a name the file system cannot hold
+    (longer than its limit) is an InputError rather than a traceback. `what`: the option
+    that named it, for the message."""
+    try:
+        return os.path.lexists(path) or path.exists()
+    except OSError as exc:
+        if exc.errno != errno.ENAMETOOLONG:
+            raise
+        raise InputError(f"{what + ' ' if what else ''}{path}: cannot be used as a name: "
+                         f"{exc.strerror}") from None
+
+
+@contextmanager
+def staged_output_dir(out: Path) -> Iterator[Path]:
+    """Yield a scratch folder beside `out`; rename it to `out` only if the block succeeds."""
+    out = Path(out)
+    if name_taken(out):
+        raise InputError(f"{out} already exists: choose a new output folder (runs are never "
+                         "overwritten)")
+    parent = out.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {parent}: {exc.strerror}") from None
+    scratch = partial_path(out)
+    shutil.rmtree(scratch, ignore_errors=True)
+    try:
+        scratch.mkdir()
+    except OSError as exc:  # a read-only or special folder (/sys, /proc)
+        raise InputError(f"cannot write in {parent}: {exc.strerror}") from None
+    try:
+        yield scratch
+    except RecorderError as exc:  # the log it names went with the scratch folder: say so
+        shutil.rmtree(scratch, ignore_errors=True)
+        said = str(exc).replace(str(scratch), str(out))  # the run as the user named it
+        raise RecorderError(f"{said}; nothing was kept ({out} is made whole or not at "
+                            "all)") from exc
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
+    # Something may have taken the name while the run was made (another run to the same
+    # folder): keep the result where it is rather than lose it or replace the other one.
+    kept = f"the result is kept in {scratch}"
+    if out.exists() or out.is_symlink():
+        raise InputError(f"{out} appeared while this run was made: {kept}")
+    try:
+        os.replace(scratch, out)
+    except OSError as exc:
+        raise InputError(f"cannot move the result to {out} ({exc.strerror}): {kept}") from None
+

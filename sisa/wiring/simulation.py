@@ -1,0 +1,125 @@
+"""A whole flight in virtual time, in one process: emulators → acquisition → recorder.
+
+The wiring adds what the wires and the logging computer would: serial transmission time and USB
+latency before bytes reach the host, a host clock that is not GPS time, a timing board with its
+own drift. The flight log gets exactly what a real flight would record; the truth goes beside it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import can
+import numpy as np
+
+from acquisition.clocks import SimulatedHostClock, TimingBoard
+from acquisition.pulses import Edge
+from acquisition.runner import Acquisition
+from emulators.runtime import Output, Port, Runner
+from emulators.scenario import Scenario
+from emulators.system import EmulatedSystem
+from emulators.terrain import Terrain, ground_points, write_ground_points_csv
+from recorder.messages import LoggedMessage, Topic
+from recorder.writer import FlightRecorder
+from sisa.core.errors import ConfigError
+from sisa.core.timescale import NS_PER_S
+from sisa.wiring.acqconfig import acquisition_config, recording_settings
+
+SERIAL_BAUD = 115_200
+USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
+CAN_LATENCY_NS = (100_000, 400_000)
+TICK_NS = 100_000_000
+
+
+class VirtualWiring:
+    """The sink of a virtual-time run: delivers device outputs to the acquisition as the host
+    would receive them, and the acquisition's output pulses back to the devices."""
+
+    def __init__(self, system: EmulatedSystem, acq_log: FlightRecorder, seed: int) -> None:
+        scn = system.scn
+        self.system = system
+        self.rng = np.random.default_rng([seed, 99])
+        self.host = SimulatedHostClock(scn.block.leap_seconds, t_ref_ns=system.traj.t_start_ns)
+        self.recorder = acq_log
+        self._pending: list[Edge] = []
+        self.acq = Acquisition(acquisition_config(scn), self._log, self._pending.append,
+                               TimingBoard())
+        self._next_tick_ns = system.traj.t_start_ns
+        self._restarts = sorted(
+            (system.traj.t_start_ns + round(f.at_s * NS_PER_S), round(f.duration_s * NS_PER_S))
+            for f in scn.faults.sync_restarts)
+        self._last_t_host_ns = 0
+
+    def _log(self, msg: LoggedMessage, topic: Topic | None) -> None:
+        self.recorder.write(msg, topic)
+
+    def _latency(self, lo_hi: tuple[int, int]) -> int:
+        return int(self.rng.integers(lo_hi[0], lo_hi[1]))
+
+    def __call__(self, out: Output) -> Sequence[Edge]:
+        self._maybe_crash(out.t_ns)
+        self._tick_until(out.t_ns)
+        payload = out.payload
+        if isinstance(payload, Edge):
+            self.acq.on_edge(self._host(out.t_ns + 50_000), payload)
+        elif isinstance(payload, can.Message):
+            self.acq.on_can_frame(self._host(out.t_ns + self._latency(CAN_LATENCY_NS)), payload)
+        else:
+            wire_ns = len(payload) * 10 * NS_PER_S // SERIAL_BAUD
+            t_host = self._host(out.t_ns + wire_ns + self._latency(USB_LATENCY_NS))
+            if out.port is Port.GPS_SERIAL:
+                self.acq.on_gps_bytes(t_host, payload)
+            else:
+                self.acq.on_scanner_bytes(t_host, payload)
+        edges, self._pending[:] = list(self._pending), []
+        return edges
+
+    def _host(self, t_ns: int) -> int:
+        """Host receive time; never earlier than the previous receive (one reader thread)."""
+        t_host = max(self.host.now_ns(t_ns), self._last_t_host_ns)
+        self._last_t_host_ns = t_host
+        return t_host
+
+    def _tick_until(self, t_ns: int) -> None:
+        while self._next_tick_ns <= t_ns:
+            self.acq.tick(self._host(self._next_tick_ns), self._next_tick_ns)
+            self._next_tick_ns += TICK_NS
+
+    def _maybe_crash(self, t_ns: int) -> None:
+        while self._restarts and self._restarts[0][0] <= t_ns:
+            at, down = self._restarts.pop(0)
+            self.acq.crash_filter(self.acq.board.counter_ns(at + down))
+            self.system.faults.append(t_gps_ns=at, kind="sync_restart", target="sisa",
+                                      detail=f"down {down / NS_PER_S:g} s")
+
+    def finish(self) -> None:
+        self.acq.finish(self._last_t_host_ns)
+
+
+def write_survey_data(scn: Scenario, terrain: Terrain, folder: Path) -> None:
+    """The DEM (ellipsoidal heights, GeoTIFF) and the surveyed ground points: inputs a real
+    survey has before it flies, not simulation truth."""
+    folder.mkdir(parents=True, exist_ok=True)
+    terrain.write_dem(folder / "dem.tif")
+    try:
+        points = ground_points(scn, terrain)
+    except ConfigError as exc:  # a block too small for its points: fly it without them
+        (folder / "ground_points.txt").write_text(f"no ground points: {exc}\n", encoding="utf-8")
+        return
+    write_ground_points_csv(folder / "ground_points.csv", points, utm_epsg=terrain.epsg)
+
+
+def simulate(scn: Scenario, run: Path, *, images: bool = True) -> VirtualWiring:
+    """Run the scenario's whole flight into `run` (a fresh folder): flight.mcap, scanner/,
+    terrain/ (the DEM and surveyed ground points a survey would have), truth/."""
+    terrain = Terrain.from_scenario(scn)
+    write_survey_data(scn, terrain, run / "terrain")
+    system = EmulatedSystem(scn, run / "scanner" if images else None, terrain=terrain)
+    meta = {"scenario": scn.block.name, **recording_settings(acquisition_config(scn))}
+    with FlightRecorder(run / "flight.mcap", metadata=meta) as rec:
+        wiring = VirtualWiring(system, rec, scn.seed)
+        Runner(system.devices, system.faulty(wiring)).run()
+        wiring.finish()
+    system.write_truth(run / "truth")
+    return wiring

@@ -41,24 +41,25 @@ from typing import Any
 import numpy as np
 
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
-from postproc.calibration.adjust import (
+from postproc.calibration import (
     CalibrationInput,
     CalibrationOptions,
     CalibrationResult,
+    GroundPoints,
+    Group,
+    SegmentClock,
     calibrate,
+    high_correlations,
+    join_flights,
+    look_angles,
+    parameter_rows,
+    parse_groups,
+    read_ground_points,
     sweep_delay,
 )
-from postproc.calibration.data import GroundPoints, SegmentClock, read_ground_points
-from postproc.calibration.flights import join_flights
-from postproc.calibration.params import Group, parse_groups
-from postproc.calibration.report import high_correlations, look_angles, parameter_rows
-from postproc.georef.dem import Dem
-from postproc.georef.job import merged_wanted
-from postproc.georef.navigation import NAV_WANTED, nav_from_columns
-from postproc.georef.sensorfile import SensorModel
-from postproc.sync.flightlog import WANTED as SYNC_WANTED
-from postproc.sync.flightlog import sync_input_from_columns
-from postproc.sync.pipeline import SyncResult, synchronise
+from postproc.georef import NAV_WANTED, Dem, SensorModel, merged_wanted, nav_from_columns
+from postproc.sync import WANTED as SYNC_WANTED
+from postproc.sync import SyncResult, sync_input_from_columns, synchronise
 from recorder.reader import read_topics
 from sisa.commands.process import sensor_of
 from sisa.commands.scenario import scenario_toml

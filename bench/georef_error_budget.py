@@ -1,6 +1,6 @@
 """Garrotxa error budget: how GPS code noise and INS attitude errors reach the ground at the
-check points. A Monte-Carlo through the real ray–DEM intersection (postproc.georef.raycast) against the
-linear propagation of the scenario's stated error model, per component along track, across
+check points. A Monte-Carlo through the real ray–DEM intersection (postproc.georef.raycast) against
+the linear propagation of the scenario's stated error model, per component along track, across
 track and in height, in metres and pixels.
 
     .venv/bin/python bench/georef_error_budget.py [--run RUN] [--draws 300]
@@ -31,8 +31,7 @@ from pyproj import Transformer
 from emulators.render import camera_pose_ecef
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.georef.dem import Dem
-from postproc.georef.raycast import intersect
+from postproc.georef import Dem, intersect
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import ARCSEC_RAD
 from sisa.wiring.accuracy import check_points

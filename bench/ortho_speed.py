@@ -65,8 +65,15 @@ import numpy.typing as npt
 import rasterio
 from rasterio.windows import Window
 
-from postproc.products.igm import IgmWriter, igm_bounds, open_igm, write_geolocation_vrt
-from postproc.products.ortho import TIFF_BLOCK, OrthoGrid, orthorectify
+from postproc.products import (
+    TIFF_BLOCK,
+    IgmWriter,
+    OrthoGrid,
+    igm_bounds,
+    open_igm,
+    orthorectify,
+    write_geolocation_vrt,
+)
 
 F64 = npt.NDArray[np.float64]
 EPSG = 32631

@@ -32,9 +32,7 @@ from pyproj import Transformer
 from scipy import fft as sfft
 from scipy.ndimage import gaussian_filter1d
 
-from postproc.georef import raycast
-from postproc.georef.dem import Dem
-from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
+from postproc.georef import CastStats, Dem, GroundPoints, intersect, raycast, reference_intersect
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 

@@ -7,8 +7,8 @@
 
 Speed: the log arrays of a flight of --hours are synthesised directly at full size (INS at 64 Hz,
 a 16 ms scanner over 300 s strips with 30 s turns, 1 Hz PPS gated by a 4-bit LFSR, 1 of 64 frames
-tagged), with the emulators' default clocks and noise, then `postproc.sync.pipeline.synchronise` is timed
-(the core sync: reading the MCAP file is not included). Target: a 5-hour flight (~1.2 M INS
+tagged), with the emulators' default clocks and noise, then `postproc.sync.pipeline.synchronise` is
+timed (the core sync: reading the MCAP file is not included). Target: a 5-hour flight (~1.2 M INS
 records, ~1 M lines) in < 5 s with a peak of < 1 GB. The synthetic flight's own truth checks the
 result.
 
@@ -34,8 +34,16 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.lfsr import Lfsr
-from postproc.sync.flightlog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
-from postproc.sync.pipeline import SyncResult, read_sync_input, synchronise
+from postproc.sync import (
+    GpsTimes,
+    HeaderColumns,
+    InsColumns,
+    SisaColumns,
+    SyncInput,
+    SyncResult,
+    read_sync_input,
+    synchronise,
+)
 
 I64 = npt.NDArray[np.int64]
 NS = 1_000_000_000
@@ -186,7 +194,7 @@ def speed(hours: float) -> None:
 
 
 def accuracy(run: Path) -> None:
-    from postproc.sync.files import read_scanner_lines
+    from postproc.sync import read_scanner_lines
 
     _with_tests()
     from tests.postproc.test_sync import accuracy_lines

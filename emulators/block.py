@@ -10,8 +10,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
-from emulators.scenario import Scenario
+if TYPE_CHECKING:  # annotations only: the scenario's own checks use this module
+    from emulators.scenario import Scenario
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 

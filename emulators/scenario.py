@@ -22,6 +22,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from emulators.block import STANDARD_GRAVITY_MPS2, block_extent_en_m, strip_lines
+from recorder.settings import DEFAULT_HEADER_WINDOW_MS
 from sisa.core.errors import ConfigError, one_line_text_problem
 from sisa.core.sensor import (
     Mounting,
@@ -304,7 +306,8 @@ class SisaSettings(StrictModel):
         "every arrival); host receive times are up to this much late"
     )
     header_window_ms: tuple[float, float] = Field(
-        (-2.0, 10.0), description="where a frame header's host time may fall after its frame "
+        DEFAULT_HEADER_WINDOW_MS,
+        description="where a frame header's host time may fall after its frame "
         "ends; headers tie to frames on time alone only if this is narrower than a line period"
     )
 
@@ -377,15 +380,11 @@ class Scenario(StrictModel):
 
 def turn_rate_deg_s(scn: Scenario) -> float:
     """Rate of a coordinated turn at the block speed and the flight's bank: g·tan(bank)/v."""
-    from emulators.block import STANDARD_GRAVITY_MPS2  # emulators.block imports this module
-
     bank = math.radians(scn.flight.turn_bank_deg)
     return math.degrees(STANDARD_GRAVITY_MPS2 * math.tan(bank) / scn.block.ground_speed_mps)
 
 
 def _check_turn_rate(scn: Scenario) -> None:
-    from emulators.block import STANDARD_GRAVITY_MPS2
-
     rate = turn_rate_deg_s(scn)
     if rate <= MAX_TURN_RATE_DEG_S:
         return
@@ -408,8 +407,6 @@ def flight_duration_bound_s(scn: Scenario) -> dict[str, float]:
     right or left, left): arcs of at most 3π in all, a straight of at most d + 2R. Arcs are
     planned at R = r/k and flown at v/k, where k = Σ w·cos(ωτ) ≥ 1 − (ωσ)²/2 for the smoothing
     kernel w of second moment σ²."""
-    from emulators.block import strip_lines  # emulators.block imports this module
-
     f, v = scn.flight, scn.block.ground_speed_mps
     omega = math.radians(turn_rate_deg_s(scn))
     circle_s = 2.0 * math.pi / omega
@@ -465,8 +462,6 @@ def dem_extent_m(scn: Scenario) -> tuple[float, float]:
     """East–west and north–south extent of the DEM (a UTM box holding every strip's swath, plus
     terrain.margin_m on each side), to within a per cent: the block's extent in its local plane,
     turned by the UTM grid convergence at the block centre and scaled by at most 1.01."""
-    from emulators.block import block_extent_en_m  # emulators.block imports this module
-
     e0, n0, e1, n1 = block_extent_en_m(scn)
     lat, lon = scn.block.centre_lat_deg, scn.block.centre_lon_deg
     central_meridian = 6.0 * ((lon + 180.0) // 6.0) - 177.0  # as LocalPlane.utm_epsg's zone

@@ -7,7 +7,8 @@ log times) is the recorder's own and is ignored. Everything the devices said mus
 raw bytes per stream, every decoded message, the pulse edges on the timing board. So must the
 sync unit's log, except what depends on when the host looked: the instant a scanner-off switch was
 noticed (a tick or the next pulse), which header the filter matched by host latency (the frame
-counter itself must agree), the health windows. And the sync log (`postproc.sync.pipeline.sync_log`) must
+counter itself must agree), the health windows. And the sync log
+(`postproc.sync.pipeline.sync_log`) must
 give every INS record and every line the same GPS time.
 
 The flight starts now (GPS time from the host clock): a receiver's first time tags come before

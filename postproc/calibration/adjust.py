@@ -57,9 +57,7 @@ from postproc.calibration.setup import (
 )
 from postproc.calibration.solve import Solution, covariance, gauss_newton, leverages
 from postproc.calibration.surface import DemSurface, Surface
-from postproc.georef.dem import Dem
-from postproc.georef.navigation import Trajectory
-from postproc.georef.sensorfile import CALIBRATED_SUFFIX, SensorModel
+from postproc.georef import CALIBRATED_SUFFIX, Dem, SensorModel, Trajectory
 from sisa.core.errors import ConfigError, InputError
 from sisa.core.sensor import validation_text
 
@@ -261,16 +259,6 @@ def calibrated_sensor(sensor: SensorModel, st: State) -> SensorModel:
         raise InputError(f"the adjustment's sensor is no sensor: {validation_text(exc)}: it "
                          "did not converge to a plausible sensor; look for blunders among the "
                          "observations, or leave that group out of --estimate") from None
-
-
-def calibrate(inp: CalibrationInput, opt: CalibrationOptions | None = None
-              ) -> CalibrationResult:
-    from postproc.calibration.report import assemble
-
-    opt = opt or CalibrationOptions()
-    adj = build(inp, opt)
-    sol, blunders = adjust(adj, opt)
-    return assemble(inp, opt, adj, sol, blunders)
 
 
 def check_points(adj: Adjustment, theta: F64, cov: F64

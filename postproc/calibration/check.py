@@ -21,7 +21,7 @@ import numpy.typing as npt
 from postproc.calibration.model import CameraModel
 from postproc.calibration.params import Layout
 from postproc.calibration.surface import GivenHeights, Surface, intersect_rays
-from postproc.georef.navigation import ecef_to_geodetic
+from postproc.georef import ecef_to_geodetic
 
 F64 = npt.NDArray[np.float64]
 

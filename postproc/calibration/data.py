@@ -26,11 +26,8 @@ import numpy.typing as npt
 from pyproj import CRS, Transformer
 from pyproj.exceptions import CRSError
 
-from postproc.georef.dem import PLAUSIBLE_HEIGHTS_M
-from postproc.georef.navigation import ecef_to_geodetic, geodetic_to_ecef
-from postproc.sync.config import TimeStatus
-from postproc.sync.files import FRAME_COUNTER_MAX, SEGMENT_MAX
-from postproc.sync.pipeline import LineTimes
+from postproc.georef import PLAUSIBLE_HEIGHTS_M, ecef_to_geodetic, geodetic_to_ecef
+from postproc.sync import FRAME_COUNTER_MAX, SEGMENT_MAX, LineTimes, TimeStatus
 from sisa.core.errors import InputError, one_line_text_problem
 
 I64 = npt.NDArray[np.int64]

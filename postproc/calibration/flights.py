@@ -27,8 +27,7 @@ import numpy.typing as npt
 
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
 from postproc.calibration.surface import DemSurface, Surface
-from postproc.georef.dem import Dem
-from postproc.georef.navigation import Pose, Trajectory
+from postproc.georef import Dem, Pose, Trajectory
 from sisa.core.errors import InputError
 
 if TYPE_CHECKING:

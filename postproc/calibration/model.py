@@ -21,8 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.calibration.params import State
-from postproc.georef.navigation import Trajectory
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel, Trajectory
 from sisa.core.frames import ned_to_ecef_matrix
 from sisa.core.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B, rot_x, rot_y, rot_z
 

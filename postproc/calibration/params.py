@@ -26,7 +26,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from sisa.core.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]

@@ -5,22 +5,22 @@ and the calibration file itself (a SensorModel TOML with the σ as comments)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
+from postproc.calibration.adjust import (
+    Adjustment,
+    CalibrationInput,
+    CalibrationOptions,
+    CalibrationResult,
+    calibrated_sensor,
+    check_points,
+)
 from postproc.calibration.solve import Solution, covariance
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from sisa.core.sensor import ARCSEC_RAD
-
-if TYPE_CHECKING:
-    from postproc.calibration.adjust import (
-        Adjustment,
-        CalibrationInput,
-        CalibrationOptions,
-        CalibrationResult,
-    )
 
 F64 = npt.NDArray[np.float64]
 HIGH_CORRELATION: Final = 0.9
@@ -67,8 +67,6 @@ def _rms(values: list[float]) -> float:
 
 def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, sol: Solution,
              blunders: list[dict[str, Any]]) -> CalibrationResult:
-    from postproc.calibration.adjust import CalibrationResult, calibrated_sensor, check_points
-
     pb = adj.problem
     n_par = sol.theta.size + 3 * int(pb.point_active.sum())
     dof = int(sol.lin.r.size - n_par)

@@ -23,8 +23,7 @@ from postproc.calibration.model import CameraModel, ObsGeometry
 from postproc.calibration.params import State
 from postproc.calibration.problem import PointSet
 from postproc.calibration.surface import GivenHeights, Surface, intersect_rays
-from postproc.georef.navigation import Trajectory, ecef_to_geodetic
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel, Trajectory, ecef_to_geodetic
 from sisa.core.errors import InputError, shown_value
 
 F64 = npt.NDArray[np.float64]

@@ -14,8 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from pyproj import Transformer
 
-from postproc.georef.dem import Dem
-from postproc.georef.navigation import ecef_to_geodetic
+from postproc.georef import Dem, ecef_to_geodetic
 
 F64 = npt.NDArray[np.float64]
 

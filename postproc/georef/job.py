@@ -67,23 +67,34 @@ from postproc.georef.raycast import intersect
 from postproc.georef.registration import register_strips
 from postproc.georef.sensorfile import SensorModel
 from postproc.georef.trajfiles import TRAJ_WANTED, read_trajectory_file
-from postproc.products.footprints import footprint_feature, write_footprints_geojson
-from postproc.products.igm import CutShortWarning, EnviRaster, IgmWriter, write_geolocation_vrt
-from postproc.products.mosaic import mosaic
-from postproc.products.ortho import OrthoGrid, Progress, SwathIndex, nice_cell_m, orthorectify
-from postproc.products.quicklook import write_quicklook
-from postproc.sync.config import TimeStatus
-from postproc.sync.files import (
+from postproc.products import (
+    CutShortWarning,
+    EnviRaster,
+    IgmWriter,
+    OrthoGrid,
+    Progress,
+    SwathIndex,
+    footprint_feature,
+    mosaic,
+    nice_cell_m,
+    orthorectify,
+    write_footprints_geojson,
+    write_geolocation_vrt,
+    write_quicklook,
+)
+from postproc.sync import WANTED as SYNC_WANTED
+from postproc.sync import (
+    SyncResult,
+    TimeStatus,
     read_scanner_lines,
+    sync_input_from_columns,
+    synchronise,
     unlisted_line_notes,
+    untimed_lines_note,
     write_ins_times,
     write_line_times,
     write_report,
 )
-from postproc.sync.flightlog import WANTED as SYNC_WANTED
-from postproc.sync.flightlog import sync_input_from_columns
-from postproc.sync.pipeline import SyncResult, synchronise
-from postproc.sync.report import untimed_lines_note
 from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
 from recorder.reader import Paths, log_paths, read_topics

@@ -42,9 +42,7 @@ from pyproj import Transformer
 from scipy.interpolate import PchipInterpolator, make_interp_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
-from postproc.sync.config import TimeStatus
-from postproc.sync.pipeline import InsTimes
-from postproc.sync.report import AMBIGUOUS_HINT
+from postproc.sync import AMBIGUOUS_HINT, InsTimes, TimeStatus
 from recorder.messages import Topic
 from recorder.reader import Paths, read_topics
 from sisa.core.errors import ConfigError, InputError

@@ -14,21 +14,19 @@ import html
 import io
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
-from matplotlib.figure import Figure
 
 from postproc.georef.exterior import exterior_orientation
 from postproc.georef.job import GeorefResult
 from sisa.core.outdir import partial_path
 from sisa.core.sensor import Mounting
 from sisa.core.timescale import NS_PER_S
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 F64 = npt.NDArray[np.float64]
 STYLE = """
@@ -41,10 +39,19 @@ img { max-width: 100%; } .note { color: #555; font-size: .9em; }
 """
 
 
+def _subplots(nrows: int, ncols: int, figsize: tuple[float, float], **kw: Any
+              ) -> tuple[Figure, Any]:
+    """A figure of its own (no pyplot state), matplotlib imported only when a report is drawn:
+    georeferencing itself never plots."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kw)
+
+
 def _png(fig: Figure) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
     return f'<img alt="" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
 
 
@@ -63,7 +70,7 @@ def _map(result: GeorefResult, out_dir: Path, mounting: Mounting) -> str:
     t0, t1 = result.trajectory.span_ns
     t = np.arange(t0, t1, NS_PER_S, dtype=np.int64)
     eo = exterior_orientation(result.trajectory, t, mounting)
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = _subplots(1, 1, figsize=(8, 7))
     ok = eo.valid
     ax.plot(eo.lon_deg[ok], eo.lat_deg[ok], lw=0.8, color="0.3", label="trajectory")
     fp = out_dir / "footprints.geojson"
@@ -88,7 +95,7 @@ def _attitude(result: GeorefResult, mounting: Mounting) -> str:
     t = np.arange(t0, t1, NS_PER_S // 4, dtype=np.int64)
     eo = exterior_orientation(result.trajectory, t, mounting)
     x = (t - t0) / NS_PER_S / 60.0
-    fig, axes = plt.subplots(3, 1, figsize=(9, 6), sharex=True)
+    fig, axes = _subplots(3, 1, figsize=(9, 6), sharex=True)
     for ax, v, name in zip(axes, (eo.roll_rad, eo.pitch_rad, eo.heading_rad),
                            ("roll", "pitch", "heading"), strict=True):
         ax.plot(x[eo.valid], np.degrees(v[eo.valid]), lw=0.6)
@@ -99,7 +106,7 @@ def _attitude(result: GeorefResult, mounting: Mounting) -> str:
 
 def _sync(result: GeorefResult) -> str:
     sol = result.sync.ins_solution
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    fig, (a1, a2) = _subplots(2, 1, figsize=(9, 5.5), sharex=True)
     for r in sol.runs:
         x = sol.latch_x_s[r.latches]
         y = sol.pulse_t_s[r.pulses]
@@ -117,7 +124,7 @@ def _sync(result: GeorefResult) -> str:
 
 def _errors(acc: dict[str, Any]) -> str:
     sample = np.asarray(acc.get("_sample_px", np.zeros((0, 3))))
-    fig, axes = plt.subplots(1, 4, figsize=(13, 3.4))
+    fig, axes = _subplots(1, 4, figsize=(13, 3.4))
     for i, name in enumerate(("along", "across", "height")):
         if sample.size:
             axes[i].hist(sample[:, i], bins=80, color=f"C{i}")

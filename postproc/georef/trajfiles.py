@@ -55,8 +55,7 @@ from postproc.georef.navigation import (
     runs,
     vector3,
 )
-from postproc.sync.config import TimeStatus
-from postproc.sync.pipeline import InsTimes
+from postproc.sync import InsTimes, TimeStatus
 from recorder.messages import Topic
 from sisa.core.errors import InputError
 from sisa.core.frames import body_to_ned_matrix

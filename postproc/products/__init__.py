@@ -1,1 +1,37 @@
-"""TODO"""
+"""The georeferencing products as files: ENVI rasters (the scanner's images, IGM, GLT), the
+geolocation VRT, orthos and mosaics (GeoTIFF), footprints (GeoJSON) and quicklooks (PNG).
+
+The ortho's inner loops are C (`_orthokernels.c`, called through ctypes); every other hot loop
+in SISA is numba. Why two: docs/conventions.md, "Compiled loops". Other stages and the commands
+use only the names below.
+"""
+
+from postproc.products.footprints import footprint_feature, write_footprints_geojson
+from postproc.products.igm import (
+    CutShortWarning,
+    EnviRaster,
+    IgmWriter,
+    igm_bounds,
+    igm_epsg,
+    igm_pixel_spacing_m,
+    open_igm,
+    write_geolocation_vrt,
+)
+from postproc.products.mosaic import mosaic
+from postproc.products.ortho import (
+    TIFF_BLOCK,
+    OrthoGrid,
+    Progress,
+    SwathIndex,
+    common_lines,
+    nice_cell_m,
+    orthorectify,
+)
+from postproc.products.quicklook import write_quicklook
+
+__all__ = [
+    "TIFF_BLOCK", "CutShortWarning", "EnviRaster", "IgmWriter", "OrthoGrid", "Progress",
+    "SwathIndex", "common_lines", "footprint_feature", "igm_bounds", "igm_epsg",
+    "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify",
+    "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",
+]

@@ -1,7 +1,7 @@
 """Coarse GPS time of every latched pulse, from the log's host receive times.
 
-The host clock maps to GPS time through the receiver's stated times (postproc.sync.clockmap), good to
-the serial latency; an INS record reaches the host its output delay plus the CAN latency after
+The host clock maps to GPS time through the receiver's stated times (postproc.sync.clockmap), good
+to the serial latency; an INS record reaches the host its output delay plus the CAN latency after
 its epoch. So per clock piece, a robust line of (host-derived GPS − INS clock) against the INS
 clock removes the INS clock's offset and drift up to a nearly constant shift (−output delay):
 a latch's coarse time is then good to a few ms about that shift, which pattern matching finds.

@@ -151,7 +151,7 @@ def unlisted_line_notes(folder: Path, segment: npt.NDArray[np.integer[Any]],
     their lines (a lines file cut short, or holding its header only): those lines have no
     frame counter, so no time, and are not `what` ("timed", "georeferenced"). An image whose
     header cannot be read is named, and not judged. `segment`, `line`: the lines listed."""
-    from postproc.products.igm import EnviRaster
+    from postproc.products import EnviRaster
 
     notes = []
     for image in scanner_images(folder):

@@ -18,7 +18,6 @@ files), never simulation truth.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,70 +26,21 @@ import numpy.typing as npt
 from postproc.sync import lines as ln
 from postproc.sync.clockmap import ClockMap, board_map, host_map
 from postproc.sync.coarse import coarse_latches
-from postproc.sync.config import SyncConfig, TimeStatus
+from postproc.sync.config import SyncConfig
 from postproc.sync.flightlog import InsColumns, SyncInput, read_sync_input
-from postproc.sync.insclock import TICK_NS, InsTimeline, ins_timeline
-from postproc.sync.insfit import ClockRun, fit_runs
+from postproc.sync.insclock import TICK_NS, ins_timeline
+from postproc.sync.insfit import fit_runs
 from postproc.sync.insrecords import latch_noise_s, tag_records
-from postproc.sync.pattern import BlockMatch
 from postproc.sync.pulses import SisaPulses, sisa_pulses
 from postproc.sync.report import ins_report, line_report, pulse_report
+from postproc.sync.results import InsSolution, InsTimes, LineTimes, SyncResult
 from recorder.reader import Paths
 from sisa.core.errors import InputError
 from sisa.core.timescale import NS_PER_S
 
-__all__ = ["InsTimes", "LineTimes", "SyncConfig", "SyncResult", "TimeStatus", "read_sync_input",
-           "sync_log", "synchronise"]
-
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 WINDOW_OF_PERIOD = 0.45  # the coarse search stays inside half the LFSR period
-
-
-@dataclass(frozen=True)
-class InsTimes:
-    """Per INS record, in log order."""
-
-    seq: I64
-    counter: I64
-    t_gps_ns: I64  # measurement epoch, GPS ns; −1 unless status is OK
-    status: I64  # TimeStatus
-
-
-@dataclass(frozen=True)
-class LineTimes:
-    """Per scan line (files' order, or header order without the files)."""
-
-    segment: I64
-    line: I64
-    frame_counter: I64
-    t_gps_ns: I64  # mid-exposure, GPS ns; −1 unless status is OK
-    status: I64
-
-
-@dataclass(frozen=True)
-class InsSolution:
-    """The INS side in full, for reports and tests: timeline, latches, blocks and fits.
-    Runs index latches (timeline.latch_record order) and pulses (pulse_t_s order)."""
-
-    timeline: InsTimeline
-    latch_x_s: F64  # INS clock seconds of each latch in its piece
-    pulse_t_s: F64  # usable forwarded pulses, GPS seconds of the flight epoch, sorted
-    pulse_mode: I64  # their sync mode (1: gated PPS, 2: frame pulse)
-    runs: list[ClockRun]
-    blocks: list[BlockMatch]
-    run_of_record: I64
-    record_x_s: F64
-    noise_s: float
-
-
-@dataclass(frozen=True)
-class SyncResult:
-    ins: InsTimes
-    lines: LineTimes
-    report: dict[str, Any]
-    ins_solution: InsSolution
-    segment_fits: list[ln.SegmentFit]
 
 
 def flight_epoch_ns(inp: SyncInput, host: ClockMap) -> int:

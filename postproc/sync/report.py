@@ -22,7 +22,7 @@ from postproc.sync.pulses import PulseSource, SisaPulses
 
 if TYPE_CHECKING:
     from postproc.sync.lines import SegmentFit
-    from postproc.sync.pipeline import InsSolution, InsTimes, LineTimes
+    from postproc.sync.results import InsSolution, InsTimes, LineTimes
 
 I64 = npt.NDArray[np.int64]
 NS = 1e9
@@ -156,7 +156,7 @@ def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | N
     and `calibrate` failed with a bare count of no_pulses lines."""
     if not frames_untied(lines):
         return None
-    from sisa.wiring.acqconfig import header_window_of_log
+    from recorder.settings import header_window_of_log
 
     return untied_frames_note(lines, *header_window_of_log(flight))
 

@@ -2,12 +2,12 @@
 per-strip attitude) from ground control, tie points and the DEM (docs/calibration.md).
 
 RUN_OR_FLIGHT is a run folder of `sisa simulate` or a flight log (MCAP, all parts in order).
-For a run folder the image measurements are simulated from its truth (sisa.wiring.gcpsim) unless --obs
-gives them; the ground points, DEM and starting sensor come from the run. For a flight log,
+For a run folder the image measurements are simulated from its truth (sisa.wiring.gcpsim) unless
+--obs gives them; the ground points, DEM and starting sensor come from the run. For a flight log,
 --obs and --gcp are needed. The adjustment itself (postproc.calibration.adjust) never reads truth.
 
-Several run folders are several flights sharing the sensor (postproc.calibration.flights): each run's
-input is built as for one run (its simulated measurements, points, DEM, sync and navigation),
+Several run folders are several flights sharing the sensor (postproc.calibration.flights): each
+run's input is built as for one run (its simulated measurements, points, DEM, sync and navigation),
 all from one starting sensor (--sensor, or the runs' common nominal one), and the adjustment is
 of the joined input: segment s of flight k is k·1000 + s, point ids are "k:id" (k from 0, in
 the order given), and calibration.json gives each residual, point and blunder its "flight".
@@ -31,14 +31,20 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from sisa.commands import SubParsers, add_command, check_seed, flight_parts, say_warning
+from recorder.parts import flight_parts
+from sisa.commands import SubParsers, add_command, check_seed, say_warning
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
-    from postproc.calibration.adjust import CalibrationInput, CalibrationOptions, CalibrationResult
-    from postproc.calibration.data import GroundPoints, ImageObservations
-    from postproc.georef.sensorfile import SensorModel
+    from postproc.calibration import (
+        CalibrationInput,
+        CalibrationOptions,
+        CalibrationResult,
+        GroundPoints,
+        ImageObservations,
+    )
+    from postproc.georef import SensorModel
 
 
 # What the numeric options may be; outside, a one-line error says why.
@@ -187,7 +193,7 @@ def _flight_paths(args: argparse.Namespace) -> list[Path]:
 
 
 def _sensor(args: argparse.Namespace) -> SensorModel:
-    from postproc.georef.sensorfile import SensorModel
+    from postproc.georef import SensorModel
 
     if args.sensor is not None:
         return SensorModel.load(args.sensor)
@@ -209,8 +215,7 @@ def _default(args: argparse.Namespace, given: Path | None, rel: str, what: str) 
 
 
 def _options(args: argparse.Namespace) -> CalibrationOptions:
-    from postproc.calibration.adjust import CalibrationOptions
-    from postproc.calibration.params import PriorSigmas, parse_groups
+    from postproc.calibration import CalibrationOptions, PriorSigmas, parse_groups
 
     for flag in ("--prior-x0-um", "--prior-y0-um", "--prior-attitude-arcsec"):
         value = getattr(args, flag[2:].replace("-", "_"))
@@ -244,7 +249,7 @@ def _check_simulation(args: argparse.Namespace) -> None:
     """The simulation options, checked with the others (before any work). --noise-px at most
     a third of the margin past the detector's ends that calibration allows (3σ stays inside):
     1e300 was blamed on the sensor file in a 300-digit pixel number."""
-    from postproc.calibration.setup import SENSOR_FIT_MARGIN_PX
+    from postproc.calibration import SENSOR_FIT_MARGIN_PX
 
     check_seed(args.seed)
     if (args.tie_points < 0 or args.blunders < 0 or args.max_views < 1
@@ -265,7 +270,7 @@ def _check_simulation(args: argparse.Namespace) -> None:
 def _observations(args: argparse.Namespace, points: GroundPoints
                   ) -> tuple[ImageObservations, GroundPoints, dict[str, Any]]:
     """(measurements, points as the adjustment sees them, simulation info)."""
-    from postproc.calibration.data import read_observations
+    from postproc.calibration import read_observations
 
     if args.obs is not None:
         return read_observations(args.obs), points, {}
@@ -290,16 +295,15 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
                 ) -> tuple[CalibrationInput, dict[str, Any]]:
     """Sync and navigation from the log, points, measurements, DEM and starting sensor (the
     given one, else --sensor or the run's nominal one)."""
-    from postproc.calibration.adjust import CalibrationInput
-    from postproc.calibration.data import SegmentClock, read_ground_points
-    from postproc.georef.dem import Dem
-    from postproc.georef.job import merged_wanted
-    from postproc.georef.navigation import NAV_WANTED, nav_from_columns
-    from postproc.sync.files import read_scanner_lines
-    from postproc.sync.flightlog import WANTED as SYNC_WANTED
-    from postproc.sync.flightlog import sync_input_from_columns
-    from postproc.sync.pipeline import synchronise
-    from postproc.sync.report import untimed_lines_note
+    from postproc.calibration import CalibrationInput, SegmentClock, read_ground_points
+    from postproc.georef import NAV_WANTED, Dem, merged_wanted, nav_from_columns
+    from postproc.sync import WANTED as SYNC_WANTED
+    from postproc.sync import (
+        read_scanner_lines,
+        sync_input_from_columns,
+        synchronise,
+        untimed_lines_note,
+    )
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics
@@ -347,7 +351,7 @@ def _shared_sensor(args: argparse.Namespace, runs: list[Path]) -> SensorModel:
 def build_joint_input(args: argparse.Namespace, runs: list[Path]
                       ) -> tuple[CalibrationInput, dict[str, Any]]:
     """Each run's input as for one run, from one starting sensor, joined (calib_flights)."""
-    from postproc.calibration.flights import (
+    from postproc.calibration import (
         SEGMENT_STRIDE,
         flight_point_id,
         flight_segment,
@@ -377,7 +381,7 @@ def _check_dems(inputs: list[CalibrationInput], runs: list[Path], sigma_m: float
     import numpy as np
     from pyproj import Transformer
 
-    from postproc.georef.dem import Dem
+    from postproc.georef import Dem
 
     dems = [(k, i.dem) for k, i in enumerate(inputs) if isinstance(i.dem, Dem)]
     for a, (ka, da) in enumerate(dems):
@@ -406,7 +410,7 @@ def _mark_flights(report: dict[str, Any]) -> None:
 
 
 def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
-    from postproc.calibration.report import high_correlations, look_angles, parameter_rows
+    from postproc.calibration import high_correlations, look_angles, parameter_rows
 
     out = [f"σ0 {res.sigma0:.3f} ({res.dof} dof), {res.counts['observations_used']} "
            f"measurements of {res.counts['control_points']} control and "
@@ -447,9 +451,15 @@ def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
 def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from postproc.calibration.adjust import calibrate, sweep_delay
-    from postproc.calibration.data import write_ground_points, write_observations
-    from postproc.calibration.report import load_check, report_json, sensor_toml
+    from postproc.calibration import (
+        calibrate,
+        load_check,
+        report_json,
+        sensor_toml,
+        sweep_delay,
+        write_ground_points,
+        write_observations,
+    )
     from sisa.core.jsonio import write_json
 
     started = time.perf_counter()

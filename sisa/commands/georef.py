@@ -28,11 +28,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from recorder.parts import flight_parts
 from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
-    flight_parts,
     say_warning,
     terminal_progress,
 )
@@ -40,7 +40,7 @@ from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
-    from postproc.georef.job import GeorefOptions, GeorefResult
+    from postproc.georef import GeorefOptions, GeorefResult
 
 MAX_CELL_M = 10_000.0  # an ortho cell wider than any swath
 
@@ -89,11 +89,13 @@ def add_georef_args(parser: argparse.ArgumentParser) -> None:
 
 def options_from_args(args: argparse.Namespace, sensor_default: object = None
                       ) -> GeorefOptions:
-    from postproc.georef.dem import check_undulation_m
-    from postproc.georef.job import GeorefOptions
-    from postproc.georef.navigation import MAX_GAP_LIMIT_S
-    from postproc.georef.sensorfile import SensorModel
-    from postproc.georef.trajfiles import LEAP_SECONDS_RANGE
+    from postproc.georef import (
+        LEAP_SECONDS_RANGE,
+        MAX_GAP_LIMIT_S,
+        GeorefOptions,
+        SensorModel,
+        check_undulation_m,
+    )
 
     if args.sensor is not None:
         sensor = SensorModel.load(args.sensor)
@@ -127,7 +129,7 @@ def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOpti
                command: str = "georef") -> GeorefResult:
     """The job with a progress bar over scan lines (on a terminal); its warnings (segments or
     lines skipped, and why) one line each on stderr."""
-    from postproc.georef.job import GeorefJob
+    from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
     with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):

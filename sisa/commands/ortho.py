@@ -19,7 +19,8 @@ from pathlib import Path
 from sisa.commands import SubParsers, add_command, terminal_progress
 from sisa.core.errors import InputError
 
-# postproc.products.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL (a test checks)
+# postproc.products.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL
+# (a test checks)
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
 
 
@@ -53,11 +54,13 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    from postproc.products.igm import EnviRaster, igm_epsg, igm_pixel_spacing_m
-    from postproc.products.ortho import (
+    from postproc.products import (
+        EnviRaster,
         OrthoGrid,
         SwathIndex,
         common_lines,
+        igm_epsg,
+        igm_pixel_spacing_m,
         nice_cell_m,
         orthorectify,
     )

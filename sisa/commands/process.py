@@ -16,14 +16,15 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command, flight_parts, say_warning
+from recorder.parts import flight_parts
+from sisa.commands import SubParsers, add_command, say_warning
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
-    from postproc.georef.sensorfile import SensorModel
+    from postproc.georef import SensorModel
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -45,7 +46,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:
     """The sensor file a run's scenario implies (its true geometry and mounting, or the nominal
     ones)."""
-    from postproc.georef.sensorfile import SensorModel
+    from postproc.georef import SensorModel
     from sisa.core.sensor import Mounting, ScannerGeometry
 
     geometry = ScannerGeometry(**{k: getattr(scn.scanner, k)
@@ -90,7 +91,7 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from emulators.scenario import load_scenario
-    from postproc.georef.report import write_report
+    from postproc.georef import write_report
     from sisa.core.jsonio import write_json
     from sisa.wiring.accuracy import run_accuracy
 

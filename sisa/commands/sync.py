@@ -13,7 +13,8 @@ import argparse
 import time
 from pathlib import Path
 
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, say_warning
+from recorder.parts import flight_parts
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, say_warning
 from sisa.core.outdir import staged_output_dir
 
 
@@ -32,17 +33,19 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from postproc.sync.files import (
+    from postproc.sync import WANTED as SYNC_WANTED
+    from postproc.sync import (
+        TimeStatus,
+        no_ins_timed_note,
         read_scanner_lines,
+        sync_input_from_columns,
+        synchronise,
         unlisted_line_notes,
+        untimed_lines_note,
         write_ins_times,
         write_line_times,
         write_report,
     )
-    from postproc.sync.flightlog import WANTED as SYNC_WANTED
-    from postproc.sync.flightlog import sync_input_from_columns
-    from postproc.sync.pipeline import TimeStatus, synchronise
-    from postproc.sync.report import no_ins_timed_note, untimed_lines_note
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.reader import read_topics

@@ -28,10 +28,15 @@ from emulators.scenario import Scenario
 from emulators.terrain import Terrain
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
-from postproc.calibration.data import read_ground_points
-from postproc.georef.job import GeorefResult, SegmentResult
-from postproc.georef.navigation import AntennaFixes, ecef_to_geodetic, fixes_from_columns
-from postproc.products.igm import open_igm
+from postproc.calibration import read_ground_points
+from postproc.georef import (
+    AntennaFixes,
+    GeorefResult,
+    SegmentResult,
+    ecef_to_geodetic,
+    fixes_from_columns,
+)
+from postproc.products import open_igm
 from recorder.messages import Topic
 from recorder.reader import read_topics
 from sisa.core.errors import InputError
@@ -135,7 +140,7 @@ def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
     flight puts the antenna, to NMEA's rounding. A scenario edited after the run (another
     place, another seed: the same times) rebuilds another flight, and every error judged
     against it would be that flight's (found by a bad-input sweep: 8 px for a changed seed)."""
-    from sisa.commands import flight_parts
+    from recorder.parts import flight_parts
 
     truth_csv = run / "truth" / "gps_fixes.csv"
     if not truth_csv.is_file():

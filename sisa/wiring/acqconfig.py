@@ -4,13 +4,11 @@ fast."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from pathlib import Path
-
 from acquisition.runner import AcquisitionConfig
 from acquisition.syncfilter import SyncFilterConfig
 from emulators.block import resolve_one_of_n
-from emulators.scenario import Scenario, SisaSettings
+from emulators.scenario import Scenario
+from recorder.settings import HEADER_WINDOW_KEY, READ_INTERVAL_KEY
 
 
 def acquisition_config(scn: Scenario) -> AcquisitionConfig:
@@ -33,12 +31,6 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
                              read_interval_ns=round(scn.sisa.read_interval_ms * 1e6))
 
 
-# the recording settings a log keeps in its `sisa.recording` metadata (as text): what
-# post-processing may need to explain a result the log's messages cannot (docs/recorder.md)
-HEADER_WINDOW_KEY = "header_window_ms"
-READ_INTERVAL_KEY = "read_interval_ms"
-
-
 def recording_settings(config: AcquisitionConfig) -> dict[str, str]:
     """The sync filter's header window and the read clock, for the log's metadata: `sisa sync`
     names them when they left every frame pulse untied (a scanner faster than the window)."""
@@ -46,25 +38,3 @@ def recording_settings(config: AcquisitionConfig) -> dict[str, str]:
     return {HEADER_WINDOW_KEY: f"{sync.header_latency_min_ns / 1e6:g},"
                                f"{sync.header_latency_max_ns / 1e6:g}",
             READ_INTERVAL_KEY: f"{config.read_interval_ns / 1e6:g}"}
-
-
-def recorded_header_window_ms(metadata: dict[str, str]) -> tuple[float, float] | None:
-    """The header window a log was recorded with (`recording_settings`), None if it does not
-    say (a log from before 2026-11-27, or another recorder's)."""
-    try:
-        lo, hi = (float(v) for v in metadata[HEADER_WINDOW_KEY].split(","))
-    except (KeyError, ValueError):
-        return None
-    return (lo, hi) if lo < hi else None
-
-
-def header_window_of_log(flight: Sequence[Path]) -> tuple[tuple[float, float], str | None]:
-    """The header window a flight was recorded with, to explain untimed lines (never to time
-    anything): as the log's recording settings say it, with where from; else the default and
-    None (a log recorded before it kept them)."""
-    from recorder.reader import recording_metadata
-
-    window = recorded_header_window_ms(recording_metadata(flight[0]))
-    if window is None:
-        return SisaSettings().header_window_ms, None
-    return window, f"as {flight[0].name} was recorded"

@@ -30,9 +30,8 @@ from emulators.render import camera_pose_ecef
 from emulators.scenario import Scenario, load_scenario
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
-from postproc.calibration.data import GroundPoints, ImageObservations
-from postproc.georef.dem import Dem
-from postproc.georef.navigation import ecef_to_geodetic, geodetic_to_ecef
+from postproc.calibration import GroundPoints, ImageObservations
+from postproc.georef import Dem, ecef_to_geodetic, geodetic_to_ecef
 from sisa.core.errors import InputError
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B

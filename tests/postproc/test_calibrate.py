@@ -1,4 +1,5 @@
-"""Calibration adjustment (postproc.calibration.adjust) on a synthetic block with its own forward model.
+"""Calibration adjustment (postproc.calibration.adjust) on a synthetic block with its own forward
+model.
 
 The block here is built independently of the emulators and of postproc's model: straight
 strips at constant speed over a tangent plane, wavy attitude, points on a bilinear DEM, and a

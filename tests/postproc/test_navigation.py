@@ -1,4 +1,5 @@
-"""The navigation solution (postproc.georef.navigation) against an analytic flight and a simulated run.
+"""The navigation solution (postproc.georef.navigation) against an analytic flight and a simulated
+run.
 
 The synthetic flight (`Synthetic`) is written here, independently of the emulators: a straight
 strip, then a serpentine of ±30° course swings, with attitude and height turbulence, heading

@@ -1,5 +1,5 @@
-"""Time synchronisation (postproc.sync.pipeline, `sisa sync`): every INS record and every scan line in
-GPS time, checked against the simulation truth (tests may read it; postproc never does) and
+"""Time synchronisation (postproc.sync.pipeline, `sisa sync`): every INS record and every scan line
+in GPS time, checked against the simulation truth (tests may read it; postproc never does) and
 against the noise model, plus unit tests of each stage on hand-made inputs.
 
 The helpers at the top join a run's truth to the log and predict the errors from the noise model;

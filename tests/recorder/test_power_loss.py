@@ -3,8 +3,8 @@ finishing (writing the summary, closing), at random moments and at exact steps (
 k-th file of a split set is created, at the k-th fsync).
 
 Every file left must be readable by `sisa log info` (alone and as a set), by `sisa log recover`
-and by the post-processor's reader (`postproc.sync.flightlog.read_sync_input`); every part but the last
-must be complete; the per-topic sequence runs on across parts without a gap; and the messages
+and by the post-processor's reader (`postproc.sync.flightlog.read_sync_input`); every part but the
+last must be complete; the per-topic sequence runs on across parts without a gap; and the messages
 kept reach to within 1.5 s of the kill.
 
 The children are this module run as a program:

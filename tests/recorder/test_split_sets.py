@@ -17,6 +17,7 @@ import pytest
 
 from recorder import writer as writer_module
 from recorder.messages import RawBytes, Topic
+from recorder.parts import flight_parts
 from recorder.reader import (
     MissingPartWarning,
     read_columns,
@@ -27,7 +28,6 @@ from recorder.reader import (
 from recorder.recover import recover
 from recorder.writer import FlightRecorder, part_path, split_parts
 from sisa.cli import main
-from sisa.commands import flight_parts
 from sisa.core.errors import InputError
 from tests.recorder import T0_NS
 

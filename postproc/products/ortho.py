@@ -8,7 +8,7 @@ the exact nearest pixel even where turbulence shears the lines. Cells whose cent
 covers are nodata. Work goes by output windows (full-width strips of rows, or square tiles on
 wide grids) sized by WINDOW_BYTES, each reading only the IGM and image lines that reach it, so
 memory does not grow with the length of the flight. Windows are made WORKERS at a time on
-threads (the C kernels, postproc/_orthokernels.c, run without the GIL) while a background
+threads (the C kernels, postproc/products/_orthokernels.c, run without the GIL) while a background
 thread compresses the GeoTIFF of the previous one; the products do not depend on the number
 of threads.
 """
@@ -84,7 +84,7 @@ FAR_WIDTHS: Final = 50.0  # a position this many line widths from the rest is da
 # -- the C kernels ---------------------------------------------------------------------------
 
 def _load_kernels() -> ctypes.CDLL:
-    """postproc/_orthokernels.c, built when SISA is installed. Called through ctypes, which
+    """postproc/products/_orthokernels.c, built when SISA is installed. Called through ctypes, which
     releases the GIL for the call (why C: see the file's head)."""
     try:
         kernels = importlib.import_module("postproc.products._orthokernels")

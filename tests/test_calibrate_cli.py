@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from sisa.cli import main
 
 SCENARIO = """base = "bench"
@@ -150,7 +150,7 @@ def test_border_control_points_can_be_measured_in_one_image(run: Path) -> None:
     """seed 000: the ground points on the block borders have one observation, the others two."""
     import numpy as np
 
-    from postproc.calibration.data import read_ground_points, read_observations
+    from postproc.calibration import read_ground_points, read_observations
     from sisa.wiring.gcpsim import border_control
 
     pts = read_ground_points(run / "terrain" / "ground_points.csv")
@@ -271,7 +271,7 @@ def test_left_out_measurements_are_warnings_on_stderr(cal: Path, run: Path,
                                                       ) -> None:
     """Rows off the image, on an untimed line or in a segment the log lacks were dropped with
     only a note in calibration.json: exit 0 and nothing said."""
-    from postproc.calibration.data import read_observations
+    from postproc.calibration import read_observations
 
     obs = read_observations(cal / "observations.csv")
     taken = set(zip(obs.point_id.tolist(), obs.segment.tolist(), strict=True))

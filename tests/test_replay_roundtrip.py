@@ -35,7 +35,7 @@ import numpy as np
 import pytest
 
 from emulators.scenario import scenario_from_table
-from postproc.sync.pipeline import sync_log
+from postproc.sync import sync_log
 from recorder.messages import FrameHeaderLog, RawBytes, StreamHealth, Topic
 from recorder.reader import read_log, read_messages
 from recorder.replay import Wire, iter_schedule

@@ -211,7 +211,7 @@ def test_sisa_record_survives_a_gps_that_goes_away_and_comes_back(tmp_path: Path
     assert gps_row[-2:] == ["1", "1"], info  # disconnects, reconnects
 
     # post-processing reads the log with its gap: tables for every INS record, untimed flagged
-    from postproc.sync.pipeline import TimeStatus, sync_log
+    from postproc.sync import TimeStatus, sync_log
 
     result = sync_log([out])
     times = result.ins

@@ -37,7 +37,7 @@ import tomli_w
 from hypothesis import strategies as st
 
 from emulators.scenario import PRESETS, Scenario, load_scenario
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from recorder.messages import InsRecordLog
 from recorder.reader import LogReader, read_log, read_messages, read_topics, scan_log
 from recorder.recover import recover
@@ -224,7 +224,7 @@ def data_is_mcap(data: bytes) -> bool:
 
 def _sync_columns(path: Path) -> Any:
     """What time synchronisation reads from a log (postproc.sync.flightlog.WANTED), streaming."""
-    from postproc.sync.flightlog import WANTED
+    from postproc.sync import WANTED
 
     return read_topics(path, WANTED)
 

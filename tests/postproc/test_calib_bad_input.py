@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from postproc.calibration.data import ImageObservations, read_ground_points, read_observations
+from postproc.calibration import ImageObservations, read_ground_points, read_observations
 from postproc.calibration.setup import Notes, check_sensor_fits
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from sisa.core.errors import InputError
 
 POINTS = "id,kind,lat_deg,lon_deg,height_m\nA,control,41.6,2.0,300.0\n"
@@ -152,7 +152,7 @@ def test_an_adjustment_gone_astray_is_no_sensor_file() -> None:
     refuse later."""
     from postproc.calibration.adjust import calibrated_sensor
     from postproc.calibration.params import base_state
-    from postproc.georef.sensorfile import SensorModel
+    from postproc.georef import SensorModel
 
     sensor = SensorModel(name="CASI")
     st = base_state(sensor, 1)

@@ -21,27 +21,27 @@ import numpy.typing as npt
 import pytest
 from pyproj import Transformer
 
-from postproc.calibration.adjust import (
+from postproc.calibration import (
     CalibrationInput,
     CalibrationOptions,
-    calibrate,
-    sweep_delay,
-)
-from postproc.calibration.data import (
     GroundPoints,
+    Group,
     ImageObservations,
+    PriorSigmas,
     SegmentClock,
+    calibrate,
+    join_flights,
+    load_check,
+    parse_groups,
     read_ground_points,
     read_observations,
+    report_json,
+    sensor_toml,
+    sweep_delay,
     write_observations,
 )
-from postproc.calibration.flights import join_flights
 from postproc.calibration.model import boresight_matrix, rot_xyz
-from postproc.calibration.params import Group, PriorSigmas, parse_groups
-from postproc.calibration.report import load_check, report_json, sensor_toml
-from postproc.georef.dem import Dem
-from postproc.georef.navigation import Pose
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import Dem, Pose, SensorModel
 from sisa.core.errors import ConfigError, InputError
 from sisa.core.sensor import Mounting, ScannerGeometry, rot_x, rot_y, rot_z
 

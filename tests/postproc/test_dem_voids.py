@@ -19,10 +19,9 @@ from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
+from postproc.georef import CastStats, GroundPoints, intersect, raycast, reference_intersect
 from postproc.georef import dem as dem_module
-from postproc.georef import raycast
 from postproc.georef.dem import Dem, DemVoidWarning, dem_extent, height_range
-from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
 from sisa.cli import main
 from sisa.core.errors import InputError
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix

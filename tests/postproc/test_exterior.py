@@ -12,8 +12,8 @@ import numpy.typing as npt
 import pytest
 from scipy.spatial.transform import Rotation
 
+from postproc.georef import Pose, nav_from_columns
 from postproc.georef.exterior import exterior_orientation, write_eo_csv
-from postproc.georef.navigation import Pose, nav_from_columns
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import Mounting
 from sisa.core.timescale import NS_PER_S

@@ -14,9 +14,7 @@ from typing import Any
 import pytest
 
 import postproc.georef.job as georef_module
-from postproc.georef import raycast
-from postproc.georef.job import GeorefJob, GeorefOptions
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import GeorefJob, GeorefOptions, SensorModel, raycast
 from sisa.core.errors import InputError
 from tests.postproc.test_trajectory_coverage import (  # noqa: F401 (its fixture, by name)
     run as coverage_run,

@@ -24,14 +24,13 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.georef.dem import Dem
+from postproc.georef import Dem, SensorModel
 from postproc.georef.job import (
     GeorefJob,
     GeorefOptions,
     SegmentResult,
     SwathOnDem,
 )
-from postproc.georef.sensorfile import SensorModel
 from sisa.core.errors import InputError
 from tests.postproc.test_georef_dem_cover import BOUNDS, georef, seven_run, warned
 

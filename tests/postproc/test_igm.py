@@ -16,6 +16,7 @@ import rasterio
 from pyproj import CRS
 from rasterio.errors import NotGeoreferencedWarning
 
+from postproc.products import OrthoGrid
 from postproc.products.igm import (
     IGM_BAND_NAMES,
     EnviRaster,
@@ -25,7 +26,6 @@ from postproc.products.igm import (
     replace_file,
     write_geolocation_vrt,
 )
-from postproc.products.ortho import OrthoGrid
 from sisa.core.errors import InputError
 
 EPSG = 32631  # UTM 31N (Garrotxa, Bellmunt)

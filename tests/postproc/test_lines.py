@@ -6,8 +6,8 @@ import warnings
 
 import numpy as np
 
+from postproc.sync import HeaderColumns
 from postproc.sync import lines as ln
-from postproc.sync.flightlog import HeaderColumns
 
 
 def test_headers_faster_than_the_read_clock_unwrap_without_a_zero_period() -> None:

@@ -13,10 +13,14 @@ from pyproj import Geod, Transformer
 from rasterio.errors import NotGeoreferencedWarning
 from scipy.spatial import cKDTree
 
-from postproc.products.footprints import footprint_feature, write_footprints_geojson
-from postproc.products.igm import igm_bounds
-from postproc.products.mosaic import mosaic
-from postproc.products.ortho import OrthoGrid, orthorectify
+from postproc.products import (
+    OrthoGrid,
+    footprint_feature,
+    igm_bounds,
+    mosaic,
+    orthorectify,
+    write_footprints_geojson,
+)
 from postproc.products.quicklook import rgb_bands, write_quicklook
 from sisa.core.errors import InputError
 from tests.postproc.test_igm import EPSG, Strip, synthetic_strip, write_igm, write_raw

@@ -31,10 +31,8 @@ from postproc.georef.navigation import (
     nav_from_columns,
     nav_from_log,
 )
-from postproc.sync.config import TimeStatus
-from postproc.sync.flightlog import WANTED as SYNC_WANTED
-from postproc.sync.flightlog import sync_input_from_columns
-from postproc.sync.pipeline import InsTimes, SyncResult, synchronise
+from postproc.sync import WANTED as SYNC_WANTED
+from postproc.sync import InsTimes, SyncResult, TimeStatus, sync_input_from_columns, synchronise
 from recorder.messages import Topic
 from recorder.reader import read_topics
 from sisa.core.errors import ConfigError, InputError

@@ -19,8 +19,14 @@ import rasterio
 from scipy.spatial import cKDTree
 
 import postproc.products.ortho as ortho
-from postproc.products.igm import CutShortWarning, EnviRaster, open_igm
-from postproc.products.ortho import OrthoGrid, SwathIndex, orthorectify
+from postproc.products import (
+    CutShortWarning,
+    EnviRaster,
+    OrthoGrid,
+    SwathIndex,
+    open_igm,
+    orthorectify,
+)
 from sisa.core.errors import InputError
 from tests.postproc.test_igm import (
     EPSG,

@@ -15,8 +15,7 @@ from pyproj import Transformer
 from emulators.render import exact_ground_point
 from emulators.scenario import load_scenario
 from emulators.terrain import Terrain
-from postproc.georef.dem import Dem
-from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
+from postproc.georef import CastStats, Dem, GroundPoints, intersect, reference_intersect
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 

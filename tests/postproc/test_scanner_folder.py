@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from postproc.sync.files import read_scanner_lines
+from postproc.sync import read_scanner_lines
 from sisa.core.errors import InputError
 
 LINES_CSV = "# the scanner's record\nline_index,frame_counter\n0,7\n1,8\n2,9\n"

@@ -2,7 +2,7 @@
 
 import pytest
 
-from postproc.georef.sensorfile import SensorModel
+from postproc.georef import SensorModel
 from sisa.core.errors import InputError
 from sisa.core.sensor import Mounting, ScannerGeometry
 

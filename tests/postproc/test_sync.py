@@ -26,15 +26,26 @@ from acquisition.scanner_header import BODY as HEADER_BODY
 from acquisition.syncfilter import GATE_DELAY_NS as BOX_GATE_DELAY_NS
 from emulators.scenario import Scenario, load_scenario, scenario_from_table
 from emulators.truth import read_truth_csv
+from postproc.sync import (
+    GpsTimes,
+    HeaderColumns,
+    InsColumns,
+    SisaColumns,
+    SyncInput,
+    SyncResult,
+    TimeStatus,
+    insclock,
+    lines,
+    pulses,
+    read_scanner_lines,
+    read_sync_input,
+    synchronise,
+)
 from postproc.sync import files as syncio
-from postproc.sync import insclock, lines, pulses
 from postproc.sync.clockmap import ptt_of_seconds
-from postproc.sync.files import read_scanner_lines
-from postproc.sync.flightlog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
 from postproc.sync.insclock import PieceStart, ins_timeline
 from postproc.sync.linefit import prediction_rms, robust_line
 from postproc.sync.pattern import PatternConfig, match_blocks, score_shifts
-from postproc.sync.pipeline import SyncResult, TimeStatus, read_sync_input, synchronise
 from sisa.core.errors import InputError
 from sisa.wiring.simulation import simulate
 from tests.recorder import overwrite_middle

@@ -16,7 +16,7 @@ import pytest
 
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
-from postproc.sync.pipeline import SyncResult, TimeStatus, read_sync_input, synchronise
+from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
 from sisa.wiring.simulation import simulate
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
 

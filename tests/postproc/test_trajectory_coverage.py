@@ -27,7 +27,7 @@ import pytest
 from acquisition.nmea import FixQuality, encode, gga_from_fix, ptt_from_gps_ns, zda_from_gps_ns
 from emulators.scenario import load_scenario
 from emulators.trajectory import TruthTrajectory
-from postproc.georef.navigation import ecef_to_geodetic
+from postproc.georef import ecef_to_geodetic
 from postproc.georef.trajfiles import read_trajectory_file, sbet_trajectory
 from recorder.messages import Topic
 from sisa.cli import main
@@ -248,7 +248,7 @@ def test_image_cut_mid_line_georeferences_its_whole_lines(
     """A segment image shorter than its header (a copy interrupted): the job no longer fails
     whole; the lines before the cut are georeferenced as from the intact file, the rest are
     named in one warning (stderr and summary)."""
-    from postproc.products.igm import EnviRaster
+    from postproc.products import EnviRaster
 
     scanner = tmp_path / "scanner"
     scanner.mkdir()

@@ -204,7 +204,7 @@ def run_batch(folder: Path, plans: list[Plan], seed: int) -> list[Killed]:
 
 def check_killed(run: Killed, scratch: Path, capsys: pytest.CaptureFixture[str]) -> float:
     """Every check on one killed recording; returns the loss before the kill in seconds."""
-    from postproc.sync.flightlog import read_sync_input
+    from postproc.sync import read_sync_input
     from recorder.reader import scan_log
     from recorder.writer import split_parts
     from sisa.cli import main

@@ -12,8 +12,8 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
+from postproc.georef import SensorModel
 from postproc.georef.job import GeorefJob, GeorefOptions, SegmentResult, SwathOnDem
-from postproc.georef.sensorfile import SensorModel
 from sisa.cli import build_parser, main
 from sisa.core.errors import InputError
 

@@ -16,7 +16,7 @@ import pytest
 import rasterio
 from rasterio.enums import ColorInterp
 
-from postproc.products.igm import open_igm
+from postproc.products import open_igm
 from postproc.products.ortho import TIFF_COMPRESSIONS, nice_cell_m
 from sisa import cli
 from sisa.commands.ortho import COMPRESSIONS

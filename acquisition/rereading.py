@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from acquisition.live import Arrival, Source
 from acquisition.pulses import Edge, EdgeStreamDecoder, PulseLine, encode_edge
 from acquisition.slcan_bulk import encode_frame_line, parse_frame_lines
-from recorder.reader import Paths
+from recorder.framing import Paths
 from recorder.replay import BoardModel, CanFrame, RecordedEdge, iter_schedule, survey_log
 
 

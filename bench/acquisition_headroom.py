@@ -36,8 +36,8 @@ from acquisition.runner import Acquisition
 from acquisition.slcan_bulk import encode_frame_line, parse_frame_line
 from emulators.scenario import load_scenario, scenario_from_table
 from emulators.trajectory import TruthTrajectory
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import read_columns
 from recorder.writer import FlightRecorder
 from sisa.commands.bench import DRAIN_S, stop_after_hold, wait_for_endpoints
 from sisa.commands.record import TICK_S

@@ -60,7 +60,7 @@ from postproc.calibration import (
 from postproc.georef import NAV_WANTED, Dem, SensorModel, merged_wanted, nav_from_columns
 from postproc.sync import WANTED as SYNC_WANTED
 from postproc.sync import SyncResult, sync_input_from_columns, synchronise
-from recorder.reader import read_topics
+from recorder.columns import read_topics
 from sisa.commands.process import sensor_of
 from sisa.commands.scenario import scenario_toml
 from sisa.core.sensor import Mounting

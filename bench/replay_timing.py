@@ -35,8 +35,8 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.pulses import PulseLine
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import read_columns
 from recorder.replay import (
     CanFrame,
     Item,

@@ -40,8 +40,9 @@ from emulators.scenario import scenario_from_table
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
 from postproc.sync import TimeStatus, read_sync_input, synchronise
+from recorder.columns import read_columns
 from recorder.messages import FrameHeaderLog, GpsFix, InsRecordLog, StreamHealth, Topic
-from recorder.reader import read_columns, read_messages
+from recorder.reader import read_messages
 from sisa.core.timescale import NS_PER_S
 
 ROOT = Path(__file__).resolve().parents[1]

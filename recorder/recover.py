@@ -18,7 +18,8 @@ from typing import BinaryIO
 from mcap.records import Message
 from mcap.writer import CompressionType, Writer
 
-from recorder.reader import ChannelInfo, LogReader, LogStats
+from recorder.reader import LogReader
+from recorder.stats import ChannelInfo, LogStats
 from recorder.writer import (
     DEFAULT_CHUNK_SIZE,
     RECORDER_ID,

@@ -29,8 +29,10 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Final
 
+from recorder.framing import Paths
 from recorder.messages import CAN_EXTENDED_FLAG, Topic
-from recorder.reader import LogReader, LogStats, Paths
+from recorder.reader import LogReader
+from recorder.stats import LogStats
 from sisa.core.errors import InputError
 
 REORDER_WINDOW_NS: Final = 2_000_000_000  # a CAN batch is written ≤ ~0.3 s after its first frame

@@ -28,7 +28,7 @@ def header_window_of_log(flight: Sequence[Path]) -> tuple[tuple[float, float], s
     """The header window a flight was recorded with, to explain untimed lines (never to time
     anything): as the log's recording settings say it, with where from; else the default and
     None (a log recorded before it kept them)."""
-    from recorder.reader import recording_metadata  # the scenario's default above stays light
+    from recorder.parts import recording_metadata  # the scenario's default above stays light
 
     window = recorded_header_window_ms(recording_metadata(flight[0]))
     if window is None:

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from emulators.truth import read_truth_csv
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import DamagedLogWarning, read_columns
+from recorder.stats import DamagedLogWarning
 from sisa.commands.bench import EMULATOR_LAG, late_edges_note, stop_after_hold
 from sisa.commands.emulate import HELD_LINE
 
@@ -57,7 +58,7 @@ def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
     "INS records flagged: ambiguous 320", `georef` "0 usable INS records": they say why."""
     from postproc.georef import NAV_WANTED, merged_wanted, nav_from_columns
     from postproc.sync import WANTED, sync_input_from_columns, synchronise
-    from recorder.reader import read_topics
+    from recorder.columns import read_topics
     from sisa.core.errors import InputError
 
     done = subprocess.run([sys.executable, "-m", "sisa.cli", "sync", str(flight), "--out",

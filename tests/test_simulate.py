@@ -7,8 +7,9 @@ import pytest
 from acquisition.lfsr import Lfsr
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
+from recorder.columns import read_columns
 from recorder.messages import SyncForward, SyncModeSwitch, SyncPps, SyncSession, Topic
-from recorder.reader import read_columns, read_messages
+from recorder.reader import read_messages
 from sisa.core.timescale import NS_PER_S
 from sisa.wiring.acqconfig import acquisition_config
 from sisa.wiring.simulation import simulate

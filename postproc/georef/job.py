@@ -95,9 +95,10 @@ from postproc.sync import (
     write_line_times,
     write_report,
 )
+from recorder.columns import read_topics
+from recorder.framing import Paths, log_paths
 from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
-from recorder.reader import Paths, log_paths, read_topics
 from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
 from sisa.core.timescale import (

@@ -43,8 +43,9 @@ from scipy.interpolate import PchipInterpolator, make_interp_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from postproc.sync import AMBIGUOUS_HINT, InsTimes, TimeStatus
+from recorder.columns import read_topics
+from recorder.framing import Paths
 from recorder.messages import Topic
-from recorder.reader import Paths, read_topics
 from sisa.core.errors import ConfigError, InputError
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.timescale import NS_PER_S, seconds_since

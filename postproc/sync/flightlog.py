@@ -14,8 +14,9 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from recorder.columns import read_topics
+from recorder.framing import Paths
 from recorder.messages import Topic
-from recorder.reader import Paths, read_topics
 
 Columns = dict[str, npt.NDArray[Any]]
 I64 = npt.NDArray[np.int64]

@@ -34,7 +34,7 @@ from postproc.sync.insrecords import latch_noise_s, tag_records
 from postproc.sync.pulses import SisaPulses, sisa_pulses
 from postproc.sync.report import ins_report, line_report, pulse_report
 from postproc.sync.results import InsSolution, InsTimes, LineTimes, SyncResult
-from recorder.reader import Paths
+from recorder.framing import Paths
 from sisa.core.errors import InputError
 from sisa.core.timescale import NS_PER_S
 

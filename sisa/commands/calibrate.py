@@ -304,9 +304,9 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
         synchronise,
         untimed_lines_note,
     )
+    from recorder.columns import read_topics
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
-    from recorder.reader import read_topics
 
     sensor = _sensor(args) if sensor is None else sensor
     paths = _flight_paths(args)

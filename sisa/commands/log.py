@@ -18,7 +18,7 @@ from sisa.commands import FLIGHT_HELP, add_command, new_file_arg, say_warning
 from sisa.core.errors import InputError, shown_text
 
 if TYPE_CHECKING:
-    from recorder.reader import FileStats, Gap, LogStats
+    from recorder.stats import FileStats, Gap, LogStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -78,7 +78,7 @@ def _info(args: argparse.Namespace) -> int:
 def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
     """What `log info` prints, as plain JSON: every time int64 ns on the host clock, counts as
     integers; the largest `gaps_shown` gaps (all counted in each topic's `gaps`)."""
-    from recorder.reader import topics_in
+    from recorder.columns import topics_in
 
     largest = _largest_gaps(stats, gaps_shown)
     return {
@@ -130,7 +130,7 @@ def _refuse_part_name(src: Path, out: Path) -> None:
     """OUT named as a further part of a log beside it (flight_001.mcap beside flight.mcap)
     would be read with that log as a part of it: refused, unless IN is a further part itself
     (recovering each part to the numbered names, as the warning below says)."""
-    from recorder.reader import part_label
+    from recorder.parts import part_label
     from recorder.writer import named_as_part
 
     part = named_as_part(out)
@@ -147,7 +147,7 @@ def _refuse_part_name(src: Path, out: Path) -> None:
 def _further_parts(path: Path) -> list[Path]:
     """The parts after `path` found beside it when it is part 0 of a split recording: `log
     recover` copies one file, and without a word its output would pass for the whole flight."""
-    from recorder.reader import part_label
+    from recorder.parts import part_label
     from recorder.writer import split_parts
 
     first = part_label(path)
@@ -194,7 +194,7 @@ def _summary_lines(stats: LogStats) -> list[str]:
 
 
 def _topic_table(stats: LogStats) -> list[str]:
-    from recorder.reader import topics_in
+    from recorder.columns import topics_in
 
     if not stats.topics:
         return []

@@ -46,9 +46,9 @@ def _run(args: argparse.Namespace) -> int:
         write_line_times,
         write_report,
     )
+    from recorder.columns import read_topics
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
-    from recorder.reader import read_topics
 
     started = time.perf_counter()
     with staged_output_dir(args.out) as out:

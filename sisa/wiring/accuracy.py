@@ -37,8 +37,8 @@ from postproc.georef import (
     fixes_from_columns,
 )
 from postproc.products import open_igm
+from recorder.columns import read_topics
 from recorder.messages import Topic
-from recorder.reader import read_topics
 from sisa.core.errors import InputError
 from sisa.core.timescale import gps_span_label
 

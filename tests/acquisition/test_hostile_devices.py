@@ -46,8 +46,9 @@ from acquisition.nmea import (
 from acquisition.pulses import EDGE_SIZE, Edge, PulseLine, encode_edge
 from acquisition.runner import Acquisition
 from emulators.scenario import load_scenario
+from recorder.columns import read_columns
 from recorder.messages import StreamHealth, Topic
-from recorder.reader import read_columns, read_messages
+from recorder.reader import read_messages
 from recorder.writer import FlightRecorder
 from sisa.core.nmea import checksum
 from sisa.core.timescale import NS_PER_S, gps_ns_from_unix_ns

@@ -38,8 +38,9 @@ from hypothesis import strategies as st
 
 from emulators.scenario import PRESETS, Scenario, load_scenario
 from postproc.georef import SensorModel
+from recorder.columns import read_topics
 from recorder.messages import InsRecordLog
-from recorder.reader import LogReader, read_log, read_messages, read_topics, scan_log
+from recorder.reader import LogReader, read_log, read_messages, scan_log
 from recorder.recover import recover
 from recorder.writer import FlightRecorder
 from sisa.core.errors import ConfigError, InputError, SisaError
@@ -54,7 +55,7 @@ INTERESTING_U64 = (0, 1, 7, 8, 9, 22, 255, 2**16, 2**31, 2**32 - 1, 2**32, 2**62
 CHUNK = 0x06
 
 # fuzzed logs are damaged by design: the reader's warning saying so is expected
-pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.stats.DamagedLogWarning")
 
 
 

@@ -33,8 +33,8 @@ from postproc.georef.navigation import (
 )
 from postproc.sync import WANTED as SYNC_WANTED
 from postproc.sync import InsTimes, SyncResult, TimeStatus, sync_input_from_columns, synchronise
+from recorder.columns import read_topics
 from recorder.messages import Topic
-from recorder.reader import read_topics
 from sisa.core.errors import ConfigError, InputError
 from sisa.core.frames import body_to_ned_matrix, euler_from_body_to_ned, ned_to_ecef_matrix
 from sisa.core.timescale import NS_PER_S, parse_gps_datetime

@@ -219,7 +219,7 @@ def _cut_log(src: Path, dst: Path, before_log_ns: int) -> None:
 
 def test_log_cut_between_the_strips_georeferences_strip_0(
         run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from recorder.reader import read_topics
+    from recorder.columns import read_topics
 
     headers = read_topics(run / "flight.mcap", {Topic.SCANNER_HEADER: ("segment",)})[
         Topic.SCANNER_HEADER]

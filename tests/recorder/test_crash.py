@@ -14,8 +14,9 @@ import pytest
 from mcap.reader import make_reader
 
 import recorder.writer as writer_module
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import read_columns, read_log, scan_log
+from recorder.reader import read_log, scan_log
 from recorder.recover import recover
 from recorder.writer import FlightRecorder
 from sisa.cli import main
@@ -24,7 +25,7 @@ from tests.recorder.crash_child import fix, ins, kill_many
 from tests.recorder.fakedisk import Disk
 
 # every log here is cut short or damaged on purpose: the reader's warning saying so is expected
-pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.stats.DamagedLogWarning")
 
 MAX_LOSS_NS = 1_500_000_000
 ROOT = Path(__file__).resolve().parents[2]

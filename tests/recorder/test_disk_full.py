@@ -24,8 +24,9 @@ import numpy as np
 import pytest
 
 import recorder.writer as writer_module
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import read_columns, scan_log
+from recorder.reader import scan_log
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
 from sisa.core.errors import RecorderError
@@ -33,7 +34,7 @@ from tests.recorder.crash_child import fix, ins
 from tests.recorder.fakedisk import Disk
 
 # every log here is cut short or damaged on purpose: the reader's warning saying so is expected
-pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.stats.DamagedLogWarning")
 
 T0 = 1_700_000_000 * 10**9
 MESSAGES = 3000  # INS records at 500 Hz of log time, a fix every 25th

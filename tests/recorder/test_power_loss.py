@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 # every log here is cut short or damaged on purpose: the reader's warning saying so is expected
-pytestmark = pytest.mark.filterwarnings("ignore::recorder.reader.DamagedLogWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::recorder.stats.DamagedLogWarning")
 
 MAX_LOSS_NS = 1_500_000_000
 ROOT = Path(__file__).resolve().parents[2]

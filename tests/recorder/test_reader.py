@@ -10,8 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from recorder.columns import read_columns
 from recorder.messages import GpsFix, InsRecordLog, PulseEdgeLog, RawBytes, Topic
-from recorder.reader import DamagedLogWarning, LogReader, read_columns, read_log, scan_log
+from recorder.reader import LogReader, read_log, scan_log
+from recorder.stats import DamagedLogWarning
 from recorder.writer import FlightRecorder, split_parts
 from sisa.cli import main
 from sisa.core.errors import InputError

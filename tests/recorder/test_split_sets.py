@@ -16,15 +16,10 @@ import numpy as np
 import pytest
 
 from recorder import writer as writer_module
+from recorder.columns import read_columns, read_topics
 from recorder.messages import RawBytes, Topic
-from recorder.parts import flight_parts
-from recorder.reader import (
-    MissingPartWarning,
-    read_columns,
-    read_topics,
-    recording_metadata,
-    scan_log,
-)
+from recorder.parts import MissingPartWarning, flight_parts, recording_metadata
+from recorder.reader import scan_log
 from recorder.recover import recover
 from recorder.writer import FlightRecorder, part_path, split_parts
 from sisa.cli import main

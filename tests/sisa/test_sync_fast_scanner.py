@@ -90,9 +90,9 @@ def test_a_log_without_its_settings_names_the_default_window(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A log recorded before the settings were kept: the period from the headers, and the
     window the recorder has by default, said as such."""
-    import recorder.reader
+    import recorder.parts
 
-    monkeypatch.setattr(recorder.reader, "recording_metadata", lambda _path: {})
+    monkeypatch.setattr(recorder.parts, "recording_metadata", lambda _path: {})
     capsys.readouterr()
     err, _ = _sync(fast_run / "flight.mcap", tmp_path / "sync", capsys)
     said = err.splitlines()

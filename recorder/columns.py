@@ -1,0 +1,188 @@
+"""A flight log as numpy columns, batch by batch, so that a long flight never lives as millions
+of Python dicts: what post-processing reads."""
+
+
+from __future__ import annotations
+
+import base64
+import json
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from recorder.framing import Paths
+from recorder.messages import Topic
+from recorder.parts import MissingPartWarning
+from recorder.reader import BATCH, JSON_ERRORS, LogReader, schema_properties
+from recorder.stats import ChannelInfo, DamagedLogWarning, LogStats, damage_notes
+from recorder.writer import (
+    SCHEMAS,
+    TOPIC_TYPES,
+)
+from sisa.core.errors import DecodeError
+
+Column = tuple[str, tuple[str, ...], Any]  # column name, path into the JSON object, numpy dtype
+
+
+def _columns(props: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[Column]:
+    """Flatten a JSON Schema's properties into typed columns ("timestamp.sec", ...)."""
+    out: list[Column] = []
+    for name, prop in props.items():
+        path = (*prefix, name)
+        kind = prop.get("type")
+        if kind == "object" and isinstance(prop.get("properties"), dict):
+            out.extend(_columns(prop["properties"], path))
+            continue
+        dtype: Any = {"integer": np.int64, "number": np.float64, "boolean": np.bool_,
+                      "string": np.str_}.get(kind, object)
+        if prop.get("contentEncoding") == "base64":
+            dtype = object
+        out.append((".".join(path), path, dtype))
+    return out
+
+
+def _column_values(objs: list[dict[str, Any]], path: tuple[str, ...]) -> list[Any]:
+    if len(path) == 1:
+        return [o[path[0]] for o in objs]
+    values = []
+    for o in objs:
+        v: Any = o
+        for key in path:
+            v = v[key]
+        values.append(v)
+    return values
+
+
+def _to_array(values: list[Any], dtype: Any, b64: bool) -> npt.NDArray[Any]:
+    if dtype is np.int64 and not all(type(v) is int for v in values):
+        raise TypeError("a value of an integer field is not an integer")  # numpy would truncate
+    if b64 or dtype is object:
+        arr = np.empty(len(values), dtype=object)
+        arr[:] = [base64.b64decode(v) for v in values] if b64 else values
+        return arr
+    if dtype is np.str_:
+        return np.array(values, dtype=np.str_) if values else np.array([], dtype=np.str_)
+    return np.fromiter(values, dtype=dtype, count=len(values))
+
+
+class _ColumnBuilder:
+    """Accumulates one topic's messages in numpy arrays, one JSON batch at a time."""
+
+    def __init__(self, props: dict[str, Any], fields: Sequence[str] | None = None) -> None:
+        self.columns = [c for c in _columns(props) if fields is None or c[0] in fields]
+        self.b64 = {name for name, p in props.items() if p.get("contentEncoding") == "base64"}
+        self.parts: dict[str, list[npt.NDArray[Any]]] = {"log_time_ns": []}
+        self.parts.update({name: [] for name, _, _ in self.columns})
+
+    def add_batch(self, log_times: list[int], datas: list[bytes]) -> None:
+        try:
+            objs = json.loads(b"[" + b",".join(datas) + b"]")
+            arrays = {name: _to_array(_column_values(objs, path), dtype, path[0] in self.b64)
+                      for name, path, dtype in self.columns}
+            times = np.array(log_times, dtype=np.int64)
+        except JSON_ERRORS as exc:
+            raise DecodeError(f"a message does not match its schema: {exc}") from None
+        self.parts["log_time_ns"].append(times)
+        for name, arr in arrays.items():
+            self.parts[name].append(arr)
+
+    def result(self) -> dict[str, npt.NDArray[Any]]:
+        out: dict[str, npt.NDArray[Any]] = {}
+        dtypes = {name: dtype for name, _, dtype in self.columns} | {"log_time_ns": np.int64}
+        for name, parts in self.parts.items():
+            out[name] = np.concatenate(parts) if parts else np.array([], dtype=dtypes[name])
+        return out
+
+
+def _known_props(topic: str) -> dict[str, Any]:
+    """The schema SISA writes on `topic`, for a log where the topic never appeared."""
+    if topic == Topic.GPS_LOCATION:
+        return dict(SCHEMAS["foxglove.LocationFix"]["properties"])
+    try:
+        cls = TOPIC_TYPES[Topic(topic)]
+    except (ValueError, KeyError):
+        return {}
+    return dict(SCHEMAS[cls.schema_name]["properties"])
+
+
+def read_columns(path_or_paths: Paths, topic: Topic | str) -> dict[str, npt.NDArray[Any]]:
+    """One topic as numpy arrays, one per field (plus `log_time_ns`), in file order.
+
+    integer → int64, number → float64 (NaN kept), boolean → bool, string → str, bytes and
+    arrays → object; nested objects flatten to "parent.child".
+    """
+    return read_topics(path_or_paths, {str(topic): None})[str(topic)]
+
+
+class _TopicBatches:
+    """One topic's messages waiting to be converted, and its column builder."""
+
+    def __init__(self, fields: Sequence[str] | None) -> None:
+        self.fields = fields
+        self.builder: _ColumnBuilder | None = None
+        self.times: list[int] = []
+        self.datas: list[bytes] = []
+
+    def add(self, channel: ChannelInfo, log_time: int, data: bytes) -> None:
+        if self.builder is None:
+            self.builder = _ColumnBuilder(schema_properties(channel) or {}, self.fields)
+        self.times.append(log_time)
+        self.datas.append(data)
+        if len(self.datas) >= BATCH:
+            self.builder.add_batch(self.times, self.datas)
+            self.times, self.datas = [], []
+
+    def result(self, topic: str) -> dict[str, npt.NDArray[Any]]:
+        if self.builder is None:
+            self.builder = _ColumnBuilder(_known_props(topic), self.fields)
+        if self.datas:
+            self.builder.add_batch(self.times, self.datas)
+        columns = self.builder.result()
+        missing = [f for f in self.fields or () if f not in columns]
+        if missing:
+            raise DecodeError(f"the log's schema has no field {', '.join(missing)}")
+        return columns
+
+
+def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None], *,
+                notes: list[str] | None = None) -> dict[str, dict[str, npt.NDArray[Any]]]:
+    """Several topics as numpy columns in ONE streaming pass (each pass over a long log costs
+    seconds): {topic: {field: array}} for the wanted fields (None: all), plus `log_time_ns`.
+    A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
+    with a value of the wrong type, raises DecodeError. What could not be read (a file cut
+    short, damaged chunks) is said as a DamagedLogWarning, the parts of a split recording that
+    are not given as a MissingPartWarning, or either appended to `notes` if given (for a
+    caller that reports its own warnings)."""
+    batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
+    reader = LogReader(path_or_paths)
+    topic = ""
+    try:  # an error names the file (the part being read) and the topic
+        for channel, msg in reader.raw():
+            batch = batches.get(channel.topic)
+            if batch is not None:
+                topic = channel.topic
+                batch.add(channel, msg.log_time, msg.data)
+        out = {}
+        for topic, batch in batches.items():
+            out[topic] = batch.result(topic)
+    except DecodeError as exc:
+        where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
+        raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
+    said: list[tuple[str, type[UserWarning]]] = [
+        (note, MissingPartWarning) for note in reader.stats.part_notes]
+    said += [(note, DamagedLogWarning) for fs in reader.stats.files for note in damage_notes(fs)]
+    for note, kind in said:
+        if notes is not None:
+            notes.append(note)
+        else:  # said once per file and kind (Python's warning registry)
+            warnings.warn(note, kind, stacklevel=1)
+    return out
+
+
+def topics_in(stats: LogStats) -> Iterable[str]:
+    """Topics of a log in a stable order (as declared by SISA's Topic enum, then the rest)."""
+    order = {str(t): i for i, t in enumerate(Topic)}
+    return sorted(stats.topics, key=lambda t: (order.get(t, len(order)), t))

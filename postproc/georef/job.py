@@ -34,26 +34,31 @@ import math
 import warnings
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from pyproj import CRS, Proj, Transformer
-from pyproj.transformer import AreaOfInterest
+from pyproj import Transformer
 
 from postproc.georef.dem import (
     DEFAULT_MARGIN_M,
     GEOID_UNDULATION_M,
     Dem,
-    band_note,
     bounds_text,
-    check_undulation_m,
     dem_extent,
     height_range,
 )
 from postproc.georef.exterior import LineEo, exterior_orientation, write_eo_csv
+from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
+from postproc.georef.jobrecords import (
+    GeorefOptions,
+    GeorefResult,
+    LineSpan,
+    SegmentResult,
+    SegmentSkip,
+)
 from postproc.georef.navigation import (
     NAV_WANTED,
     AntennaFixes,
@@ -65,7 +70,6 @@ from postproc.georef.navigation import (
 )
 from postproc.georef.raycast import intersect
 from postproc.georef.registration import register_strips
-from postproc.georef.sensorfile import SensorModel
 from postproc.georef.trajfiles import TRAJ_WANTED, read_trajectory_file
 from postproc.products import (
     CutShortWarning,
@@ -109,7 +113,6 @@ from sisa.core.timescale import (
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-BLOCK_LINES: Final = 4096
 # the --cell check at a segment's first block of rays refuses only a cell this much wider than
 # allowed: that block's pixel spacing is not the whole segment's (198 against 211 m of swath on
 # a test run), and a cell the check after the whole flight takes must not be refused early
@@ -124,38 +127,6 @@ HIT_WARN_FRACTION: Final = 0.99
 
 
 @dataclass(frozen=True)
-class GeorefOptions:
-    sensor: SensorModel
-    dem: Path
-    geoid: Path | float | None = None
-    epsg: int | None = None  # output CRS; default: the DEM's
-    cell_m: float | None = None  # ortho cell; default: the median across-track pixel spacing
-    trajectory: Path | None = None  # RTKLIB .pos or Applanix SBET instead of the log's GPS
-    block_lines: int = BLOCK_LINES
-    products: bool = True  # ortho, GLT, mosaic, quicklooks (the IGM and EO are always made)
-    leap_seconds: int | None = None  # GPS − UTC for a .pos on UTC/JST; default: the log's
-    leap_seconds_fallback: int | None = None  # when neither is known (a run's scenario)
-    max_gap_s: float | None = None  # longest gap bridged: SBET records / GPS fixes (by the INS)
-
-
-@dataclass
-class SegmentResult:
-    segment: int
-    lines: int
-    lines_timed: int
-    lines_georeferenced: int
-    rays: int
-    rays_hit: int
-    gsd_across_m: float
-    gsd_along_m: float
-    t_first_gps_ns: int
-    t_last_gps_ns: int
-    igm: Path
-    image: Path
-    files: dict[str, str] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
 class SwathOnDem:
     """Where a segment's swath lies against the DEM: what the messages need when its rays
     miss. Heights are ellipsoidal (m); `footprint_m` in the DEM's CRS, without margin."""
@@ -164,58 +135,6 @@ class SwathOnDem:
     camera_m: tuple[float, float]  # lowest, highest perspective centre (every 64th line)
     surface_m: tuple[float, float]  # lowest, highest valid height of the DEM window read
     on_dem: bool  # the footprint lies within the DEM's cell centres
-
-
-@dataclass(frozen=True)
-class LineSpan:
-    """A stretch of a segment's lines (first to last, inclusive) and their GPS times."""
-
-    first_line: int
-    last_line: int
-    t_first_gps_ns: int
-    t_last_gps_ns: int
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"first_line": self.first_line, "last_line": self.last_line,
-                "t_first_gps_ns": self.t_first_gps_ns, "t_last_gps_ns": self.t_last_gps_ns,
-                "gps_time": gps_span_label(self.t_first_gps_ns, self.t_last_gps_ns)}
-
-
-@dataclass(frozen=True)
-class SegmentSkip:
-    """Lines of a segment that were not georeferenced for want of a time or a pose, or a
-    segment whose swath lies off the DEM or over its voids only (a whole segment: nothing made
-    for it)."""
-
-    segment: int
-    lines: int
-    lines_timed: int
-    lines_skipped: int
-    whole_segment: bool
-    reason: str  # "no line time" | "no pose" | "off the DEM" | "DEM voids"
-    spans: tuple[LineSpan, ...]  # timed lines without a pose
-    message: str
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"segment": self.segment, "lines": self.lines, "lines_timed": self.lines_timed,
-                "lines_skipped": self.lines_skipped, "whole_segment": self.whole_segment,
-                "reason": self.reason, "spans": [sp.as_dict() for sp in self.spans],
-                "message": self.message}
-
-
-@dataclass
-class GeorefResult:
-    sync: SyncResult
-    trajectory: Trajectory
-    epsg: int
-    cell_m: float
-    segments: list[SegmentResult]
-    mosaic: Path | None
-    summary: dict[str, Any]
-    skipped: list[SegmentSkip] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    log_fixes: AntennaFixes | None = None  # the flight log's GPS fixes, as read for the sync
-    recording_health: HealthTotals | None = None  # the recorder's counts (`sisa log info`)
 
 
 def _duration_label(ns: int) -> str:
@@ -265,9 +184,7 @@ class GeorefJob:
         crs = check_output_crs(self.epsg)
         self._to_out = (None if self.epsg == self.dem_epsg else
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        centre = _dem_centre_lon_lat(self.dem_epsg, self.dem_bounds)
-        notes = grid_scale_note(crs, *centre), datum_shift_note(crs, *centre)
-        self.warnings: list[str] = [note for note in notes if note is not None]
+        self.warnings: list[str] = crs_notes(crs, self.dem_epsg, self.dem_bounds)
         self.warnings += input_notes(options)
         self.trajectory_info: dict[str, Any] = {}
         self.swaths: dict[int, SwathOnDem] = {}
@@ -787,23 +704,6 @@ class GeorefJob:
         }
 
 
-def input_notes(options: GeorefOptions) -> list[str]:
-    """What to say of the inputs before the job starts (and the InputError of a geoid
-    undulation no geoid has): a DEM or geoid raster of several bands (band 1 is read), and
-    --leap-seconds without a trajectory file (the log's navigation is on GPS time: it changed
-    nothing, silently)."""
-    notes = [band_note(options.dem, "DEM")]
-    if isinstance(options.geoid, Path):
-        notes.append(band_note(options.geoid, "geoid"))
-    elif options.geoid is not None:
-        check_undulation_m(float(options.geoid), "geoid undulation")
-    if options.leap_seconds is not None and options.trajectory is None:
-        notes.append(f"--leap-seconds {options.leap_seconds}: not used: it applies to a "
-                     "--trajectory .pos on UTC or JST, and the flight log's navigation is on "
-                     "GPS time")
-    return [note for note in notes if note is not None]
-
-
 def swath_size_m(seg: SegmentResult) -> tuple[float, float]:
     """(across-track width, along-track length) of a segment's georeferenced swath, from its
     median pixel spacings (NaN when unknown)."""
@@ -832,121 +732,6 @@ def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m:
         raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {segment}: "
                          f"{width_m:.0f} m wide, {gsd_m:.2g} m pixels): its ortho would hold a "
                          f"cell or two across, or none; use at most {math.floor(width_m / 2)} m")
-
-
-def check_output_crs(epsg: int) -> CRS:
-    """The output CRS of an EPSG code: projected, every axis in metres; else InputError."""
-    if epsg <= 0:
-        raise InputError(f"EPSG:{epsg}: not a valid EPSG code (a positive integer)")
-    try:
-        crs = CRS.from_epsg(epsg)
-    except Exception:  # pyproj raises CRSError subclasses of several kinds
-        raise InputError(f"EPSG:{epsg}: unknown CRS") from None
-    if not crs.is_projected:
-        raise InputError(f"EPSG:{epsg} ({crs.name}): products need a projected CRS (metres)")
-    units = {(a.unit_name, a.unit_conversion_factor) for a in crs.axis_info}
-    if not units or any(factor != 1.0 for _, factor in units):
-        said = ", ".join(sorted({name for name, _ in units})) or "none"
-        raise InputError(f"EPSG:{epsg} ({crs.name}): axes in {said}: products need a projected "
-                         "CRS in metres")
-    return crs
-
-
-GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
-# a transverse Mercator (UTM) used this far in longitude from its central meridian is said:
-# a zone away is 9° at most; beyond 90° the grid is true again in scale, turned upside down
-CENTRAL_MERIDIAN_MAX_DEG: Final = 10.0
-
-
-def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, float]
-                        ) -> tuple[float, float]:
-    """Where the notes on the output CRS look: the DEM's centre (lon, lat in degrees)."""
-    w, s, e, n = dem_bounds
-    lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
-        (w + e) / 2, (s + n) / 2)
-    return float(lon), float(lat)
-
-
-def _utm_epsg(lon: float, lat: float) -> int:
-    zone = int((lon + 180) // 6) % 60 + 1
-    return (32600 if lat >= 0 else 32700) + zone
-
-
-def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when a metre of the output grid is not a metre on the ground at the DEM's
-    centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
-    Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
-    distances are grid metres, which users take for ground metres. A transverse Mercator
-    far from its central meridian is said by `central_meridian_note` instead."""
-    if (far := central_meridian_note(crs, lon, lat)) is not None:
-        return far
-    factors = Proj(crs).get_factors(lon, lat)
-    scales = (factors.meridional_scale, factors.parallel_scale)
-    if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
-            math.isfinite(k) and k > 0 for k in scales):
-        return None
-    k = max(scales, key=lambda v: abs(v - 1))
-    return (f"EPSG:{crs.to_epsg()} ({crs.name}): a metre of its grid is {1 / k:.3f} m on the "
-            f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
-            f"distances in the products are grid metres; UTM there (--crs {_utm_epsg(lon, lat)}) "
-            "keeps them within 0.1 %")
-
-
-def _central_meridian_deg(crs: CRS) -> float | None:
-    """The central meridian (degrees) of a transverse Mercator CRS; None for any other."""
-    op = crs.coordinate_operation
-    if op is None or "transverse mercator" not in op.method_name.lower():
-        return None
-    for param in op.params:
-        if param.name in ("Longitude of natural origin", "Longitude of origin"):
-            return math.degrees(float(param.value) * param.unit_conversion_factor)
-    return None
-
-
-def central_meridian_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when a transverse Mercator CRS (UTM) is used more than
-    CENTRAL_MERIDIAN_MAX_DEG of longitude from its central meridian at the DEM's centre; else
-    None. Its grid then turns from north and stretches; and across 90° the scale comes back to
-    1 (the scale note said nothing) with the grid upside down: UTM zone 1 over a site at 2°E
-    gave products turned by 180°, northings of 15 390 km."""
-    lon0 = _central_meridian_deg(crs)
-    if lon0 is None or not (math.isfinite(lon) and math.isfinite(lat)):
-        return None
-    dlon = (lon - lon0 + 180.0) % 360.0 - 180.0
-    if abs(dlon) <= CENTRAL_MERIDIAN_MAX_DEG:
-        return None
-    head = (f"EPSG:{crs.to_epsg()} ({crs.name}): the DEM's centre ({lat:.2f}°, {lon:.2f}°) is "
-            f"{abs(dlon):.0f}° of longitude from its central meridian ({lon0:g}°)")
-    factors = Proj(crs).get_factors(lon, lat)
-    turn, scale = factors.meridian_convergence, factors.meridional_scale
-    if abs(dlon) > 90.0:
-        _, northing = Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)
-        said = (f"on the far side of the projection: the products come out turned by "
-                f"{abs(turn):.0f}° (northings of {northing / 1000:.0f} km)")
-    elif math.isfinite(turn) and math.isfinite(scale) and scale > 0:
-        said = (f"its grid north is {abs(turn):.0f}° from true north there and a metre of its "
-                f"grid {1 / scale:.3f} m on the ground")
-    else:
-        said = "where its grid is far from true"
-    return f"{head}, {said}: UTM there is --crs {_utm_epsg(lon, lat)}"
-
-
-def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when PROJ knows no shift between WGS 84 (the GPS's datum) and the output
-    CRS's datum at the DEM's centre, a CRS used far outside its area of use (OSGB36's British
-    grid over Catalonia): PROJ then takes the two datums for one (its "ballpark" offset), and
-    the products can be metres to hundreds of metres off; else None."""
-    if not (math.isfinite(lon) and math.isfinite(lat)):
-        return None
-    near = AreaOfInterest(lon - 0.01, lat - 0.01, lon + 0.01, lat + 0.01)
-    shift = Transformer.from_crs(4326, crs, always_xy=True, area_of_interest=near)
-    if "ballpark" not in shift.description.lower():
-        return None
-    datum = crs.datum.name if crs.datum is not None else "its datum"
-    return (f"EPSG:{crs.to_epsg()} ({crs.name}): PROJ knows no shift from WGS 84 to {datum} "
-            f"at the DEM's centre ({lat:.2f}°, {lon:.2f}°), far from where this CRS is used, "
-            f"and takes the two datums for one: the products can be metres to hundreds of "
-            f"metres off; UTM there (--crs {_utm_epsg(lon, lat)}) needs no shift")
 
 
 def _span_text(span: tuple[float, float]) -> str:

@@ -15,7 +15,8 @@ import pytest
 
 import postproc.georef.job as georef_module
 from postproc.georef import raycast
-from postproc.georef.job import GeorefJob, GeorefOptions
+from postproc.georef.job import GeorefJob
+from postproc.georef.jobrecords import GeorefOptions
 from postproc.georef.sensorfile import SensorModel
 from sisa.core.errors import InputError
 from tests.postproc.test_trajectory_coverage import (  # noqa: F401 (its fixture, by name)

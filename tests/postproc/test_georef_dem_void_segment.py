@@ -25,12 +25,8 @@ import rasterio
 from rasterio.transform import Affine
 
 from postproc.georef.dem import Dem
-from postproc.georef.job import (
-    GeorefJob,
-    GeorefOptions,
-    SegmentResult,
-    SwathOnDem,
-)
+from postproc.georef.job import GeorefJob, SwathOnDem
+from postproc.georef.jobrecords import GeorefOptions, SegmentResult
 from postproc.georef.sensorfile import SensorModel
 from sisa.core.errors import InputError
 from tests.postproc.test_georef_dem_cover import BOUNDS, georef, seven_run, warned

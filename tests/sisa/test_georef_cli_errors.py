@@ -12,7 +12,8 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.georef.job import GeorefJob, GeorefOptions, SegmentResult, SwathOnDem
+from postproc.georef.job import GeorefJob, SwathOnDem
+from postproc.georef.jobrecords import GeorefOptions, SegmentResult
 from postproc.georef.sensorfile import SensorModel
 from sisa.cli import build_parser, main
 from sisa.core.errors import InputError
@@ -68,7 +69,7 @@ def test_output_crs_must_be_a_projected_epsg_in_metres(
 
 @pytest.mark.parametrize("epsg", [32631, 25831, 2056, 3857, 32630])
 def test_metre_crss_are_accepted(epsg: int) -> None:
-    from postproc.georef.job import check_output_crs
+    from postproc.georef.inputchecks import check_output_crs
 
     assert check_output_crs(epsg).to_epsg() == epsg
 

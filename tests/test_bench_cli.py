@@ -55,7 +55,7 @@ def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
     """Recorded with the scanner on from its start, the log has no mode-1 pattern: every INS
     record stays ambiguous (docs/sync.md, 'The whole-second ambiguity'). `sisa sync` said only
     "INS records flagged: ambiguous 320", `georef` "0 usable INS records": they say why."""
-    from postproc.georef.job import merged_wanted
+    from postproc.georef.handoff import merged_wanted
     from postproc.georef.navigation import NAV_WANTED, nav_from_columns
     from postproc.sync.flightlog import WANTED, sync_input_from_columns
     from postproc.sync.pipeline import synchronise

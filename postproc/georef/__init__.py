@@ -11,7 +11,8 @@ stages and the commands use only the names below.
 """
 
 from postproc.georef.dem import PLAUSIBLE_HEIGHTS_M, Dem, check_undulation_m
-from postproc.georef.job import GeorefJob, merged_wanted
+from postproc.georef.handoff import merged_wanted
+from postproc.georef.job import GeorefJob
 from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult
 from postproc.georef.navigation import (
     MAX_GAP_LIMIT_S,

@@ -32,7 +32,6 @@ from __future__ import annotations
 import functools
 import math
 import warnings
-from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,27 +49,18 @@ from postproc.georef.dem import (
     dem_extent,
     height_range,
 )
-from postproc.georef.exterior import LineEo, exterior_orientation, write_eo_csv
+from postproc.georef.exterior import LineEo, write_eo_csv
+from postproc.georef.handoff import read_and_sync, write_sync
 from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
 from postproc.georef.jobrecords import (
     GeorefOptions,
     GeorefResult,
-    LineSpan,
     SegmentResult,
     SegmentSkip,
 )
-from postproc.georef.navigation import (
-    NAV_WANTED,
-    AntennaFixes,
-    NavConfig,
-    PiecewiseTrajectory,
-    Trajectory,
-    fixes_from_columns,
-    nav_from_columns,
-)
 from postproc.georef.raycast import intersect
 from postproc.georef.registration import register_strips
-from postproc.georef.trajfiles import TRAJ_WANTED, read_trajectory_file
+from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
 from postproc.products import (
     CutShortWarning,
     EnviRaster,
@@ -86,29 +76,13 @@ from postproc.products import (
     write_geolocation_vrt,
     write_quicklook,
 )
-from postproc.sync import WANTED as SYNC_WANTED
 from postproc.sync import (
     SyncResult,
     TimeStatus,
-    read_scanner_lines,
-    sync_input_from_columns,
-    synchronise,
-    unlisted_line_notes,
-    untimed_lines_note,
-    write_ins_times,
-    write_line_times,
-    write_report,
 )
-from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
-from recorder.messages import Topic
-from recorder.reader import Paths, log_paths, read_topics
+from recorder.reader import Paths
 from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
-from sisa.core.timescale import (
-    NS_PER_DAY,
-    NS_PER_S,
-    gps_span_label,
-)
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -120,7 +94,6 @@ EARLY_CELL_MARGIN: Final = 1.25
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
 # how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
 WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
-SPANS_IN_MESSAGE: Final = 3  # stretches of lines a warning names (the summary has them all)
 # below this share of a segment's pixels (of its lines with a pose) on the DEM, a warning: the
 # headline's percentage alone let a DEM covering half the flight pass unremarked
 HIT_WARN_FRACTION: Final = 0.99
@@ -137,41 +110,6 @@ class SwathOnDem:
     on_dem: bool  # the footprint lies within the DEM's cell centres
 
 
-def _duration_label(ns: int) -> str:
-    s = abs(ns) / NS_PER_S
-    if s >= 86_400:
-        return f"{s / 86_400:.2f} days"
-    return f"{s / 3600:.2f} h" if s >= 3600 else f"{s:.1f} s"
-
-
-def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
-    """One field list per topic for a single read_topics pass."""
-    out: dict[str, tuple[str, ...]] = {}
-    for w in wanted:
-        for topic, fields in w.items():
-            out[topic] = tuple(dict.fromkeys((*out.get(topic, ()), *fields)))
-    return out
-
-
-def segment_image(scanner_dir: Path, segment: int) -> Path:
-    path = scanner_dir / f"segment_{segment:03d}.bil"
-    if not path.is_file():
-        what = ("a link to nothing" if path.is_symlink() and not path.exists() else
-                "not a file" if path.exists() or path.is_symlink() else "missing")
-        raise InputError(f"{path}: {what}, but the lines file lists segment {segment}")
-    return path
-
-
-def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
-    """The segment's raw image, and what to say when its file is cut short (None if whole):
-    the lines before the cut are georeferenced, the rest named as missing."""
-    raw = EnviRaster.open(path)
-    if not raw.cut_short:
-        return raw, None
-    return raw, (f"segment {segment}: {raw.cut_short_text(path.name)}: lines {raw.lines}-"
-                 f"{raw.header_lines - 1} are not georeferenced")
-
-
 class GeorefJob:
     def __init__(self, flight: Paths, scanner_dir: Path, out_dir: Path,
                  options: GeorefOptions) -> None:
@@ -186,128 +124,9 @@ class GeorefJob:
                         Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
         self.warnings: list[str] = crs_notes(crs, self.dem_epsg, self.dem_bounds)
         self.warnings += input_notes(options)
-        self.trajectory_info: dict[str, Any] = {}
         self.swaths: dict[int, SwathOnDem] = {}
-        self.log_fixes: AntennaFixes | None = None
-        self.recording_health = HealthTotals()  # the recorder's own counts, from the log
 
     # -- the steps ---------------------------------------------------------------------------
-
-    def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
-        lines = read_scanner_lines(self.scanner_dir)
-        wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
-        cols = read_topics(self.flight, {**merged_wanted(*wanted), **HEALTH_WANTED},
-                           notes=self.warnings)
-        self.recording_health = HealthTotals.from_columns(cols[Topic.HEALTH])
-        recording = recording_note(self.recording_health, log_paths(self.flight)[0])
-        if recording is not None:  # the log may hold less than the devices sent
-            self.warnings.append(recording)
-        result = synchronise(sync_input_from_columns(cols), lines)
-        self.log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
-        mounting = self.opt.sensor.mounting
-        info = self.trajectory_info
-        if self.opt.trajectory is not None:
-            info["source"] = str(self.opt.trajectory)
-            traj = read_trajectory_file(self.opt.trajectory, cols, result.ins,
-                                        antenna_offset_m=mounting.antenna_offset_m,
-                                        leap_seconds=self.opt.leap_seconds,
-                                        fallback_leap_seconds=self.opt.leap_seconds_fallback,
-                                        max_gap_s=self.opt.max_gap_s, report=info)
-            self.warnings += info.pop("warnings", [])
-            if self.opt.leap_seconds is not None and info.get("time_scale") not in ("UTC",
-                                                                                   "JST"):
-                kind = "an SBET" if info.get("format") == "Applanix SBET" else "a .pos"
-                self.warnings.append(
-                    f"--leap-seconds {self.opt.leap_seconds}: not used: "
-                    f"{self.opt.trajectory} is {kind} on GPS time (the option is for a .pos "
-                    "on UTC or JST)")
-        else:
-            info["source"] = "flight log"
-            config = None if self.opt.max_gap_s is None else NavConfig(
-                max_gps_gap_s=self.opt.max_gap_s)
-            traj = nav_from_columns(cols, result.ins, antenna_offset_m=mounting.antenna_offset_m,
-                                    config=config)
-        info["t_first_gps_ns"], info["t_last_gps_ns"] = (int(t) for t in traj.span_ns)
-        info["gps_time"] = gps_span_label(*traj.span_ns)
-        if isinstance(traj, PiecewiseTrajectory):
-            info["gaps"] = [{"t_first_gps_ns": a, "t_last_gps_ns": b}
-                            for a, b in traj.gaps_ns()]
-        return result, traj
-
-    @property
-    def trajectory_name(self) -> str:
-        if self.opt.trajectory is not None:
-            return f"the trajectory {self.opt.trajectory}"
-        return "the flight log's navigation"
-
-    def trajectory_span_label(self, traj: Trajectory) -> str:
-        gaps = len(traj.gaps_ns()) if isinstance(traj, PiecewiseTrajectory) else 0
-        return gps_span_label(*traj.span_ns) + (f", {gaps} gaps inside" if gaps else "")
-
-    def coverage(self, result: SyncResult, traj: Trajectory, segment: int, eo: LineEo,
-                 t_gps_ns: I64) -> SegmentSkip | None:
-        """What of the segment cannot be georeferenced for want of a time or a pose; None if
-        every timed line has a pose (lines without a time alone are as before: NaN)."""
-        n = t_gps_ns.size
-        timed = t_gps_ns >= 0
-        if not timed.any():
-            sel = result.lines.segment == segment
-            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ")
-                          for v in result.lines.status[sel] if v != TimeStatus.OK)
-            if n > int(sel.sum()):
-                why["not in the lines file"] += n - int(sel.sum())
-            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
-            return SegmentSkip(segment, n, 0, n, True, "no line time", (),
-                               f"segment {segment}: skipped, none of its {n} lines has a GPS "
-                               f"time (sync: {said or 'no line'})")
-        rows = np.flatnonzero(timed)
-        missing = ~eo.valid[rows]
-        if not missing.any():
-            return None
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], missing.view(np.int8), [0]])))
-        spans = tuple(LineSpan(int(rows[a]), int(rows[b - 1]), int(t_gps_ns[rows[a]]),
-                               int(t_gps_ns[rows[b - 1]]))
-                      for a, b in zip(edges[::2], edges[1::2], strict=True))
-        said = "; ".join(f"lines {sp.first_line}-{sp.last_line}, "
-                         f"{gps_span_label(sp.t_first_gps_ns, sp.t_last_gps_ns)}"
-                         for sp in spans[:SPANS_IN_MESSAGE])
-        if len(spans) > SPANS_IN_MESSAGE:
-            said += f"; and {len(spans) - SPANS_IN_MESSAGE} more stretches"
-        whole = not eo.valid.any()
-        k = int(missing.sum())
-        head = (f"segment {segment}: skipped, none of its {k} timed lines has a pose" if whole
-                else f"segment {segment}: {k} of {n} lines not georeferenced, no pose")
-        return SegmentSkip(
-            segment, n, int(timed.sum()), n if whole else k, whole, "no pose", spans,
-            f"{head} ({said}): outside {self.trajectory_name} "
-            f"({self.trajectory_span_label(traj)})")
-
-    def no_overlap_error(self, result: SyncResult, traj: Trajectory) -> InputError:
-        """No segment has a line with a time and a pose: the one line that says why."""
-        ln = result.lines
-        t = ln.t_gps_ns[(ln.status == TimeStatus.OK) & (ln.t_gps_ns >= 0)]
-        if t.size == 0:
-            untied = untimed_lines_note(result.report["lines"], log_paths(self.flight))
-            if untied is not None:  # the count alone did not say why
-                return InputError(f"nothing to georeference: {untied}")
-            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ") for v in ln.status)
-            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
-            return InputError(f"no scan line could be put on GPS time (sync: "
-                              f"{said or 'no line in the lines files'}), against "
-                              f"{self.trajectory_name} ({self.trajectory_span_label(traj)}): "
-                              "nothing to georeference")
-        (a0, a1), b0, b1 = traj.span_ns, int(t.min()), int(t.max())
-        if a1 < b0:
-            where = f"it ends {_duration_label(b0 - a1)} before the first line"
-        elif a0 > b1:
-            where = f"it starts {_duration_label(a0 - b1)} after the last line"
-        else:
-            where = "no line falls inside its valid stretches"
-        days = round((a0 - b0) / NS_PER_DAY)
-        if days and abs(a0 - b0 - days * NS_PER_DAY) < 2 * 3600 * NS_PER_S:
-            where += f"; {abs(days)} days apart: a file of another day?"
-        return InputError(f"{self.trajectory_name} ({self.trajectory_span_label(traj)}) does "
-                          f"not cover the scan lines ({gps_span_label(b0, b1)}): {where}")
 
     def partial_hit_note(self, segment: int, hits: int, posed: int) -> str:
         """The warning for a segment whose rays (of its lines with a pose) miss the DEM in
@@ -384,38 +203,6 @@ class GeorefJob:
             f"segment {segment}: skipped, its swath {bounds_text(foot)} lies over DEM voids "
             f"only (nodata): the DEM {self.opt.dem.name} has no valid height within "
             f"{WINDOW_REACH_M:g} m of it")
-
-    def write_sync(self, result: SyncResult) -> None:
-        sync_dir = self.out / "sync"
-        sync_dir.mkdir(parents=True, exist_ok=True)
-        ins, ln = result.ins, result.lines
-        write_ins_times(sync_dir / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
-                        ins.status)
-        write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                         ln.t_gps_ns, ln.status)
-        write_report(sync_dir / "sync_report.json", result.report)
-
-    def segment_eo(self, result: SyncResult, traj: Trajectory, segment: int, n_lines: int,
-                   header_lines: int | None = None) -> tuple[LineEo, I64]:
-        """EO of every line of the segment's image (invalid where the line has no time).
-        `header_lines`: what the image's header declares when its file holds only `n_lines`
-        (cut short): the lines file may list those, which are left out."""
-        ln = result.lines
-        sel = ln.segment == segment
-        t = np.full(n_lines, -1, dtype=np.int64)
-        rows = ln.line[sel]
-        declared = n_lines if header_lines is None else max(header_lines, n_lines)
-        if rows.size and (rows.min() < 0 or rows.max() >= declared):
-            raise InputError(f"{self.scanner_dir / f'segment_{segment:03d}.lines.csv'} lists "
-                             f"line {rows.max()} but its image only {declared} lines")
-        ok = (ln.status[sel] == TimeStatus.OK) & (rows < n_lines)
-        t[rows[ok]] = ln.t_gps_ns[sel][ok]
-        timed = t >= 0
-        eo = exterior_orientation(traj, np.where(timed, t, traj.span_ns[0]),
-                                  self.opt.sensor.mounting,
-                                  time_delay_ns=self.opt.sensor.time_delay_ns)
-        eo.valid[:] &= timed
-        return eo, t
 
     @functools.cached_property
     def dem_height_range_m(self) -> tuple[float, float]:
@@ -593,17 +380,11 @@ class GeorefJob:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
         `progress` each block of lines done."""
         self.out.mkdir(parents=True, exist_ok=True)
-        result, traj = self.read_and_sync()
-        self.write_sync(result)
-        segments = sorted({int(s) for s in result.lines.segment})
-        images = {s: segment_image(self.scanner_dir, s) for s in segments}
-        rasters = {}
-        for s in segments:
-            rasters[s], cut = segment_raster(images[s], s)
-            if cut is not None:
-                self.warnings.append(cut)
-        self.warnings += unlisted_line_notes(self.scanner_dir, result.lines.segment,
-                                             result.lines.line, "georeferenced")
+        flight = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
+        result, traj = flight.sync, flight.trajectory
+        write_sync(self.out, result)
+        rasters = segment_rasters(self.scanner_dir, result, self.warnings)
+        segments = list(rasters)
         if on_total is not None:
             on_total(sum(rasters[s].lines for s in segments))
         done: list[SegmentResult] = []
@@ -611,8 +392,9 @@ class GeorefJob:
         off_dem: list[int] = []  # segments whose swath lies off the DEM (skipped)
         voids: list[int] = []  # segments whose DEM window holds voids only (skipped)
         for s in segments:
-            eo, t = self.segment_eo(result, traj, s, rasters[s].lines, rasters[s].header_lines)
-            if (skip := self.coverage(result, traj, s, eo, t)) is not None:
+            eo, t = segment_eo(flight, self.opt.sensor, self.scanner_dir, s, rasters[s].lines,
+                               rasters[s].header_lines)
+            if (skip := coverage(flight, s, eo, t)) is not None:
                 skipped.append(skip)
                 self.warnings.append(skip.message)
             dem: Dem | None = None
@@ -633,7 +415,7 @@ class GeorefJob:
                 continue
             done.append(self.georeference_segment(s, eo, t, rasters[s], dem, progress))
         if not done and not off_dem and not voids:
-            raise self.no_overlap_error(result, traj)
+            raise no_overlap_error(flight, self.flight)
         if not any(d.rays_hit for d in done):
             raise self.no_hit_error(done, off_dem, voids)
         cell_m = self.opt.cell_m or nice_cell_m(
@@ -662,14 +444,14 @@ class GeorefJob:
             write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
         summary = self._summary(result, done, cell_m)
         summary["strip_registration"] = self.registrations(done)
-        summary["trajectory"] = self.trajectory_info
+        summary["trajectory"] = flight.info
         summary["skipped"] = [skip.as_dict() for skip in skipped]
         summary["warnings"] = list(self.warnings)
-        summary["recording_health"] = self.recording_health.as_dict()
+        summary["recording_health"] = flight.recording_health.as_dict()
         write_json(self.out / "georef_summary.json", summary)
         return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
-                            skipped, list(self.warnings), log_fixes=self.log_fixes,
-                            recording_health=self.recording_health)
+                            skipped, list(self.warnings), log_fixes=flight.log_fixes,
+                            recording_health=flight.recording_health)
 
     def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
         """Shift between every pair of overlapping segment orthos (cells and metres)."""

@@ -31,11 +31,10 @@ from __future__ import annotations
 
 import functools
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -48,8 +47,10 @@ from postproc.georef.dem import (
     bounds_text,
     dem_extent,
     height_range,
+    union_bounds,
 )
 from postproc.georef.exterior import LineEo, write_eo_csv
+from postproc.georef.flightproducts import flight_products, flight_summary, registrations
 from postproc.georef.handoff import read_and_sync, write_sync
 from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
 from postproc.georef.jobrecords import (
@@ -58,27 +59,13 @@ from postproc.georef.jobrecords import (
     SegmentResult,
     SegmentSkip,
 )
+from postproc.georef.orthocell import EARLY_CELL_MARGIN, check_cell_against_swath, ortho_cell_m
 from postproc.georef.raycast import intersect
-from postproc.georef.registration import register_strips
 from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
 from postproc.products import (
-    CutShortWarning,
     EnviRaster,
     IgmWriter,
-    OrthoGrid,
     Progress,
-    SwathIndex,
-    footprint_feature,
-    mosaic,
-    nice_cell_m,
-    orthorectify,
-    write_footprints_geojson,
-    write_geolocation_vrt,
-    write_quicklook,
-)
-from postproc.sync import (
-    SyncResult,
-    TimeStatus,
 )
 from recorder.reader import Paths
 from sisa.core.errors import InputError
@@ -87,10 +74,6 @@ from sisa.core.jsonio import write_json
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-# the --cell check at a segment's first block of rays refuses only a cell this much wider than
-# allowed: that block's pixel spacing is not the whole segment's (198 against 211 m of swath on
-# a test run), and a cell the check after the whole flight takes must not be refused early
-EARLY_CELL_MARGIN: Final = 1.25
 FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
 # how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
 WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
@@ -167,7 +150,7 @@ class GeorefJob:
         if voids:
             return InputError(f"{head}: {self._voids_text(done, off_dem, voids)}")
         if not all(sw.on_dem for sw in swaths):
-            foot = _union_bounds([sw.footprint_m for sw in swaths])
+            foot = union_bounds([sw.footprint_m for sw in swaths])
             return InputError(f"{head}: the swaths {bounds_text(foot)} run off the DEM "
                               f"{bounds_text(self.dem_bounds)}")
         return InputError(f"{head}: the DEM covers the swaths, but no ray met its surface "
@@ -176,7 +159,7 @@ class GeorefJob:
     def _voids_text(self, done: list[SegmentResult], off_dem: Sequence[int],
                     voids: Sequence[int]) -> str:
         """Why no pixel met the DEM when some swaths lie over its voids only."""
-        foot = bounds_text(_union_bounds([self.swaths[s].footprint_m for s in
+        foot = bounds_text(union_bounds([self.swaths[s].footprint_m for s in
                                           [d.segment for d in done] + [*off_dem, *voids]]))
         if not done and not off_dem:
             one = len(voids) == 1
@@ -346,33 +329,6 @@ class GeorefJob:
             igm=Path(f"{stem}_igm.bil"), image=image,
             files={"eo": f"{stem.name}_eo.csv", "igm": f"{stem.name}_igm.bil"})
 
-    def products(self, seg: SegmentResult, cell_m: float) -> SwathIndex | None:
-        """The segment's VRT and, with products, its ortho, GLT and quicklook; the index of
-        its IGM they were made from (the mosaic's too); None without products, or when
-        none of its pixels met the DEM (an IGM of NaN: nothing to map)."""
-        stem = self.out / f"segment_{seg.segment:03d}"
-        vrt = Path(f"{stem}_geoloc.vrt")
-        write_geolocation_vrt(vrt, seg.image, seg.igm, self.epsg)
-        seg.files["geolocation_vrt"] = vrt.name
-        if not self.opt.products or seg.rays_hit == 0:
-            return None
-        index = SwathIndex.build(seg.igm)
-        grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
-        tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
-        with warnings.catch_warnings():  # a cut image: said once, by segment_raster's warning
-            warnings.simplefilter("ignore", CutShortWarning)
-            made = orthorectify(index, seg.image, grid, tif, glt)
-        if made.cells_filled == 0:
-            width, length = swath_size_m(seg)
-            self.warnings.append(
-                f"segment {seg.segment}: its ortho holds no pixel: no centre of its "
-                f"{cell_m:g} m cells falls on the swath ({width:.0f} m wide, {length:.0f} m "
-                "long); a smaller --cell")
-        png = Path(f"{stem}_quicklook.png")
-        write_quicklook(tif, png)
-        seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)
-        return index
-
     # -- the whole job -----------------------------------------------------------------------
 
     def run(self, progress: Progress | None = None, on_total: Progress | None = None
@@ -418,103 +374,15 @@ class GeorefJob:
             raise no_overlap_error(flight, self.flight)
         if not any(d.rays_hit for d in done):
             raise self.no_hit_error(done, off_dem, voids)
-        cell_m = self.opt.cell_m or nice_cell_m(
-            float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
-                            or [math.nan])))
-        if not math.isfinite(cell_m) or cell_m <= 0:
-            hits, rays = sum(d.rays_hit for d in done), sum(d.rays for d in done)
-            raise InputError(f"only {hits} of {rays} pixels met the DEM, too few neighbours to "
-                             "measure the pixel spacing the ortho cell is sized by: give --cell M")
-        if self.opt.products and self.opt.cell_m is not None:
-            check_cell_against_swaths(cell_m, done)
-        features = []
-        mapped: list[tuple[SwathIndex, Path]] = []
-        for seg in done:
-            if (index := self.products(seg, cell_m)) is not None:
-                mapped.append((index, seg.image))
-            features.append(footprint_feature(seg.igm, self.epsg, properties={
-                "segment": seg.segment, "lines": seg.lines,
-                "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
-        write_footprints_geojson(self.out / "footprints.geojson", features)
-        mosaic_path: Path | None = None
-        if self.opt.products and mapped:
-            mosaic_path = self.out / "mosaic.tif"
-            mosaic(mapped, OrthoGrid.covering(_union_bounds([ix.bounds_m for ix, _ in mapped]),
-                                              cell_m, self.epsg), mosaic_path)
-            write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
-        summary = self._summary(result, done, cell_m)
-        summary["strip_registration"] = self.registrations(done)
-        summary["trajectory"] = flight.info
-        summary["skipped"] = [skip.as_dict() for skip in skipped]
-        summary["warnings"] = list(self.warnings)
-        summary["recording_health"] = flight.recording_health.as_dict()
+        cell_m = ortho_cell_m(self.opt, done)
+        mosaic_path = flight_products(done, self.out, self.epsg, cell_m, self.opt.products,
+                                      self.warnings)
+        summary = flight_summary(self.opt, self.epsg, flight, done, cell_m,
+                                 registrations(self.out, done), skipped, self.warnings)
         write_json(self.out / "georef_summary.json", summary)
         return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
                             skipped, list(self.warnings), log_fixes=flight.log_fixes,
                             recording_health=flight.recording_health)
-
-    def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
-        """Shift between every pair of overlapping segment orthos (cells and metres)."""
-        out = []
-        orthos = [(d.segment, self.out / d.files["ortho"]) for d in done if "ortho" in d.files]
-        for k, (sa, pa) in enumerate(orthos):
-            for sb, pb in orthos[k + 1:]:
-                reg = register_strips(pa, pb)
-                if reg is None or reg.tiles == 0:
-                    continue
-                out.append({"segments": [sa, sb], "dx_cells": reg.dx_cells,
-                            "dy_cells": reg.dy_cells, "shift_cells": reg.shift_cells,
-                            "tiles": reg.tiles, "spread_cells": reg.spread_cells})
-        return out
-
-    def _summary(self, result: SyncResult, done: list[SegmentResult], cell_m: float
-                 ) -> dict[str, Any]:
-        sensor = self.opt.sensor
-        return {
-            "crs": f"EPSG:{self.epsg}", "vertical": "ellipsoidal (WGS 84)"
-            if self.opt.geoid is None else "ellipsoidal (DEM + geoid)",
-            "cell_m": cell_m, "sensor": sensor.name,
-            "time_delay_ms": sensor.time_delay_ms,
-            "segments": [{
-                "segment": d.segment, "lines": d.lines, "lines_timed": d.lines_timed,
-                "lines_georeferenced": d.lines_georeferenced, "rays": d.rays,
-                "rays_hit": d.rays_hit, "gsd_across_m": d.gsd_across_m,
-                "gsd_along_m": d.gsd_along_m, "t_first_gps_ns": d.t_first_gps_ns,
-                "t_last_gps_ns": d.t_last_gps_ns, "files": d.files} for d in done],
-            "ins_records_timed": int((result.ins.status == TimeStatus.OK).sum()),
-            "ins_records": int(result.ins.status.size),
-        }
-
-
-def swath_size_m(seg: SegmentResult) -> tuple[float, float]:
-    """(across-track width, along-track length) of a segment's georeferenced swath, from its
-    median pixel spacings (NaN when unknown)."""
-    pixels = seg.rays // seg.lines if seg.lines else 0
-    return (seg.gsd_across_m * max(pixels - 1, 0),
-            seg.gsd_along_m * max(seg.lines_georeferenced - 1, 0))
-
-
-def check_cell_against_swaths(cell_m: float, done: list[SegmentResult]) -> None:
-    """InputError when the ortho cell is wider than half the narrowest swath: its orthos
-    would hold a cell or two across at best, none at worst (--cell 5000 over a 500 m swath
-    gave empty orthos and mosaic, exit 0)."""
-    widths = [(swath_size_m(d)[0], d) for d in done]
-    widths = [(w, d) for w, d in widths if math.isfinite(w) and w > 0]
-    if not widths:
-        return
-    width, seg = min(widths, key=lambda wd: wd[0])
-    check_cell_against_swath(cell_m, seg.segment, width, seg.gsd_across_m)
-
-
-def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m: float,
-                             margin: float = 1.0) -> None:
-    """InputError when the ortho cell is wider than half of one segment's swath (`width_m`
-    across, of `gsd_m` pixels) times `margin`; nothing when the width is unknown."""
-    if math.isfinite(width_m) and width_m > 0 and cell_m > margin * width_m / 2:
-        raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {segment}: "
-                         f"{width_m:.0f} m wide, {gsd_m:.2g} m pixels): its ortho would hold a "
-                         f"cell or two across, or none; use at most {math.floor(width_m / 2)} m")
-
 
 def _span_text(span: tuple[float, float]) -> str:
     """Heights (m) for a message: "898 to 902 m", or "9000 m" when both round alike."""
@@ -526,9 +394,3 @@ def _median(parts: list[F64]) -> float:
     vals = np.concatenate(parts) if parts else np.zeros(0)
     vals = vals[np.isfinite(vals)]
     return float(np.median(vals)) if vals.size else math.nan
-
-
-def _union_bounds(b: list[tuple[float, float, float, float]]
-                  ) -> tuple[float, float, float, float]:
-    return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
-            max(x[3] for x in b))

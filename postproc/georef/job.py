@@ -25,372 +25,116 @@ ground metres or north there. No pixel on the DEM at all is an InputError saying
 surface above the camera, the swath off the DEM or over its voids only), as is an ortho cell
 wider than half the swath (refused at a segment's first block of rays, not after the whole
 flight is cast).
+
+The job runs the steps in order, each in a module of its own: `inputchecks` (before it
+starts), `handoff` (the log read and synchronised, the trajectory), `segments` (each segment's
+image and every line's time and pose), `demcover` (each swath against the DEM), `casting`
+(every ray into the IGM), `orthocell` (the ortho cell), `segmentproducts` and
+`flightproducts` (VRT, ortho, GLT, quicklooks, footprints, mosaic, registration, summary); its
+records are `jobrecords`.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
 
-import numpy as np
-import numpy.typing as npt
-from pyproj import Transformer
-
-from postproc.georef.dem import (
-    DEFAULT_MARGIN_M,
-    GEOID_UNDULATION_M,
-    Dem,
-    bounds_text,
-    dem_extent,
-    height_range,
-    union_bounds,
-)
-from postproc.georef.exterior import LineEo, write_eo_csv
+from postproc.georef.casting import IgmCaster
+from postproc.georef.dem import Dem
+from postproc.georef.demcover import DemCover
 from postproc.georef.flightproducts import flight_products, flight_summary, registrations
-from postproc.georef.handoff import read_and_sync, write_sync
+from postproc.georef.handoff import Handoff, read_and_sync, write_sync
 from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
-from postproc.georef.jobrecords import (
-    GeorefOptions,
-    GeorefResult,
-    SegmentResult,
-    SegmentSkip,
-)
-from postproc.georef.orthocell import EARLY_CELL_MARGIN, check_cell_against_swath, ortho_cell_m
-from postproc.georef.raycast import intersect
+from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult, SegmentSkip
+from postproc.georef.orthocell import ortho_cell_m
 from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
-from postproc.products import (
-    EnviRaster,
-    IgmWriter,
-    Progress,
-)
+from postproc.products import EnviRaster, Progress
 from recorder.reader import Paths
-from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
 
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
-FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
-# how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
-WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
-# below this share of a segment's pixels (of its lines with a pose) on the DEM, a warning: the
-# headline's percentage alone let a DEM covering half the flight pass unremarked
-HIT_WARN_FRACTION: Final = 0.99
+@dataclass
+class _Skipped:
+    """The segments and lines a run skipped, and why."""
 
-
-@dataclass(frozen=True)
-class SwathOnDem:
-    """Where a segment's swath lies against the DEM: what the messages need when its rays
-    miss. Heights are ellipsoidal (m); `footprint_m` in the DEM's CRS, without margin."""
-
-    footprint_m: tuple[float, float, float, float]
-    camera_m: tuple[float, float]  # lowest, highest perspective centre (every 64th line)
-    surface_m: tuple[float, float]  # lowest, highest valid height of the DEM window read
-    on_dem: bool  # the footprint lies within the DEM's cell centres
+    skips: list[SegmentSkip] = field(default_factory=list)
+    off_dem: list[int] = field(default_factory=list)  # swath off the DEM: skipped
+    voids: list[int] = field(default_factory=list)  # DEM window of voids only: skipped
 
 
 class GeorefJob:
+    """One flight's georeferencing: its inputs checked when it is made, before the log is
+    read; `run` once."""
+
     def __init__(self, flight: Paths, scanner_dir: Path, out_dir: Path,
                  options: GeorefOptions) -> None:
         self.flight = flight
         self.scanner_dir = Path(scanner_dir)
         self.out = Path(out_dir)
         self.opt = options
-        self.dem_epsg, self.dem_bounds = dem_extent(options.dem)
-        self.epsg = self.dem_epsg if options.epsg is None else options.epsg
+        self.cover = DemCover(options)
+        self.epsg = self.cover.dem_epsg if options.epsg is None else options.epsg
         crs = check_output_crs(self.epsg)
-        self._to_out = (None if self.epsg == self.dem_epsg else
-                        Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        self.warnings: list[str] = crs_notes(crs, self.dem_epsg, self.dem_bounds)
+        self.caster = IgmCaster.for_job(self.out, options, self.cover.dem_epsg, self.epsg)
+        self.warnings: list[str] = crs_notes(crs, self.cover.dem_epsg, self.cover.dem_bounds)
         self.warnings += input_notes(options)
-        self.swaths: dict[int, SwathOnDem] = {}
-
-    # -- the steps ---------------------------------------------------------------------------
-
-    def partial_hit_note(self, segment: int, hits: int, posed: int) -> str:
-        """The warning for a segment whose rays (of its lines with a pose) miss the DEM in
-        part, with the likeliest reason."""
-        swath = self.swaths[segment]
-        if not swath.on_dem:
-            why = "the DEM does not cover the whole swath?"
-        elif swath.surface_m[1] >= swath.camera_m[0]:
-            why = "terrain above the camera?"
-        else:
-            why = "voids in the DEM under the swath?"
-        if hits == 0:
-            return (f"segment {segment}: none of its pixels meet the DEM {self.opt.dem.name} "
-                    f"({why}){': no ortho made for it' if self.opt.products else ''}")
-        share = math.floor(1000 * hits / posed) / 10  # 98.96 % is not "99.0 %"
-        return (f"segment {segment}: {share:.1f} % of its pixels meet the DEM "
-                f"{self.opt.dem.name} ({why})")
-
-    def no_hit_error(self, done: list[SegmentResult], off_dem: Sequence[int] = (),
-                     voids: Sequence[int] = ()) -> InputError:
-        """No ray of any segment met the DEM (`done`), or its swath lay off the DEM (`off_dem`,
-        skipped) or over its voids only (`voids`, skipped): the one line that says why. It once
-        always asked "does the DEM cover the flight?", also of a DEM that did, 8 km above the
-        aircraft."""
-        swaths = [self.swaths[s] for s in [d.segment for d in done] + list(off_dem) +
-                  list(voids)]
-        cam = min(sw.camera_m[0] for sw in swaths), max(sw.camera_m[1] for sw in swaths)
-        under = [sw.surface_m for sw in swaths if not math.isnan(sw.surface_m[0])]
-        surf = ((min(lo for lo, _ in under), max(hi for _, hi in under)) if under else
-                (math.nan, math.nan))
-        heights = (f"the DEM {_span_text(surf)} under the swaths"
-                   f"{' (geoid added)' if self.opt.geoid is not None else ''}, the camera "
-                   f"{_span_text(cam)}, both ellipsoidal")
-        head = f"no pixel could be georeferenced on {self.opt.dem}"
-        if under and surf[0] >= cam[1]:
-            return InputError(f"{head}: its surface lies above the camera ({heights}): heights "
-                              "in other units, or a wrong geoid?")
-        if voids:
-            return InputError(f"{head}: {self._voids_text(done, off_dem, voids)}")
-        if not all(sw.on_dem for sw in swaths):
-            foot = union_bounds([sw.footprint_m for sw in swaths])
-            return InputError(f"{head}: the swaths {bounds_text(foot)} run off the DEM "
-                              f"{bounds_text(self.dem_bounds)}")
-        return InputError(f"{head}: the DEM covers the swaths, but no ray met its surface "
-                          f"({heights})")
-
-    def _voids_text(self, done: list[SegmentResult], off_dem: Sequence[int],
-                    voids: Sequence[int]) -> str:
-        """Why no pixel met the DEM when some swaths lie over its voids only."""
-        foot = bounds_text(union_bounds([self.swaths[s].footprint_m for s in
-                                          [d.segment for d in done] + [*off_dem, *voids]]))
-        if not done and not off_dem:
-            one = len(voids) == 1
-            return (f"the swath{'' if one else 's'} {foot} lie{'s' if one else ''} over DEM "
-                    f"voids only (nodata): no valid height within {WINDOW_REACH_M:g} m of "
-                    f"{'it' if one else 'them'}")
-        said = [f"{len(voids)} lie{'s' if len(voids) == 1 else ''} over DEM voids only (nodata)"]
-        if off_dem:
-            said.append(f"{len(off_dem)} off the DEM {bounds_text(self.dem_bounds)}")
-        if done:
-            said.append(f"no ray of the other {len(done)} met the DEM")
-        return (f"of the {len(done) + len(off_dem) + len(voids)} swaths {foot}, "
-                f"{', '.join(said[:-1])} and {said[-1]}")
-
-    def void_skip(self, segment: int, t_gps_ns: I64) -> SegmentSkip:
-        """The skip of a segment whose DEM window holds voids only (no valid height within
-        WINDOW_REACH_M of its swath: sea masked out, a hole in a mosaic), where none of its
-        rays can meet the DEM. (Such a segment once failed the whole job, "the DEM has no
-        valid height in the window".)"""
-        foot = self.swaths[segment].footprint_m
-        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
-        return SegmentSkip(
-            segment, lines, timed, lines, True, "DEM voids", (),
-            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies over DEM voids "
-            f"only (nodata): the DEM {self.opt.dem.name} has no valid height within "
-            f"{WINDOW_REACH_M:g} m of it")
-
-    @functools.cached_property
-    def dem_height_range_m(self) -> tuple[float, float]:
-        """Lowest and highest DEM heights (from a 1/16 overview, voids left out, ±50 m), read
-        once per job."""
-        found = height_range(self.opt.dem)
-        return (0.0, 0.0) if found is None else (found[0] - 50.0, found[1] + 50.0)
-
-    def swath_footprint(self, eo: LineEo, pick: I64, heights_m: tuple[float, float]
-                        ) -> tuple[float, float, float, float]:
-        """(west, south, east, north) in the DEM's CRS of where the edge and centre rays of the
-        lines `pick` meet the heights `heights_m` (lowest, highest, ellipsoidal)."""
-        look = self.opt.sensor.scanner.look_vectors_camera()
-        to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
-        to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
-        c = eo.centre_ecef_m[pick]
-        lon, lat, h = to_geo.transform(c[:, 0], c[:, 1], c[:, 2])
-        up = np.stack([np.cos(np.radians(lat)) * np.cos(np.radians(lon)),
-                       np.cos(np.radians(lat)) * np.sin(np.radians(lon)),
-                       np.sin(np.radians(lat))], axis=1)
-        pts = []
-        for j in (0, look.shape[1] // 2, look.shape[1] - 1):
-            d = np.einsum("nij,j->ni", eo.r_ecef_from_camera[pick], look[:, j])
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            down = -np.einsum("ni,ni->n", d, up)
-            for target in heights_m:
-                s = np.where(down > 0.05, (h - target) / np.maximum(down, 0.05), 0.0)
-                s = np.clip(s, 0.0, 50_000.0)
-                p = c + s[:, None] * d
-                plon, plat, _ = to_geo.transform(p[:, 0], p[:, 1], p[:, 2])
-                pts.append(np.stack(to_dem.transform(plon, plat), axis=1))
-        xy = np.concatenate(pts)
-        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
-                float(xy[:, 1].max()))
-
-    def _camera_heights_m(self, eo: LineEo, pick: I64) -> tuple[float, float]:
-        c = eo.centre_ecef_m[pick]
-        _, _, h = Transformer.from_crs(4978, 4979, always_xy=True).transform(
-            c[:, 0], c[:, 1], c[:, 2])
-        return float(np.min(h)), float(np.max(h))
-
-    def off_dem_skip(self, segment: int, eo: LineEo, t_gps_ns: I64) -> SegmentSkip | None:
-        """The skip of a segment whose swath lies wholly off the DEM, where none of its rays
-        can meet it; None when the swath touches the DEM. (Such a segment once failed the
-        whole job when its DEM window was empty, or made an IGM of NaN.) The swath is placed
-        as in `dem_window`, but through the last line too and over the heights a geoid can
-        add, so that a segment with a ray on the DEM is never skipped."""
-        valid = np.flatnonzero(eo.valid)
-        pick = valid[::64]
-        if valid.size and pick[-1] != valid[-1]:
-            pick = np.append(pick, valid[-1])
-        h_lo, h_hi = self.dem_height_range_m
-        if isinstance(self.opt.geoid, Path):
-            h_lo, h_hi = h_lo + GEOID_UNDULATION_M[0], h_hi + GEOID_UNDULATION_M[1]
-        elif self.opt.geoid is not None:
-            h_lo, h_hi = h_lo + float(self.opt.geoid), h_hi + float(self.opt.geoid)
-        foot = self.swath_footprint(eo, pick, (h_lo, h_hi))
-        w, s, e, n = self.dem_bounds
-        if not (foot[2] < w or foot[0] > e or foot[3] < s or foot[1] > n):
-            return None
-        self.swaths[segment] = SwathOnDem(foot, self._camera_heights_m(eo, pick),
-                                          (math.nan, math.nan), False)
-        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
-        return SegmentSkip(
-            segment, lines, timed, lines, True, "off the DEM", (),
-            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies off the DEM "
-            f"{self.opt.dem.name} {bounds_text(self.dem_bounds)}")
-
-    def dem_window(self, eo: LineEo) -> tuple[Dem | None, SwathOnDem]:
-        """The DEM under the segment's swath: edge and centre rays of every 64th line met with
-        the DEM's lowest and highest heights, plus a margin (None when it holds voids only:
-        `void_skip`); and where the swath lies against the DEM (for the messages when rays
-        miss)."""
-        pick = np.flatnonzero(eo.valid)[::64]
-        if pick.size == 0:  # run() skips such segments
-            raise InputError("no line of the segment has a time and a pose: no DEM window")
-        foot = self.swath_footprint(eo, pick, self.dem_height_range_m)
-        m = FOOTPRINT_MARGIN_M
-        dem = Dem.read(self.opt.dem, bounds_m=(foot[0] - m, foot[1] - m, foot[2] + m,
-                                               foot[3] + m), geoid=self.opt.geoid,
-                       voids_only_ok=True)
-        valid = dem.heights_m[np.isfinite(dem.heights_m)]
-        surface = ((float(valid.min()), float(valid.max())) if valid.size else
-                   (math.nan, math.nan))
-        inside = all(self.dem_bounds[k] <= foot[k] for k in (0, 1)) and all(
-            foot[k] <= self.dem_bounds[k] for k in (2, 3))
-        return (dem if valid.size else None,
-                SwathOnDem(foot, self._camera_heights_m(eo, pick), surface, inside))
-
-    def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
-                             dem: Dem, progress: Progress | None) -> SegmentResult:
-        """Every ray of the segment cast on `dem`, its window (`dem_window`)."""
-        image, n_lines, pixels = raw.path, raw.lines, raw.pixels
-        self.opt.sensor.check_pixels(pixels, str(image))
-        look = self.opt.sensor.scanner.look_vectors_camera()
-        stem = self.out / f"segment_{segment:03d}"
-        write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
-        hits = 0
-        geo_lines = 0
-        # a --cell too wide for the orthos is refused at the segment's first block of rays,
-        # not once the whole flight is cast (minutes on a long one); without products, no ortho
-        cell_to_check = self.opt.cell_m if self.opt.products else None
-        across: list[F64] = []
-        along: list[F64] = []
-        with IgmWriter(Path(f"{stem}_igm"), n_lines, pixels, self.epsg) as igm:
-            for lo in range(0, n_lines, self.opt.block_lines):
-                hi = min(lo + self.opt.block_lines, n_lines)
-                east, north, height = (np.full((hi - lo, pixels), np.nan) for _ in range(3))
-                ok = np.flatnonzero(eo.valid[lo:hi])
-                if ok.size:
-                    gp = intersect(dem, eo.centre_ecef_m[lo:hi][ok],
-                                   eo.r_ecef_from_camera[lo:hi][ok], look)
-                    east[ok], north[ok], height[ok] = gp.easting_m, gp.northing_m, gp.height_m
-                if self._to_out is not None:
-                    east, north = self._to_out.transform(east, north)
-                    east, north = np.asarray(east), np.asarray(north)
-                igm.write_block(lo, east, north, height)
-                good = np.isfinite(east)
-                hits += int(good.sum())
-                geo_lines += int(good.any(axis=1).sum())
-                across.append(np.hypot(np.diff(east, axis=1), np.diff(north, axis=1))[::16]
-                              .ravel())
-                if cell_to_check is not None and math.isfinite(gsd := _median(across[-1:])):
-                    check_cell_against_swath(cell_to_check, segment, gsd * max(pixels - 1, 0),
-                                             gsd, margin=EARLY_CELL_MARGIN)
-                    cell_to_check = None
-                mid = pixels // 2
-                along.append(np.hypot(np.diff(east[:, mid]), np.diff(north[:, mid])))
-                if progress is not None:
-                    progress(hi - lo)
-        timed = t_gps_ns >= 0
-        posed = int(eo.valid.sum()) * pixels
-        if posed and hits < HIT_WARN_FRACTION * posed:
-            self.warnings.append(self.partial_hit_note(segment, hits, posed))
-        return SegmentResult(
-            segment=segment, lines=n_lines, lines_timed=int(timed.sum()),
-            lines_georeferenced=geo_lines, rays=n_lines * pixels, rays_hit=hits,
-            gsd_across_m=_median(across), gsd_along_m=_median(along),
-            t_first_gps_ns=int(t_gps_ns[timed].min()) if timed.any() else -1,
-            t_last_gps_ns=int(t_gps_ns[timed].max()) if timed.any() else -1,
-            igm=Path(f"{stem}_igm.bil"), image=image,
-            files={"eo": f"{stem.name}_eo.csv", "igm": f"{stem.name}_igm.bil"})
-
-    # -- the whole job -----------------------------------------------------------------------
 
     def run(self, progress: Progress | None = None, on_total: Progress | None = None
             ) -> GeorefResult:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
         `progress` each block of lines done."""
         self.out.mkdir(parents=True, exist_ok=True)
-        flight = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
-        result, traj = flight.sync, flight.trajectory
-        write_sync(self.out, result)
-        rasters = segment_rasters(self.scanner_dir, result, self.warnings)
-        segments = list(rasters)
+        handoff = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
+        write_sync(self.out, handoff.sync)
+        rasters = segment_rasters(self.scanner_dir, handoff.sync, self.warnings)
         if on_total is not None:
-            on_total(sum(rasters[s].lines for s in segments))
+            on_total(sum(raw.lines for raw in rasters.values()))
         done: list[SegmentResult] = []
-        skipped: list[SegmentSkip] = []
-        off_dem: list[int] = []  # segments whose swath lies off the DEM (skipped)
-        voids: list[int] = []  # segments whose DEM window holds voids only (skipped)
-        for s in segments:
-            eo, t = segment_eo(flight, self.opt.sensor, self.scanner_dir, s, rasters[s].lines,
-                               rasters[s].header_lines)
-            if (skip := coverage(flight, s, eo, t)) is not None:
-                skipped.append(skip)
-                self.warnings.append(skip.message)
-            dem: Dem | None = None
-            if eo.valid.any():
-                if (off := self.off_dem_skip(s, eo, t)) is not None:
-                    off_dem.append(s)
-                else:
-                    dem, self.swaths[s] = self.dem_window(eo)
-                    if dem is None:
-                        off = self.void_skip(s, t)
-                        voids.append(s)
-                if off is not None:
-                    skipped.append(off)
-                    self.warnings.append(off.message)
-            if dem is None:
-                if progress is not None:
-                    progress(rasters[s].lines)
-                continue
-            done.append(self.georeference_segment(s, eo, t, rasters[s], dem, progress))
-        if not done and not off_dem and not voids:
-            raise no_overlap_error(flight, self.flight)
+        skipped = _Skipped()
+        for s, raw in rasters.items():
+            if (seg := self._segment(handoff, s, raw, skipped, progress)) is not None:
+                done.append(seg)
+        if not done and not skipped.off_dem and not skipped.voids:
+            raise no_overlap_error(handoff, self.flight)
         if not any(d.rays_hit for d in done):
-            raise self.no_hit_error(done, off_dem, voids)
+            raise self.cover.no_hit_error(done, skipped.off_dem, skipped.voids)
         cell_m = ortho_cell_m(self.opt, done)
         mosaic_path = flight_products(done, self.out, self.epsg, cell_m, self.opt.products,
                                       self.warnings)
-        summary = flight_summary(self.opt, self.epsg, flight, done, cell_m,
-                                 registrations(self.out, done), skipped, self.warnings)
+        summary = flight_summary(self.opt, self.epsg, handoff, done, cell_m,
+                                 registrations(self.out, done), skipped.skips, self.warnings)
         write_json(self.out / "georef_summary.json", summary)
-        return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
-                            skipped, list(self.warnings), log_fixes=flight.log_fixes,
-                            recording_health=flight.recording_health)
+        return GeorefResult(handoff.sync, handoff.trajectory, self.epsg, cell_m, done,
+                            mosaic_path, summary, skipped.skips, list(self.warnings),
+                            log_fixes=handoff.log_fixes, recording_health=handoff.recording_health)
 
-def _span_text(span: tuple[float, float]) -> str:
-    """Heights (m) for a message: "898 to 902 m", or "9000 m" when both round alike."""
-    low, high = (f"{v:.0f}" for v in span)
-    return f"{low} m" if low == high else f"{low} to {high} m"
+    def _segment(self, handoff: Handoff, s: int, raw: EnviRaster, skipped: _Skipped,
+                 progress: Progress | None) -> SegmentResult | None:
+        """One segment: its lines' times and poses, its swath against the DEM, its rays cast;
+        None when it is skipped whole (said in `skipped` and the warnings)."""
+        eo, t = segment_eo(handoff, self.opt.sensor, self.scanner_dir, s, raw.lines,
+                           raw.header_lines)
+        if (skip := coverage(handoff, s, eo, t)) is not None:
+            self._skip(skipped, skip)
+        dem: Dem | None = None
+        if eo.valid.any():
+            if (off := self.cover.off_dem_skip(s, eo, t)) is not None:
+                skipped.off_dem.append(s)
+            elif (dem := self.cover.dem_window(s, eo)) is None:
+                off = self.cover.void_skip(s, t)
+                skipped.voids.append(s)
+            if off is not None:
+                self._skip(skipped, off)
+        if dem is None:
+            if progress is not None:
+                progress(raw.lines)
+            return None
+        seg = self.caster.cast(s, eo, t, raw, dem, progress)
+        posed = int(eo.valid.sum()) * raw.pixels
+        if (note := self.cover.partial_hit_note(s, seg.rays_hit, posed)) is not None:
+            self.warnings.append(note)
+        return seg
 
-
-def _median(parts: list[F64]) -> float:
-    vals = np.concatenate(parts) if parts else np.zeros(0)
-    vals = vals[np.isfinite(vals)]
-    return float(np.median(vals)) if vals.size else math.nan
+    def _skip(self, skipped: _Skipped, skip: SegmentSkip) -> None:
+        skipped.skips.append(skip)
+        self.warnings.append(skip.message)

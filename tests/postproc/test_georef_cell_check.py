@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-import postproc.georef.job as georef_module
+import postproc.georef.casting as casting_module
 from postproc.georef import raycast
 from postproc.georef.job import GeorefJob
 from postproc.georef.jobrecords import GeorefOptions
@@ -43,7 +43,7 @@ def cast_blocks(monkeypatch: pytest.MonkeyPatch) -> list[int]:
         blocks.append(len(centre))
         return real(dem, centre, *args, **kwargs)
 
-    monkeypatch.setattr(georef_module, "intersect", counting)
+    monkeypatch.setattr(casting_module, "intersect", counting)
     return blocks
 
 

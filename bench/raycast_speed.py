@@ -32,7 +32,8 @@ from pyproj import Transformer
 from scipy import fft as sfft
 from scipy.ndimage import gaussian_filter1d
 
-from postproc.georef import CastStats, Dem, GroundPoints, intersect, raycast, reference_intersect
+from postproc.georef import CastStats, Dem, GroundPoints, intersect, reference_intersect
+from postproc.georef.raycast import blocks, surface, tables
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 
@@ -87,17 +88,17 @@ def numpy_baseline(dem: Dem, centre: F64, rot: F64, look: F64, out: GroundPoints
                    iterations: int = 8, chunk_lines: int = 256) -> None:
     """The fast path's set-up, then fixed-point iterations in numpy (range to the height of
     the DEM under the previous estimate), over chunks of lines that stay in cache."""
-    surf = raycast._surface(dem)
+    surf = surface.surface_of(dem)
     unit = look / np.linalg.norm(look, axis=0)
-    maps = raycast._fit_block_maps(surf, centre, rot, unit)
-    coef = raycast._line_coefficients(maps, centre, rot)
-    look9 = raycast._look_products(unit)
+    maps = blocks.fit_block_maps(surf, centre, rot, unit)
+    coef = tables.line_coefficients(maps, centre, rot)
+    look9 = tables.look_products(unit)
     blk = np.repeat(np.arange(maps.starts.size - 1), np.diff(maps.starts))
     z = dem.heights_m.ravel()
     cols, rows = dem.cols, dem.rows
     for i0 in range(0, centre.shape[0], chunk_lines):
         sl = slice(i0, i0 + chunk_lines)
-        b, c = raycast._ray_terms(coef[sl], look9)
+        b, c = tables.ray_terms(coef[sl], look9)
         a = coef[sl, None, :3]
         e0 = maps.en0_m[blk[sl], 0][:, None] + a[..., 0] - dem.first_easting_m
         n0 = dem.first_northing_m - maps.en0_m[blk[sl], 1][:, None] - a[..., 1]
@@ -165,7 +166,7 @@ def main() -> None:
     dem = synthetic_dem(length, 1800.0)
     centre, rot, look = casi_strip(dem, args.lines)
     rays = args.lines * look.shape[1]
-    slope = raycast.cell_slopes(dem)
+    slope = surface.cell_slopes(dem)
     print(f"scene: {args.lines} lines x {look.shape[1]} px = {rays / 1e6:.2f} M rays, DEM "
           f"{dem.rows} x {dem.cols} cells of {CELL_M} m, relief "
           f"{np.ptp(dem.heights_m):.0f} m, max slope {np.degrees(np.arctan(slope.max())):.0f}°"

@@ -4,14 +4,20 @@ it (docs/georef.md).
 
 Inside: `sensorfile` (the sensor model), `navigation` (GPS fixes and INS attitude into one
 trajectory), `trajfiles` (external trajectories), `exterior` (a line's pose and boresight),
-`dem` and `raycast` (the DEM and the ray–DEM intersection), `registration` (strip-to-strip
-checks), `job` (one flight's run: segments, products, registration) and `report` (the HTML
-processing report). The writers of the products themselves are `postproc.products`. Other
-stages and the commands use only the names below.
+`dem` and `raycast` (the DEM and the ray–DEM intersection, a package of its own),
+`registration` (strip-to-strip checks), `report` (the HTML processing report), and one
+flight's run: `job` (the steps in order) over `jobrecords` (its options and results),
+`inputchecks` (what is refused or said before it starts), `handoff` (the log read and
+synchronised, the trajectory), `segments` (each segment's lines, times and poses), `demcover`
+(each swath against the DEM), `casting` (every ray into the IGM), `orthocell` (the ortho
+cell), `segmentproducts` and `flightproducts`. The writers of the products themselves are
+`postproc.products`. Other stages and the commands use only the names below.
 """
 
 from postproc.georef.dem import PLAUSIBLE_HEIGHTS_M, Dem, check_undulation_m
-from postproc.georef.job import GeorefJob, GeorefOptions, GeorefResult, SegmentResult, merged_wanted
+from postproc.georef.handoff import merged_wanted
+from postproc.georef.job import GeorefJob
+from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult
 from postproc.georef.navigation import (
     MAX_GAP_LIMIT_S,
     NAV_WANTED,

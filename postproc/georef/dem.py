@@ -195,6 +195,13 @@ def bounds_text(bounds: tuple[float, ...]) -> str:
     return "(" + ", ".join(f"{v:.1f}" for v in bounds) + ")"
 
 
+def union_bounds(b: list[tuple[float, float, float, float]]
+                 ) -> tuple[float, float, float, float]:
+    """The (west, south, east, north) that holds every one of `b`."""
+    return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
+            max(x[3] for x in b))
+
+
 def band_note(path: str | Path, what: str = "DEM") -> str | None:
     """What to say of a raster with more than one band (None with one): only band 1 is read,
     which a 3-band file (an RGB relief rendering, a DEM with error bands) makes a guess."""

@@ -25,944 +25,116 @@ ground metres or north there. No pixel on the DEM at all is an InputError saying
 surface above the camera, the swath off the DEM or over its voids only), as is an ortho cell
 wider than half the swath (refused at a segment's first block of rays, not after the whole
 flight is cast).
+
+The job runs the steps in order, each in a module of its own: `inputchecks` (before it
+starts), `handoff` (the log read and synchronised, the trajectory), `segments` (each segment's
+image and every line's time and pose), `demcover` (each swath against the DEM), `casting`
+(every ray into the IGM), `orthocell` (the ortho cell), `segmentproducts` and
+`flightproducts` (VRT, ortho, GLT, quicklooks, footprints, mosaic, registration, summary); its
+records are `jobrecords`.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-import warnings
-from collections import Counter
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
 
-import numpy as np
-import numpy.typing as npt
-from pyproj import CRS, Proj, Transformer
-from pyproj.transformer import AreaOfInterest
-
-from postproc.georef.dem import (
-    DEFAULT_MARGIN_M,
-    GEOID_UNDULATION_M,
-    Dem,
-    band_note,
-    bounds_text,
-    check_undulation_m,
-    dem_extent,
-    height_range,
-)
-from postproc.georef.exterior import LineEo, exterior_orientation, write_eo_csv
-from postproc.georef.navigation import (
-    NAV_WANTED,
-    AntennaFixes,
-    NavConfig,
-    PiecewiseTrajectory,
-    Trajectory,
-    fixes_from_columns,
-    nav_from_columns,
-)
-from postproc.georef.raycast import intersect
-from postproc.georef.registration import register_strips
-from postproc.georef.sensorfile import SensorModel
-from postproc.georef.trajfiles import TRAJ_WANTED, read_trajectory_file
-from postproc.products import (
-    CutShortWarning,
-    EnviRaster,
-    IgmWriter,
-    OrthoGrid,
-    Progress,
-    SwathIndex,
-    footprint_feature,
-    mosaic,
-    nice_cell_m,
-    orthorectify,
-    write_footprints_geojson,
-    write_geolocation_vrt,
-    write_quicklook,
-)
-from postproc.sync import WANTED as SYNC_WANTED
-from postproc.sync import (
-    SyncResult,
-    TimeStatus,
-    read_scanner_lines,
-    sync_input_from_columns,
-    synchronise,
-    unlisted_line_notes,
-    untimed_lines_note,
-    write_ins_times,
-    write_line_times,
-    write_report,
-)
-from recorder.columns import read_topics
-from recorder.framing import Paths, log_paths
-from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
-from recorder.messages import Topic
-from sisa.core.errors import InputError
+from postproc.georef.casting import IgmCaster
+from postproc.georef.dem import Dem
+from postproc.georef.demcover import DemCover
+from postproc.georef.flightproducts import flight_products, flight_summary, registrations
+from postproc.georef.handoff import Handoff, read_and_sync, write_sync
+from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
+from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult, SegmentSkip
+from postproc.georef.orthocell import ortho_cell_m
+from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
+from postproc.products import EnviRaster, Progress
+from recorder.framing import Paths
 from sisa.core.jsonio import write_json
-from sisa.core.timescale import (
-    NS_PER_DAY,
-    NS_PER_S,
-    gps_span_label,
-)
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
-
-BLOCK_LINES: Final = 4096
-# the --cell check at a segment's first block of rays refuses only a cell this much wider than
-# allowed: that block's pixel spacing is not the whole segment's (198 against 211 m of swath on
-# a test run), and a cell the check after the whole flight takes must not be refused early
-EARLY_CELL_MARGIN: Final = 1.25
-FOOTPRINT_MARGIN_M: Final = 300.0  # DEM window beyond the estimated swath
-# how far the DEM window reaches beyond the swath (Dem.read adds its margin to ours)
-WINDOW_REACH_M: Final = FOOTPRINT_MARGIN_M + DEFAULT_MARGIN_M
-SPANS_IN_MESSAGE: Final = 3  # stretches of lines a warning names (the summary has them all)
-# below this share of a segment's pixels (of its lines with a pose) on the DEM, a warning: the
-# headline's percentage alone let a DEM covering half the flight pass unremarked
-HIT_WARN_FRACTION: Final = 0.99
-
-
-@dataclass(frozen=True)
-class GeorefOptions:
-    sensor: SensorModel
-    dem: Path
-    geoid: Path | float | None = None
-    epsg: int | None = None  # output CRS; default: the DEM's
-    cell_m: float | None = None  # ortho cell; default: the median across-track pixel spacing
-    trajectory: Path | None = None  # RTKLIB .pos or Applanix SBET instead of the log's GPS
-    block_lines: int = BLOCK_LINES
-    products: bool = True  # ortho, GLT, mosaic, quicklooks (the IGM and EO are always made)
-    leap_seconds: int | None = None  # GPS − UTC for a .pos on UTC/JST; default: the log's
-    leap_seconds_fallback: int | None = None  # when neither is known (a run's scenario)
-    max_gap_s: float | None = None  # longest gap bridged: SBET records / GPS fixes (by the INS)
 
 
 @dataclass
-class SegmentResult:
-    segment: int
-    lines: int
-    lines_timed: int
-    lines_georeferenced: int
-    rays: int
-    rays_hit: int
-    gsd_across_m: float
-    gsd_along_m: float
-    t_first_gps_ns: int
-    t_last_gps_ns: int
-    igm: Path
-    image: Path
-    files: dict[str, str] = field(default_factory=dict)
+class _Skipped:
+    """The segments and lines a run skipped, and why."""
 
-
-@dataclass(frozen=True)
-class SwathOnDem:
-    """Where a segment's swath lies against the DEM: what the messages need when its rays
-    miss. Heights are ellipsoidal (m); `footprint_m` in the DEM's CRS, without margin."""
-
-    footprint_m: tuple[float, float, float, float]
-    camera_m: tuple[float, float]  # lowest, highest perspective centre (every 64th line)
-    surface_m: tuple[float, float]  # lowest, highest valid height of the DEM window read
-    on_dem: bool  # the footprint lies within the DEM's cell centres
-
-
-@dataclass(frozen=True)
-class LineSpan:
-    """A stretch of a segment's lines (first to last, inclusive) and their GPS times."""
-
-    first_line: int
-    last_line: int
-    t_first_gps_ns: int
-    t_last_gps_ns: int
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"first_line": self.first_line, "last_line": self.last_line,
-                "t_first_gps_ns": self.t_first_gps_ns, "t_last_gps_ns": self.t_last_gps_ns,
-                "gps_time": gps_span_label(self.t_first_gps_ns, self.t_last_gps_ns)}
-
-
-@dataclass(frozen=True)
-class SegmentSkip:
-    """Lines of a segment that were not georeferenced for want of a time or a pose, or a
-    segment whose swath lies off the DEM or over its voids only (a whole segment: nothing made
-    for it)."""
-
-    segment: int
-    lines: int
-    lines_timed: int
-    lines_skipped: int
-    whole_segment: bool
-    reason: str  # "no line time" | "no pose" | "off the DEM" | "DEM voids"
-    spans: tuple[LineSpan, ...]  # timed lines without a pose
-    message: str
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"segment": self.segment, "lines": self.lines, "lines_timed": self.lines_timed,
-                "lines_skipped": self.lines_skipped, "whole_segment": self.whole_segment,
-                "reason": self.reason, "spans": [sp.as_dict() for sp in self.spans],
-                "message": self.message}
-
-
-@dataclass
-class GeorefResult:
-    sync: SyncResult
-    trajectory: Trajectory
-    epsg: int
-    cell_m: float
-    segments: list[SegmentResult]
-    mosaic: Path | None
-    summary: dict[str, Any]
-    skipped: list[SegmentSkip] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
-    log_fixes: AntennaFixes | None = None  # the flight log's GPS fixes, as read for the sync
-    recording_health: HealthTotals | None = None  # the recorder's counts (`sisa log info`)
-
-
-def _duration_label(ns: int) -> str:
-    s = abs(ns) / NS_PER_S
-    if s >= 86_400:
-        return f"{s / 86_400:.2f} days"
-    return f"{s / 3600:.2f} h" if s >= 3600 else f"{s:.1f} s"
-
-
-def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
-    """One field list per topic for a single read_topics pass."""
-    out: dict[str, tuple[str, ...]] = {}
-    for w in wanted:
-        for topic, fields in w.items():
-            out[topic] = tuple(dict.fromkeys((*out.get(topic, ()), *fields)))
-    return out
-
-
-def segment_image(scanner_dir: Path, segment: int) -> Path:
-    path = scanner_dir / f"segment_{segment:03d}.bil"
-    if not path.is_file():
-        what = ("a link to nothing" if path.is_symlink() and not path.exists() else
-                "not a file" if path.exists() or path.is_symlink() else "missing")
-        raise InputError(f"{path}: {what}, but the lines file lists segment {segment}")
-    return path
-
-
-def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
-    """The segment's raw image, and what to say when its file is cut short (None if whole):
-    the lines before the cut are georeferenced, the rest named as missing."""
-    raw = EnviRaster.open(path)
-    if not raw.cut_short:
-        return raw, None
-    return raw, (f"segment {segment}: {raw.cut_short_text(path.name)}: lines {raw.lines}-"
-                 f"{raw.header_lines - 1} are not georeferenced")
+    skips: list[SegmentSkip] = field(default_factory=list)
+    off_dem: list[int] = field(default_factory=list)  # swath off the DEM: skipped
+    voids: list[int] = field(default_factory=list)  # DEM window of voids only: skipped
 
 
 class GeorefJob:
+    """One flight's georeferencing: its inputs checked when it is made, before the log is
+    read; `run` once."""
+
     def __init__(self, flight: Paths, scanner_dir: Path, out_dir: Path,
                  options: GeorefOptions) -> None:
         self.flight = flight
         self.scanner_dir = Path(scanner_dir)
         self.out = Path(out_dir)
         self.opt = options
-        self.dem_epsg, self.dem_bounds = dem_extent(options.dem)
-        self.epsg = self.dem_epsg if options.epsg is None else options.epsg
+        self.cover = DemCover(options)
+        self.epsg = self.cover.dem_epsg if options.epsg is None else options.epsg
         crs = check_output_crs(self.epsg)
-        self._to_out = (None if self.epsg == self.dem_epsg else
-                        Transformer.from_crs(self.dem_epsg, self.epsg, always_xy=True))
-        centre = _dem_centre_lon_lat(self.dem_epsg, self.dem_bounds)
-        notes = grid_scale_note(crs, *centre), datum_shift_note(crs, *centre)
-        self.warnings: list[str] = [note for note in notes if note is not None]
+        self.caster = IgmCaster.for_job(self.out, options, self.cover.dem_epsg, self.epsg)
+        self.warnings: list[str] = crs_notes(crs, self.cover.dem_epsg, self.cover.dem_bounds)
         self.warnings += input_notes(options)
-        self.trajectory_info: dict[str, Any] = {}
-        self.swaths: dict[int, SwathOnDem] = {}
-        self.log_fixes: AntennaFixes | None = None
-        self.recording_health = HealthTotals()  # the recorder's own counts, from the log
-
-    # -- the steps ---------------------------------------------------------------------------
-
-    def read_and_sync(self) -> tuple[SyncResult, Trajectory]:
-        lines = read_scanner_lines(self.scanner_dir)
-        wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if self.opt.trajectory else ())
-        cols = read_topics(self.flight, {**merged_wanted(*wanted), **HEALTH_WANTED},
-                           notes=self.warnings)
-        self.recording_health = HealthTotals.from_columns(cols[Topic.HEALTH])
-        recording = recording_note(self.recording_health, log_paths(self.flight)[0])
-        if recording is not None:  # the log may hold less than the devices sent
-            self.warnings.append(recording)
-        result = synchronise(sync_input_from_columns(cols), lines)
-        self.log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
-        mounting = self.opt.sensor.mounting
-        info = self.trajectory_info
-        if self.opt.trajectory is not None:
-            info["source"] = str(self.opt.trajectory)
-            traj = read_trajectory_file(self.opt.trajectory, cols, result.ins,
-                                        antenna_offset_m=mounting.antenna_offset_m,
-                                        leap_seconds=self.opt.leap_seconds,
-                                        fallback_leap_seconds=self.opt.leap_seconds_fallback,
-                                        max_gap_s=self.opt.max_gap_s, report=info)
-            self.warnings += info.pop("warnings", [])
-            if self.opt.leap_seconds is not None and info.get("time_scale") not in ("UTC",
-                                                                                   "JST"):
-                kind = "an SBET" if info.get("format") == "Applanix SBET" else "a .pos"
-                self.warnings.append(
-                    f"--leap-seconds {self.opt.leap_seconds}: not used: "
-                    f"{self.opt.trajectory} is {kind} on GPS time (the option is for a .pos "
-                    "on UTC or JST)")
-        else:
-            info["source"] = "flight log"
-            config = None if self.opt.max_gap_s is None else NavConfig(
-                max_gps_gap_s=self.opt.max_gap_s)
-            traj = nav_from_columns(cols, result.ins, antenna_offset_m=mounting.antenna_offset_m,
-                                    config=config)
-        info["t_first_gps_ns"], info["t_last_gps_ns"] = (int(t) for t in traj.span_ns)
-        info["gps_time"] = gps_span_label(*traj.span_ns)
-        if isinstance(traj, PiecewiseTrajectory):
-            info["gaps"] = [{"t_first_gps_ns": a, "t_last_gps_ns": b}
-                            for a, b in traj.gaps_ns()]
-        return result, traj
-
-    @property
-    def trajectory_name(self) -> str:
-        if self.opt.trajectory is not None:
-            return f"the trajectory {self.opt.trajectory}"
-        return "the flight log's navigation"
-
-    def trajectory_span_label(self, traj: Trajectory) -> str:
-        gaps = len(traj.gaps_ns()) if isinstance(traj, PiecewiseTrajectory) else 0
-        return gps_span_label(*traj.span_ns) + (f", {gaps} gaps inside" if gaps else "")
-
-    def coverage(self, result: SyncResult, traj: Trajectory, segment: int, eo: LineEo,
-                 t_gps_ns: I64) -> SegmentSkip | None:
-        """What of the segment cannot be georeferenced for want of a time or a pose; None if
-        every timed line has a pose (lines without a time alone are as before: NaN)."""
-        n = t_gps_ns.size
-        timed = t_gps_ns >= 0
-        if not timed.any():
-            sel = result.lines.segment == segment
-            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ")
-                          for v in result.lines.status[sel] if v != TimeStatus.OK)
-            if n > int(sel.sum()):
-                why["not in the lines file"] += n - int(sel.sum())
-            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
-            return SegmentSkip(segment, n, 0, n, True, "no line time", (),
-                               f"segment {segment}: skipped, none of its {n} lines has a GPS "
-                               f"time (sync: {said or 'no line'})")
-        rows = np.flatnonzero(timed)
-        missing = ~eo.valid[rows]
-        if not missing.any():
-            return None
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], missing.view(np.int8), [0]])))
-        spans = tuple(LineSpan(int(rows[a]), int(rows[b - 1]), int(t_gps_ns[rows[a]]),
-                               int(t_gps_ns[rows[b - 1]]))
-                      for a, b in zip(edges[::2], edges[1::2], strict=True))
-        said = "; ".join(f"lines {sp.first_line}-{sp.last_line}, "
-                         f"{gps_span_label(sp.t_first_gps_ns, sp.t_last_gps_ns)}"
-                         for sp in spans[:SPANS_IN_MESSAGE])
-        if len(spans) > SPANS_IN_MESSAGE:
-            said += f"; and {len(spans) - SPANS_IN_MESSAGE} more stretches"
-        whole = not eo.valid.any()
-        k = int(missing.sum())
-        head = (f"segment {segment}: skipped, none of its {k} timed lines has a pose" if whole
-                else f"segment {segment}: {k} of {n} lines not georeferenced, no pose")
-        return SegmentSkip(
-            segment, n, int(timed.sum()), n if whole else k, whole, "no pose", spans,
-            f"{head} ({said}): outside {self.trajectory_name} "
-            f"({self.trajectory_span_label(traj)})")
-
-    def no_overlap_error(self, result: SyncResult, traj: Trajectory) -> InputError:
-        """No segment has a line with a time and a pose: the one line that says why."""
-        ln = result.lines
-        t = ln.t_gps_ns[(ln.status == TimeStatus.OK) & (ln.t_gps_ns >= 0)]
-        if t.size == 0:
-            untied = untimed_lines_note(result.report["lines"], log_paths(self.flight))
-            if untied is not None:  # the count alone did not say why
-                return InputError(f"nothing to georeference: {untied}")
-            why = Counter(TimeStatus(int(v)).name.lower().replace("_", " ") for v in ln.status)
-            said = ", ".join(f"{k} {v}" for v, k in why.most_common())
-            return InputError(f"no scan line could be put on GPS time (sync: "
-                              f"{said or 'no line in the lines files'}), against "
-                              f"{self.trajectory_name} ({self.trajectory_span_label(traj)}): "
-                              "nothing to georeference")
-        (a0, a1), b0, b1 = traj.span_ns, int(t.min()), int(t.max())
-        if a1 < b0:
-            where = f"it ends {_duration_label(b0 - a1)} before the first line"
-        elif a0 > b1:
-            where = f"it starts {_duration_label(a0 - b1)} after the last line"
-        else:
-            where = "no line falls inside its valid stretches"
-        days = round((a0 - b0) / NS_PER_DAY)
-        if days and abs(a0 - b0 - days * NS_PER_DAY) < 2 * 3600 * NS_PER_S:
-            where += f"; {abs(days)} days apart: a file of another day?"
-        return InputError(f"{self.trajectory_name} ({self.trajectory_span_label(traj)}) does "
-                          f"not cover the scan lines ({gps_span_label(b0, b1)}): {where}")
-
-    def partial_hit_note(self, segment: int, hits: int, posed: int) -> str:
-        """The warning for a segment whose rays (of its lines with a pose) miss the DEM in
-        part, with the likeliest reason."""
-        swath = self.swaths[segment]
-        if not swath.on_dem:
-            why = "the DEM does not cover the whole swath?"
-        elif swath.surface_m[1] >= swath.camera_m[0]:
-            why = "terrain above the camera?"
-        else:
-            why = "voids in the DEM under the swath?"
-        if hits == 0:
-            return (f"segment {segment}: none of its pixels meet the DEM {self.opt.dem.name} "
-                    f"({why}){': no ortho made for it' if self.opt.products else ''}")
-        share = math.floor(1000 * hits / posed) / 10  # 98.96 % is not "99.0 %"
-        return (f"segment {segment}: {share:.1f} % of its pixels meet the DEM "
-                f"{self.opt.dem.name} ({why})")
-
-    def no_hit_error(self, done: list[SegmentResult], off_dem: Sequence[int] = (),
-                     voids: Sequence[int] = ()) -> InputError:
-        """No ray of any segment met the DEM (`done`), or its swath lay off the DEM (`off_dem`,
-        skipped) or over its voids only (`voids`, skipped): the one line that says why. It once
-        always asked "does the DEM cover the flight?", also of a DEM that did, 8 km above the
-        aircraft."""
-        swaths = [self.swaths[s] for s in [d.segment for d in done] + list(off_dem) +
-                  list(voids)]
-        cam = min(sw.camera_m[0] for sw in swaths), max(sw.camera_m[1] for sw in swaths)
-        under = [sw.surface_m for sw in swaths if not math.isnan(sw.surface_m[0])]
-        surf = ((min(lo for lo, _ in under), max(hi for _, hi in under)) if under else
-                (math.nan, math.nan))
-        heights = (f"the DEM {_span_text(surf)} under the swaths"
-                   f"{' (geoid added)' if self.opt.geoid is not None else ''}, the camera "
-                   f"{_span_text(cam)}, both ellipsoidal")
-        head = f"no pixel could be georeferenced on {self.opt.dem}"
-        if under and surf[0] >= cam[1]:
-            return InputError(f"{head}: its surface lies above the camera ({heights}): heights "
-                              "in other units, or a wrong geoid?")
-        if voids:
-            return InputError(f"{head}: {self._voids_text(done, off_dem, voids)}")
-        if not all(sw.on_dem for sw in swaths):
-            foot = _union_bounds([sw.footprint_m for sw in swaths])
-            return InputError(f"{head}: the swaths {bounds_text(foot)} run off the DEM "
-                              f"{bounds_text(self.dem_bounds)}")
-        return InputError(f"{head}: the DEM covers the swaths, but no ray met its surface "
-                          f"({heights})")
-
-    def _voids_text(self, done: list[SegmentResult], off_dem: Sequence[int],
-                    voids: Sequence[int]) -> str:
-        """Why no pixel met the DEM when some swaths lie over its voids only."""
-        foot = bounds_text(_union_bounds([self.swaths[s].footprint_m for s in
-                                          [d.segment for d in done] + [*off_dem, *voids]]))
-        if not done and not off_dem:
-            one = len(voids) == 1
-            return (f"the swath{'' if one else 's'} {foot} lie{'s' if one else ''} over DEM "
-                    f"voids only (nodata): no valid height within {WINDOW_REACH_M:g} m of "
-                    f"{'it' if one else 'them'}")
-        said = [f"{len(voids)} lie{'s' if len(voids) == 1 else ''} over DEM voids only (nodata)"]
-        if off_dem:
-            said.append(f"{len(off_dem)} off the DEM {bounds_text(self.dem_bounds)}")
-        if done:
-            said.append(f"no ray of the other {len(done)} met the DEM")
-        return (f"of the {len(done) + len(off_dem) + len(voids)} swaths {foot}, "
-                f"{', '.join(said[:-1])} and {said[-1]}")
-
-    def void_skip(self, segment: int, t_gps_ns: I64) -> SegmentSkip:
-        """The skip of a segment whose DEM window holds voids only (no valid height within
-        WINDOW_REACH_M of its swath: sea masked out, a hole in a mosaic), where none of its
-        rays can meet the DEM. (Such a segment once failed the whole job, "the DEM has no
-        valid height in the window".)"""
-        foot = self.swaths[segment].footprint_m
-        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
-        return SegmentSkip(
-            segment, lines, timed, lines, True, "DEM voids", (),
-            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies over DEM voids "
-            f"only (nodata): the DEM {self.opt.dem.name} has no valid height within "
-            f"{WINDOW_REACH_M:g} m of it")
-
-    def write_sync(self, result: SyncResult) -> None:
-        sync_dir = self.out / "sync"
-        sync_dir.mkdir(parents=True, exist_ok=True)
-        ins, ln = result.ins, result.lines
-        write_ins_times(sync_dir / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
-                        ins.status)
-        write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                         ln.t_gps_ns, ln.status)
-        write_report(sync_dir / "sync_report.json", result.report)
-
-    def segment_eo(self, result: SyncResult, traj: Trajectory, segment: int, n_lines: int,
-                   header_lines: int | None = None) -> tuple[LineEo, I64]:
-        """EO of every line of the segment's image (invalid where the line has no time).
-        `header_lines`: what the image's header declares when its file holds only `n_lines`
-        (cut short): the lines file may list those, which are left out."""
-        ln = result.lines
-        sel = ln.segment == segment
-        t = np.full(n_lines, -1, dtype=np.int64)
-        rows = ln.line[sel]
-        declared = n_lines if header_lines is None else max(header_lines, n_lines)
-        if rows.size and (rows.min() < 0 or rows.max() >= declared):
-            raise InputError(f"{self.scanner_dir / f'segment_{segment:03d}.lines.csv'} lists "
-                             f"line {rows.max()} but its image only {declared} lines")
-        ok = (ln.status[sel] == TimeStatus.OK) & (rows < n_lines)
-        t[rows[ok]] = ln.t_gps_ns[sel][ok]
-        timed = t >= 0
-        eo = exterior_orientation(traj, np.where(timed, t, traj.span_ns[0]),
-                                  self.opt.sensor.mounting,
-                                  time_delay_ns=self.opt.sensor.time_delay_ns)
-        eo.valid[:] &= timed
-        return eo, t
-
-    @functools.cached_property
-    def dem_height_range_m(self) -> tuple[float, float]:
-        """Lowest and highest DEM heights (from a 1/16 overview, voids left out, ±50 m), read
-        once per job."""
-        found = height_range(self.opt.dem)
-        return (0.0, 0.0) if found is None else (found[0] - 50.0, found[1] + 50.0)
-
-    def swath_footprint(self, eo: LineEo, pick: I64, heights_m: tuple[float, float]
-                        ) -> tuple[float, float, float, float]:
-        """(west, south, east, north) in the DEM's CRS of where the edge and centre rays of the
-        lines `pick` meet the heights `heights_m` (lowest, highest, ellipsoidal)."""
-        look = self.opt.sensor.scanner.look_vectors_camera()
-        to_geo = Transformer.from_crs(4978, 4979, always_xy=True)
-        to_dem = Transformer.from_crs(4979, self.dem_epsg, always_xy=True)
-        c = eo.centre_ecef_m[pick]
-        lon, lat, h = to_geo.transform(c[:, 0], c[:, 1], c[:, 2])
-        up = np.stack([np.cos(np.radians(lat)) * np.cos(np.radians(lon)),
-                       np.cos(np.radians(lat)) * np.sin(np.radians(lon)),
-                       np.sin(np.radians(lat))], axis=1)
-        pts = []
-        for j in (0, look.shape[1] // 2, look.shape[1] - 1):
-            d = np.einsum("nij,j->ni", eo.r_ecef_from_camera[pick], look[:, j])
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            down = -np.einsum("ni,ni->n", d, up)
-            for target in heights_m:
-                s = np.where(down > 0.05, (h - target) / np.maximum(down, 0.05), 0.0)
-                s = np.clip(s, 0.0, 50_000.0)
-                p = c + s[:, None] * d
-                plon, plat, _ = to_geo.transform(p[:, 0], p[:, 1], p[:, 2])
-                pts.append(np.stack(to_dem.transform(plon, plat), axis=1))
-        xy = np.concatenate(pts)
-        return (float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
-                float(xy[:, 1].max()))
-
-    def _camera_heights_m(self, eo: LineEo, pick: I64) -> tuple[float, float]:
-        c = eo.centre_ecef_m[pick]
-        _, _, h = Transformer.from_crs(4978, 4979, always_xy=True).transform(
-            c[:, 0], c[:, 1], c[:, 2])
-        return float(np.min(h)), float(np.max(h))
-
-    def off_dem_skip(self, segment: int, eo: LineEo, t_gps_ns: I64) -> SegmentSkip | None:
-        """The skip of a segment whose swath lies wholly off the DEM, where none of its rays
-        can meet it; None when the swath touches the DEM. (Such a segment once failed the
-        whole job when its DEM window was empty, or made an IGM of NaN.) The swath is placed
-        as in `dem_window`, but through the last line too and over the heights a geoid can
-        add, so that a segment with a ray on the DEM is never skipped."""
-        valid = np.flatnonzero(eo.valid)
-        pick = valid[::64]
-        if valid.size and pick[-1] != valid[-1]:
-            pick = np.append(pick, valid[-1])
-        h_lo, h_hi = self.dem_height_range_m
-        if isinstance(self.opt.geoid, Path):
-            h_lo, h_hi = h_lo + GEOID_UNDULATION_M[0], h_hi + GEOID_UNDULATION_M[1]
-        elif self.opt.geoid is not None:
-            h_lo, h_hi = h_lo + float(self.opt.geoid), h_hi + float(self.opt.geoid)
-        foot = self.swath_footprint(eo, pick, (h_lo, h_hi))
-        w, s, e, n = self.dem_bounds
-        if not (foot[2] < w or foot[0] > e or foot[3] < s or foot[1] > n):
-            return None
-        self.swaths[segment] = SwathOnDem(foot, self._camera_heights_m(eo, pick),
-                                          (math.nan, math.nan), False)
-        lines, timed = t_gps_ns.size, int((t_gps_ns >= 0).sum())
-        return SegmentSkip(
-            segment, lines, timed, lines, True, "off the DEM", (),
-            f"segment {segment}: skipped, its swath {bounds_text(foot)} lies off the DEM "
-            f"{self.opt.dem.name} {bounds_text(self.dem_bounds)}")
-
-    def dem_window(self, eo: LineEo) -> tuple[Dem | None, SwathOnDem]:
-        """The DEM under the segment's swath: edge and centre rays of every 64th line met with
-        the DEM's lowest and highest heights, plus a margin (None when it holds voids only:
-        `void_skip`); and where the swath lies against the DEM (for the messages when rays
-        miss)."""
-        pick = np.flatnonzero(eo.valid)[::64]
-        if pick.size == 0:  # run() skips such segments
-            raise InputError("no line of the segment has a time and a pose: no DEM window")
-        foot = self.swath_footprint(eo, pick, self.dem_height_range_m)
-        m = FOOTPRINT_MARGIN_M
-        dem = Dem.read(self.opt.dem, bounds_m=(foot[0] - m, foot[1] - m, foot[2] + m,
-                                               foot[3] + m), geoid=self.opt.geoid,
-                       voids_only_ok=True)
-        valid = dem.heights_m[np.isfinite(dem.heights_m)]
-        surface = ((float(valid.min()), float(valid.max())) if valid.size else
-                   (math.nan, math.nan))
-        inside = all(self.dem_bounds[k] <= foot[k] for k in (0, 1)) and all(
-            foot[k] <= self.dem_bounds[k] for k in (2, 3))
-        return (dem if valid.size else None,
-                SwathOnDem(foot, self._camera_heights_m(eo, pick), surface, inside))
-
-    def georeference_segment(self, segment: int, eo: LineEo, t_gps_ns: I64, raw: EnviRaster,
-                             dem: Dem, progress: Progress | None) -> SegmentResult:
-        """Every ray of the segment cast on `dem`, its window (`dem_window`)."""
-        image, n_lines, pixels = raw.path, raw.lines, raw.pixels
-        self.opt.sensor.check_pixels(pixels, str(image))
-        look = self.opt.sensor.scanner.look_vectors_camera()
-        stem = self.out / f"segment_{segment:03d}"
-        write_eo_csv(Path(f"{stem}_eo.csv"), segment, np.arange(n_lines), eo)
-        hits = 0
-        geo_lines = 0
-        # a --cell too wide for the orthos is refused at the segment's first block of rays,
-        # not once the whole flight is cast (minutes on a long one); without products, no ortho
-        cell_to_check = self.opt.cell_m if self.opt.products else None
-        across: list[F64] = []
-        along: list[F64] = []
-        with IgmWriter(Path(f"{stem}_igm"), n_lines, pixels, self.epsg) as igm:
-            for lo in range(0, n_lines, self.opt.block_lines):
-                hi = min(lo + self.opt.block_lines, n_lines)
-                east, north, height = (np.full((hi - lo, pixels), np.nan) for _ in range(3))
-                ok = np.flatnonzero(eo.valid[lo:hi])
-                if ok.size:
-                    gp = intersect(dem, eo.centre_ecef_m[lo:hi][ok],
-                                   eo.r_ecef_from_camera[lo:hi][ok], look)
-                    east[ok], north[ok], height[ok] = gp.easting_m, gp.northing_m, gp.height_m
-                if self._to_out is not None:
-                    east, north = self._to_out.transform(east, north)
-                    east, north = np.asarray(east), np.asarray(north)
-                igm.write_block(lo, east, north, height)
-                good = np.isfinite(east)
-                hits += int(good.sum())
-                geo_lines += int(good.any(axis=1).sum())
-                across.append(np.hypot(np.diff(east, axis=1), np.diff(north, axis=1))[::16]
-                              .ravel())
-                if cell_to_check is not None and math.isfinite(gsd := _median(across[-1:])):
-                    check_cell_against_swath(cell_to_check, segment, gsd * max(pixels - 1, 0),
-                                             gsd, margin=EARLY_CELL_MARGIN)
-                    cell_to_check = None
-                mid = pixels // 2
-                along.append(np.hypot(np.diff(east[:, mid]), np.diff(north[:, mid])))
-                if progress is not None:
-                    progress(hi - lo)
-        timed = t_gps_ns >= 0
-        posed = int(eo.valid.sum()) * pixels
-        if posed and hits < HIT_WARN_FRACTION * posed:
-            self.warnings.append(self.partial_hit_note(segment, hits, posed))
-        return SegmentResult(
-            segment=segment, lines=n_lines, lines_timed=int(timed.sum()),
-            lines_georeferenced=geo_lines, rays=n_lines * pixels, rays_hit=hits,
-            gsd_across_m=_median(across), gsd_along_m=_median(along),
-            t_first_gps_ns=int(t_gps_ns[timed].min()) if timed.any() else -1,
-            t_last_gps_ns=int(t_gps_ns[timed].max()) if timed.any() else -1,
-            igm=Path(f"{stem}_igm.bil"), image=image,
-            files={"eo": f"{stem.name}_eo.csv", "igm": f"{stem.name}_igm.bil"})
-
-    def products(self, seg: SegmentResult, cell_m: float) -> SwathIndex | None:
-        """The segment's VRT and, with products, its ortho, GLT and quicklook; the index of
-        its IGM they were made from (the mosaic's too); None without products, or when
-        none of its pixels met the DEM (an IGM of NaN: nothing to map)."""
-        stem = self.out / f"segment_{seg.segment:03d}"
-        vrt = Path(f"{stem}_geoloc.vrt")
-        write_geolocation_vrt(vrt, seg.image, seg.igm, self.epsg)
-        seg.files["geolocation_vrt"] = vrt.name
-        if not self.opt.products or seg.rays_hit == 0:
-            return None
-        index = SwathIndex.build(seg.igm)
-        grid = OrthoGrid.covering(index.bounds_m, cell_m, self.epsg)
-        tif, glt = Path(f"{stem}_ortho.tif"), Path(f"{stem}_glt")
-        with warnings.catch_warnings():  # a cut image: said once, by segment_raster's warning
-            warnings.simplefilter("ignore", CutShortWarning)
-            made = orthorectify(index, seg.image, grid, tif, glt)
-        if made.cells_filled == 0:
-            width, length = swath_size_m(seg)
-            self.warnings.append(
-                f"segment {seg.segment}: its ortho holds no pixel: no centre of its "
-                f"{cell_m:g} m cells falls on the swath ({width:.0f} m wide, {length:.0f} m "
-                "long); a smaller --cell")
-        png = Path(f"{stem}_quicklook.png")
-        write_quicklook(tif, png)
-        seg.files.update(ortho=tif.name, glt=f"{glt.name}.bil", quicklook=png.name)
-        return index
-
-    # -- the whole job -----------------------------------------------------------------------
 
     def run(self, progress: Progress | None = None, on_total: Progress | None = None
             ) -> GeorefResult:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
         `progress` each block of lines done."""
         self.out.mkdir(parents=True, exist_ok=True)
-        result, traj = self.read_and_sync()
-        self.write_sync(result)
-        segments = sorted({int(s) for s in result.lines.segment})
-        images = {s: segment_image(self.scanner_dir, s) for s in segments}
-        rasters = {}
-        for s in segments:
-            rasters[s], cut = segment_raster(images[s], s)
-            if cut is not None:
-                self.warnings.append(cut)
-        self.warnings += unlisted_line_notes(self.scanner_dir, result.lines.segment,
-                                             result.lines.line, "georeferenced")
+        handoff = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
+        write_sync(self.out, handoff.sync)
+        rasters = segment_rasters(self.scanner_dir, handoff.sync, self.warnings)
         if on_total is not None:
-            on_total(sum(rasters[s].lines for s in segments))
+            on_total(sum(raw.lines for raw in rasters.values()))
         done: list[SegmentResult] = []
-        skipped: list[SegmentSkip] = []
-        off_dem: list[int] = []  # segments whose swath lies off the DEM (skipped)
-        voids: list[int] = []  # segments whose DEM window holds voids only (skipped)
-        for s in segments:
-            eo, t = self.segment_eo(result, traj, s, rasters[s].lines, rasters[s].header_lines)
-            if (skip := self.coverage(result, traj, s, eo, t)) is not None:
-                skipped.append(skip)
-                self.warnings.append(skip.message)
-            dem: Dem | None = None
-            if eo.valid.any():
-                if (off := self.off_dem_skip(s, eo, t)) is not None:
-                    off_dem.append(s)
-                else:
-                    dem, self.swaths[s] = self.dem_window(eo)
-                    if dem is None:
-                        off = self.void_skip(s, t)
-                        voids.append(s)
-                if off is not None:
-                    skipped.append(off)
-                    self.warnings.append(off.message)
-            if dem is None:
-                if progress is not None:
-                    progress(rasters[s].lines)
-                continue
-            done.append(self.georeference_segment(s, eo, t, rasters[s], dem, progress))
-        if not done and not off_dem and not voids:
-            raise self.no_overlap_error(result, traj)
+        skipped = _Skipped()
+        for s, raw in rasters.items():
+            if (seg := self._segment(handoff, s, raw, skipped, progress)) is not None:
+                done.append(seg)
+        if not done and not skipped.off_dem and not skipped.voids:
+            raise no_overlap_error(handoff, self.flight)
         if not any(d.rays_hit for d in done):
-            raise self.no_hit_error(done, off_dem, voids)
-        cell_m = self.opt.cell_m or nice_cell_m(
-            float(np.median([d.gsd_across_m for d in done if math.isfinite(d.gsd_across_m)]
-                            or [math.nan])))
-        if not math.isfinite(cell_m) or cell_m <= 0:
-            hits, rays = sum(d.rays_hit for d in done), sum(d.rays for d in done)
-            raise InputError(f"only {hits} of {rays} pixels met the DEM, too few neighbours to "
-                             "measure the pixel spacing the ortho cell is sized by: give --cell M")
-        if self.opt.products and self.opt.cell_m is not None:
-            check_cell_against_swaths(cell_m, done)
-        features = []
-        mapped: list[tuple[SwathIndex, Path]] = []
-        for seg in done:
-            if (index := self.products(seg, cell_m)) is not None:
-                mapped.append((index, seg.image))
-            features.append(footprint_feature(seg.igm, self.epsg, properties={
-                "segment": seg.segment, "lines": seg.lines,
-                "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
-        write_footprints_geojson(self.out / "footprints.geojson", features)
-        mosaic_path: Path | None = None
-        if self.opt.products and mapped:
-            mosaic_path = self.out / "mosaic.tif"
-            mosaic(mapped, OrthoGrid.covering(_union_bounds([ix.bounds_m for ix, _ in mapped]),
-                                              cell_m, self.epsg), mosaic_path)
-            write_quicklook(mosaic_path, self.out / "mosaic_quicklook.png")
-        summary = self._summary(result, done, cell_m)
-        summary["strip_registration"] = self.registrations(done)
-        summary["trajectory"] = self.trajectory_info
-        summary["skipped"] = [skip.as_dict() for skip in skipped]
-        summary["warnings"] = list(self.warnings)
-        summary["recording_health"] = self.recording_health.as_dict()
+            raise self.cover.no_hit_error(done, skipped.off_dem, skipped.voids)
+        cell_m = ortho_cell_m(self.opt, done)
+        mosaic_path = flight_products(done, self.out, self.epsg, cell_m, self.opt.products,
+                                      self.warnings)
+        summary = flight_summary(self.opt, self.epsg, handoff, done, cell_m,
+                                 registrations(self.out, done), skipped.skips, self.warnings)
         write_json(self.out / "georef_summary.json", summary)
-        return GeorefResult(result, traj, self.epsg, cell_m, done, mosaic_path, summary,
-                            skipped, list(self.warnings), log_fixes=self.log_fixes,
-                            recording_health=self.recording_health)
+        return GeorefResult(handoff.sync, handoff.trajectory, self.epsg, cell_m, done,
+                            mosaic_path, summary, skipped.skips, list(self.warnings),
+                            log_fixes=handoff.log_fixes, recording_health=handoff.recording_health)
 
-    def registrations(self, done: list[SegmentResult]) -> list[dict[str, Any]]:
-        """Shift between every pair of overlapping segment orthos (cells and metres)."""
-        out = []
-        orthos = [(d.segment, self.out / d.files["ortho"]) for d in done if "ortho" in d.files]
-        for k, (sa, pa) in enumerate(orthos):
-            for sb, pb in orthos[k + 1:]:
-                reg = register_strips(pa, pb)
-                if reg is None or reg.tiles == 0:
-                    continue
-                out.append({"segments": [sa, sb], "dx_cells": reg.dx_cells,
-                            "dy_cells": reg.dy_cells, "shift_cells": reg.shift_cells,
-                            "tiles": reg.tiles, "spread_cells": reg.spread_cells})
-        return out
+    def _segment(self, handoff: Handoff, s: int, raw: EnviRaster, skipped: _Skipped,
+                 progress: Progress | None) -> SegmentResult | None:
+        """One segment: its lines' times and poses, its swath against the DEM, its rays cast;
+        None when it is skipped whole (said in `skipped` and the warnings)."""
+        eo, t = segment_eo(handoff, self.opt.sensor, self.scanner_dir, s, raw.lines,
+                           raw.header_lines)
+        if (skip := coverage(handoff, s, eo, t)) is not None:
+            self._skip(skipped, skip)
+        dem: Dem | None = None
+        if eo.valid.any():
+            if (off := self.cover.off_dem_skip(s, eo, t)) is not None:
+                skipped.off_dem.append(s)
+            elif (dem := self.cover.dem_window(s, eo)) is None:
+                off = self.cover.void_skip(s, t)
+                skipped.voids.append(s)
+            if off is not None:
+                self._skip(skipped, off)
+        if dem is None:
+            if progress is not None:
+                progress(raw.lines)
+            return None
+        seg = self.caster.cast(s, eo, t, raw, dem, progress)
+        posed = int(eo.valid.sum()) * raw.pixels
+        if (note := self.cover.partial_hit_note(s, seg.rays_hit, posed)) is not None:
+            self.warnings.append(note)
+        return seg
 
-    def _summary(self, result: SyncResult, done: list[SegmentResult], cell_m: float
-                 ) -> dict[str, Any]:
-        sensor = self.opt.sensor
-        return {
-            "crs": f"EPSG:{self.epsg}", "vertical": "ellipsoidal (WGS 84)"
-            if self.opt.geoid is None else "ellipsoidal (DEM + geoid)",
-            "cell_m": cell_m, "sensor": sensor.name,
-            "time_delay_ms": sensor.time_delay_ms,
-            "segments": [{
-                "segment": d.segment, "lines": d.lines, "lines_timed": d.lines_timed,
-                "lines_georeferenced": d.lines_georeferenced, "rays": d.rays,
-                "rays_hit": d.rays_hit, "gsd_across_m": d.gsd_across_m,
-                "gsd_along_m": d.gsd_along_m, "t_first_gps_ns": d.t_first_gps_ns,
-                "t_last_gps_ns": d.t_last_gps_ns, "files": d.files} for d in done],
-            "ins_records_timed": int((result.ins.status == TimeStatus.OK).sum()),
-            "ins_records": int(result.ins.status.size),
-        }
-
-
-def input_notes(options: GeorefOptions) -> list[str]:
-    """What to say of the inputs before the job starts (and the InputError of a geoid
-    undulation no geoid has): a DEM or geoid raster of several bands (band 1 is read), and
-    --leap-seconds without a trajectory file (the log's navigation is on GPS time: it changed
-    nothing, silently)."""
-    notes = [band_note(options.dem, "DEM")]
-    if isinstance(options.geoid, Path):
-        notes.append(band_note(options.geoid, "geoid"))
-    elif options.geoid is not None:
-        check_undulation_m(float(options.geoid), "geoid undulation")
-    if options.leap_seconds is not None and options.trajectory is None:
-        notes.append(f"--leap-seconds {options.leap_seconds}: not used: it applies to a "
-                     "--trajectory .pos on UTC or JST, and the flight log's navigation is on "
-                     "GPS time")
-    return [note for note in notes if note is not None]
-
-
-def swath_size_m(seg: SegmentResult) -> tuple[float, float]:
-    """(across-track width, along-track length) of a segment's georeferenced swath, from its
-    median pixel spacings (NaN when unknown)."""
-    pixels = seg.rays // seg.lines if seg.lines else 0
-    return (seg.gsd_across_m * max(pixels - 1, 0),
-            seg.gsd_along_m * max(seg.lines_georeferenced - 1, 0))
-
-
-def check_cell_against_swaths(cell_m: float, done: list[SegmentResult]) -> None:
-    """InputError when the ortho cell is wider than half the narrowest swath: its orthos
-    would hold a cell or two across at best, none at worst (--cell 5000 over a 500 m swath
-    gave empty orthos and mosaic, exit 0)."""
-    widths = [(swath_size_m(d)[0], d) for d in done]
-    widths = [(w, d) for w, d in widths if math.isfinite(w) and w > 0]
-    if not widths:
-        return
-    width, seg = min(widths, key=lambda wd: wd[0])
-    check_cell_against_swath(cell_m, seg.segment, width, seg.gsd_across_m)
-
-
-def check_cell_against_swath(cell_m: float, segment: int, width_m: float, gsd_m: float,
-                             margin: float = 1.0) -> None:
-    """InputError when the ortho cell is wider than half of one segment's swath (`width_m`
-    across, of `gsd_m` pixels) times `margin`; nothing when the width is unknown."""
-    if math.isfinite(width_m) and width_m > 0 and cell_m > margin * width_m / 2:
-        raise InputError(f"--cell {cell_m:g}: wider than half the swath (segment {segment}: "
-                         f"{width_m:.0f} m wide, {gsd_m:.2g} m pixels): its ortho would hold a "
-                         f"cell or two across, or none; use at most {math.floor(width_m / 2)} m")
-
-
-def check_output_crs(epsg: int) -> CRS:
-    """The output CRS of an EPSG code: projected, every axis in metres; else InputError."""
-    if epsg <= 0:
-        raise InputError(f"EPSG:{epsg}: not a valid EPSG code (a positive integer)")
-    try:
-        crs = CRS.from_epsg(epsg)
-    except Exception:  # pyproj raises CRSError subclasses of several kinds
-        raise InputError(f"EPSG:{epsg}: unknown CRS") from None
-    if not crs.is_projected:
-        raise InputError(f"EPSG:{epsg} ({crs.name}): products need a projected CRS (metres)")
-    units = {(a.unit_name, a.unit_conversion_factor) for a in crs.axis_info}
-    if not units or any(factor != 1.0 for _, factor in units):
-        said = ", ".join(sorted({name for name, _ in units})) or "none"
-        raise InputError(f"EPSG:{epsg} ({crs.name}): axes in {said}: products need a projected "
-                         "CRS in metres")
-    return crs
-
-
-GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
-# a transverse Mercator (UTM) used this far in longitude from its central meridian is said:
-# a zone away is 9° at most; beyond 90° the grid is true again in scale, turned upside down
-CENTRAL_MERIDIAN_MAX_DEG: Final = 10.0
-
-
-def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, float]
-                        ) -> tuple[float, float]:
-    """Where the notes on the output CRS look: the DEM's centre (lon, lat in degrees)."""
-    w, s, e, n = dem_bounds
-    lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
-        (w + e) / 2, (s + n) / 2)
-    return float(lon), float(lat)
-
-
-def _utm_epsg(lon: float, lat: float) -> int:
-    zone = int((lon + 180) // 6) % 60 + 1
-    return (32600 if lat >= 0 else 32700) + zone
-
-
-def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when a metre of the output grid is not a metre on the ground at the DEM's
-    centre (EPSG:3857 at 42°N: 0.74 m), naming the scale and the UTM zone there; else None.
-    Products stay right in the grid's own coordinates, but their cell sizes, GSDs and
-    distances are grid metres, which users take for ground metres. A transverse Mercator
-    far from its central meridian is said by `central_meridian_note` instead."""
-    if (far := central_meridian_note(crs, lon, lat)) is not None:
-        return far
-    factors = Proj(crs).get_factors(lon, lat)
-    scales = (factors.meridional_scale, factors.parallel_scale)
-    if all(abs(k - 1) <= GRID_SCALE_TOLERANCE for k in scales) or not all(
-            math.isfinite(k) and k > 0 for k in scales):
-        return None
-    k = max(scales, key=lambda v: abs(v - 1))
-    return (f"EPSG:{crs.to_epsg()} ({crs.name}): a metre of its grid is {1 / k:.3f} m on the "
-            f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
-            f"distances in the products are grid metres; UTM there (--crs {_utm_epsg(lon, lat)}) "
-            "keeps them within 0.1 %")
-
-
-def _central_meridian_deg(crs: CRS) -> float | None:
-    """The central meridian (degrees) of a transverse Mercator CRS; None for any other."""
-    op = crs.coordinate_operation
-    if op is None or "transverse mercator" not in op.method_name.lower():
-        return None
-    for param in op.params:
-        if param.name in ("Longitude of natural origin", "Longitude of origin"):
-            return math.degrees(float(param.value) * param.unit_conversion_factor)
-    return None
-
-
-def central_meridian_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when a transverse Mercator CRS (UTM) is used more than
-    CENTRAL_MERIDIAN_MAX_DEG of longitude from its central meridian at the DEM's centre; else
-    None. Its grid then turns from north and stretches; and across 90° the scale comes back to
-    1 (the scale note said nothing) with the grid upside down: UTM zone 1 over a site at 2°E
-    gave products turned by 180°, northings of 15 390 km."""
-    lon0 = _central_meridian_deg(crs)
-    if lon0 is None or not (math.isfinite(lon) and math.isfinite(lat)):
-        return None
-    dlon = (lon - lon0 + 180.0) % 360.0 - 180.0
-    if abs(dlon) <= CENTRAL_MERIDIAN_MAX_DEG:
-        return None
-    head = (f"EPSG:{crs.to_epsg()} ({crs.name}): the DEM's centre ({lat:.2f}°, {lon:.2f}°) is "
-            f"{abs(dlon):.0f}° of longitude from its central meridian ({lon0:g}°)")
-    factors = Proj(crs).get_factors(lon, lat)
-    turn, scale = factors.meridian_convergence, factors.meridional_scale
-    if abs(dlon) > 90.0:
-        _, northing = Transformer.from_crs(4326, crs, always_xy=True).transform(lon, lat)
-        said = (f"on the far side of the projection: the products come out turned by "
-                f"{abs(turn):.0f}° (northings of {northing / 1000:.0f} km)")
-    elif math.isfinite(turn) and math.isfinite(scale) and scale > 0:
-        said = (f"its grid north is {abs(turn):.0f}° from true north there and a metre of its "
-                f"grid {1 / scale:.3f} m on the ground")
-    else:
-        said = "where its grid is far from true"
-    return f"{head}, {said}: UTM there is --crs {_utm_epsg(lon, lat)}"
-
-
-def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
-    """A warning when PROJ knows no shift between WGS 84 (the GPS's datum) and the output
-    CRS's datum at the DEM's centre, a CRS used far outside its area of use (OSGB36's British
-    grid over Catalonia): PROJ then takes the two datums for one (its "ballpark" offset), and
-    the products can be metres to hundreds of metres off; else None."""
-    if not (math.isfinite(lon) and math.isfinite(lat)):
-        return None
-    near = AreaOfInterest(lon - 0.01, lat - 0.01, lon + 0.01, lat + 0.01)
-    shift = Transformer.from_crs(4326, crs, always_xy=True, area_of_interest=near)
-    if "ballpark" not in shift.description.lower():
-        return None
-    datum = crs.datum.name if crs.datum is not None else "its datum"
-    return (f"EPSG:{crs.to_epsg()} ({crs.name}): PROJ knows no shift from WGS 84 to {datum} "
-            f"at the DEM's centre ({lat:.2f}°, {lon:.2f}°), far from where this CRS is used, "
-            f"and takes the two datums for one: the products can be metres to hundreds of "
-            f"metres off; UTM there (--crs {_utm_epsg(lon, lat)}) needs no shift")
-
-
-def _span_text(span: tuple[float, float]) -> str:
-    """Heights (m) for a message: "898 to 902 m", or "9000 m" when both round alike."""
-    low, high = (f"{v:.0f}" for v in span)
-    return f"{low} m" if low == high else f"{low} to {high} m"
-
-
-def _median(parts: list[F64]) -> float:
-    vals = np.concatenate(parts) if parts else np.zeros(0)
-    vals = vals[np.isfinite(vals)]
-    return float(np.median(vals)) if vals.size else math.nan
-
-
-def _union_bounds(b: list[tuple[float, float, float, float]]
-                  ) -> tuple[float, float, float, float]:
-    return (min(x[0] for x in b), min(x[1] for x in b), max(x[2] for x in b),
-            max(x[3] for x in b))
+    def _skip(self, skipped: _Skipped, skip: SegmentSkip) -> None:
+        skipped.skips.append(skip)
+        self.warnings.append(skip.message)

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.georef.exterior import exterior_orientation
-from postproc.georef.job import GeorefResult
+from postproc.georef.jobrecords import GeorefResult
 from sisa.core.outdir import partial_path
 from sisa.core.sensor import Mounting
 from sisa.core.timescale import NS_PER_S

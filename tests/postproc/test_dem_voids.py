@@ -19,9 +19,16 @@ from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.transform import Affine
 
-from postproc.georef import CastStats, GroundPoints, intersect, raycast, reference_intersect
 from postproc.georef import dem as dem_module
 from postproc.georef.dem import Dem, DemVoidWarning, dem_extent, height_range
+from postproc.georef.raycast import (
+    CastStats,
+    GroundPoints,
+    blocks,
+    intersect,
+    reference,
+    reference_intersect,
+)
 from sisa.cli import main
 from sisa.core.errors import InputError
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
@@ -163,7 +170,7 @@ def test_reference_march_steps_by_local_slopes_and_every_ray_ends(
     fast = intersect(dem, centre, rot, look)
     assert fast.hit.all()
 
-    monkeypatch.setattr(raycast, "REFERENCE_MAX_STEPS", 400)
+    monkeypatch.setattr(reference, "REFERENCE_MAX_STEPS", 400)
     ref = reference_intersect(dem, centre, rot, look)
     assert ref.hit.all()
     for a, b in ((ref.easting_m, fast.easting_m), (ref.northing_m, fast.northing_m),
@@ -172,8 +179,8 @@ def test_reference_march_steps_by_local_slopes_and_every_ray_ends(
 
     # no block map fits (tolerance 0): every ray goes to the reference march, which may take
     # 2 steps: all end unresolved, missed, counted
-    monkeypatch.setattr(raycast, "MAP_TOLERANCE_M", 0.0)
-    monkeypatch.setattr(raycast, "REFERENCE_MAX_STEPS", 2)
+    monkeypatch.setattr(blocks, "MAP_TOLERANCE_M", 0.0)
+    monkeypatch.setattr(reference, "REFERENCE_MAX_STEPS", 2)
     stats = CastStats()
     none = intersect(dem, centre, rot, look, stats=stats)
     assert stats.exact == stats.unresolved == none.hit.size

@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-import postproc.georef.job as georef_module
+import postproc.georef.casting as casting_module
 from postproc.georef import GeorefJob, GeorefOptions, SensorModel, raycast
 from sisa.core.errors import InputError
 from tests.postproc.test_trajectory_coverage import (  # noqa: F401 (its fixture, by name)
@@ -40,7 +40,7 @@ def cast_blocks(monkeypatch: pytest.MonkeyPatch) -> list[int]:
         blocks.append(len(centre))
         return real(dem, centre, *args, **kwargs)
 
-    monkeypatch.setattr(georef_module, "intersect", counting)
+    monkeypatch.setattr(casting_module, "intersect", counting)
     return blocks
 
 

@@ -24,13 +24,8 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.georef import Dem, SensorModel
-from postproc.georef.job import (
-    GeorefJob,
-    GeorefOptions,
-    SegmentResult,
-    SwathOnDem,
-)
+from postproc.georef import Dem, GeorefJob, GeorefOptions, SegmentResult, SensorModel
+from postproc.georef.demcover import SwathOnDem
 from sisa.core.errors import InputError
 from tests.postproc.test_georef_dem_cover import BOUNDS, georef, seven_run, warned
 
@@ -159,25 +154,25 @@ MISSED = SwathOnDem((420_150.0, 4_609_850.0, 420_190.0, 4_609_950.0), (898.2, 90
 
 def test_no_pixel_with_swaths_over_voids_says_so(job: GeorefJob) -> None:
     head = f"no pixel could be georeferenced on {job.opt.dem}: "
-    job.swaths.update({0: VOID, 1: OFF, 2: MISSED, 3: VOID})
-    assert str(job.no_hit_error([], voids=[0])) == head + (
+    job.cover.swaths.update({0: VOID, 1: OFF, 2: MISSED, 3: VOID})
+    assert str(job.cover.no_hit_error([], voids=[0])) == head + (
         "the swath (420010.0, 4609850.0, 420050.0, 4609950.0) lies over DEM voids only "
         "(nodata): no valid height within 800 m of it")
-    assert str(job.no_hit_error([], voids=[0, 3])) == head + (
+    assert str(job.cover.no_hit_error([], voids=[0, 3])) == head + (
         "the swaths (420010.0, 4609850.0, 420050.0, 4609950.0) lie over DEM voids only "
         "(nodata): no valid height within 800 m of them")
-    assert str(job.no_hit_error([], off_dem=[1], voids=[0])) == head + (
+    assert str(job.cover.no_hit_error([], off_dem=[1], voids=[0])) == head + (
         "of the 2 swaths (419000.0, 4609850.0, 420050.0, 4609950.0), 1 lies over DEM voids only "
         "(nodata) and 1 off the DEM (420005.0, 4609805.0, 420195.0, 4609995.0)")
-    assert str(job.no_hit_error([_segment(2)], off_dem=[1], voids=[0, 3])) == head + (
+    assert str(job.cover.no_hit_error([_segment(2)], off_dem=[1], voids=[0, 3])) == head + (
         "of the 4 swaths (419000.0, 4609850.0, 420190.0, 4609950.0), 2 lie over DEM voids only "
         "(nodata), 1 off the DEM (420005.0, 4609805.0, 420195.0, 4609995.0) and no ray of the "
         "other 1 met the DEM")
 
 
 def test_the_skip_of_a_segment_over_voids(job: GeorefJob) -> None:
-    job.swaths[4] = VOID
-    skip = job.void_skip(4, np.array([-1, 5, 6, 7], np.int64))
+    job.cover.swaths[4] = VOID
+    skip = job.cover.void_skip(4, np.array([-1, 5, 6, 7], np.int64))
     assert (skip.segment, skip.lines, skip.lines_timed, skip.lines_skipped, skip.whole_segment,
             skip.reason) == (4, 4, 3, 4, True, "DEM voids")
     assert skip.message == (

@@ -6,6 +6,7 @@ ridge that occludes rays."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -299,3 +300,15 @@ def test_alpine_relief_keeps_the_fast_path_and_the_reference_answer() -> None:
                        got.hit[lines])
     ref = assert_matches_reference(dem, centre[lines], rot[lines], look, sub)
     assert np.ptp(ref.height_m[ref.hit]) > 2000.0
+
+
+def test_every_compiled_loop_is_in_the_kernel_file() -> None:
+    """numba's on-disk cache is invalidated only by a change to the cached function's own file:
+    a compiled function elsewhere in the package calling the kernel's (or taking its constants)
+    would go on running stale code after the kernel changed. So only kernel.py compiles."""
+    package = Path(intersect.__code__.co_filename).parent
+    assert (package / "kernel.py").is_file()
+    for path in sorted(package.glob("*.py")):
+        if path.name != "kernel.py":
+            text = path.read_text(encoding="utf-8")
+            assert not any(word in text for word in ("njit", "intrinsic", "@_jit")), path.name

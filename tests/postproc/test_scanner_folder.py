@@ -58,7 +58,7 @@ def test_a_segment_number_no_header_can_hold_is_refused(tmp_path: Path) -> None:
 def test_a_segment_image_that_is_no_file_is_named_for_what_it_is(tmp_path: Path) -> None:
     """A folder, or a link to nothing, named segment_000.bil was called missing (found by a
     bad-input sweep)."""
-    from postproc.georef.job import segment_image
+    from postproc.georef.segments import segment_image
 
     with pytest.raises(InputError, match=r"segment_000\.bil: missing, but the lines file lists "
                                          r"segment 0$"):

@@ -12,8 +12,8 @@ import pytest
 import rasterio
 from rasterio.transform import Affine
 
-from postproc.georef import SensorModel
-from postproc.georef.job import GeorefJob, GeorefOptions, SegmentResult, SwathOnDem
+from postproc.georef import GeorefJob, GeorefOptions, SegmentResult, SensorModel
+from postproc.georef.demcover import SwathOnDem
 from sisa.cli import build_parser, main
 from sisa.core.errors import InputError
 
@@ -68,7 +68,7 @@ def test_output_crs_must_be_a_projected_epsg_in_metres(
 
 @pytest.mark.parametrize("epsg", [32631, 25831, 2056, 3857, 32630])
 def test_metre_crss_are_accepted(epsg: int) -> None:
-    from postproc.georef.job import check_output_crs
+    from postproc.georef.inputchecks import check_output_crs
 
     assert check_output_crs(epsg).to_epsg() == epsg
 
@@ -269,8 +269,8 @@ def test_no_pixel_on_the_dem_says_why(inputs: Path, swath: SwathOnDem, says: str
     aircraft: now the DEM's and the camera's heights, or the bounds that do not meet."""
     options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif")
     job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
-    job.swaths[0] = swath
-    assert str(job.no_hit_error([_segment(0, 0)])) == (
+    job.cover.swaths[0] = swath
+    assert str(job.cover.no_hit_error([_segment(0, 0)])) == (
         f"no pixel could be georeferenced on {inputs / 'dem.tif'}: {says}")
 
 
@@ -282,8 +282,9 @@ def test_a_segment_partly_off_the_dem_says_the_likeliest_why(
         inputs: Path, on_dem: bool, surface: tuple[float, float], why: str) -> None:
     options = GeorefOptions(sensor=SensorModel(), dem=inputs / "dem.tif")
     job = GeorefJob([inputs / "flight.mcap"], inputs / "scanner", inputs / "out", options)
-    job.swaths[3] = SwathOnDem((0.0, 0.0, 1.0, 1.0), (898.0, 902.0), surface, on_dem)
-    assert job.partial_hit_note(3, 25_474, 51_200) == (
+    job.cover.swaths[3] = SwathOnDem((0.0, 0.0, 1.0, 1.0), (898.0, 902.0), surface, on_dem)
+    assert job.cover.partial_hit_note(3, 25_474, 51_200) == (
         f"segment 3: 49.7 % of its pixels meet the DEM dem.tif ({why})")
-    assert job.partial_hit_note(3, 0, 51_200) == (
+    assert job.cover.partial_hit_note(3, 0, 51_200) == (
         f"segment 3: none of its pixels meet the DEM dem.tif ({why}): no ortho made for it")
+    assert job.cover.partial_hit_note(3, 50_688, 51_200) is None  # 99 % meet it: nothing to say

@@ -1,0 +1,125 @@
+"""The sync stage's hand-off to georeferencing: the flight log read once (sync and navigation
+columns, and the recorder's own counts, in one pass), every INS record and scan line put on GPS
+time, the trajectory the lines are looked up in (the log's navigation, or a trajectory file),
+and the sync's files."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from postproc.georef.jobrecords import GeorefOptions
+from postproc.georef.navigation import (
+    NAV_WANTED,
+    AntennaFixes,
+    Columns,
+    NavConfig,
+    PiecewiseTrajectory,
+    Trajectory,
+    fixes_from_columns,
+    nav_from_columns,
+)
+from postproc.georef.trajfiles import TRAJ_WANTED, read_trajectory_file
+from postproc.sync import WANTED as SYNC_WANTED
+from postproc.sync import (
+    SyncResult,
+    read_scanner_lines,
+    sync_input_from_columns,
+    synchronise,
+    write_ins_times,
+    write_line_times,
+    write_report,
+)
+from recorder.columns import read_topics
+from recorder.framing import Paths, log_paths
+from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
+from recorder.messages import Topic
+from sisa.core.timescale import gps_span_label
+
+
+@dataclass
+class Handoff:
+    """The flight on GPS time, as georeferencing takes it."""
+
+    sync: SyncResult
+    trajectory: Trajectory
+    trajectory_name: str  # for messages: "the trajectory FILE", "the flight log's navigation"
+    info: dict[str, Any]  # the trajectory's source, span and gaps (the summary's "trajectory")
+    log_fixes: AntennaFixes  # the log's own GPS fixes, for a judge of the run
+    recording_health: HealthTotals  # the recorder's own counts, from the log
+
+    def trajectory_span_label(self) -> str:
+        traj = self.trajectory
+        gaps = len(traj.gaps_ns()) if isinstance(traj, PiecewiseTrajectory) else 0
+        return gps_span_label(*traj.span_ns) + (f", {gaps} gaps inside" if gaps else "")
+
+
+def merged_wanted(*wanted: dict[str, tuple[str, ...]]) -> dict[str, tuple[str, ...]]:
+    """One field list per topic for a single read_topics pass."""
+    out: dict[str, tuple[str, ...]] = {}
+    for w in wanted:
+        for topic, fields in w.items():
+            out[topic] = tuple(dict.fromkeys((*out.get(topic, ()), *fields)))
+    return out
+
+
+def read_and_sync(flight: Paths, scanner_dir: Path, opt: GeorefOptions, notes: list[str]
+                  ) -> Handoff:
+    """The log read once and synchronised with the scanner's lines files; what the reading
+    and the trajectory have to say is added to `notes`."""
+    lines = read_scanner_lines(scanner_dir)
+    wanted = (SYNC_WANTED, NAV_WANTED) + ((TRAJ_WANTED,) if opt.trajectory else ())
+    cols = read_topics(flight, {**merged_wanted(*wanted), **HEALTH_WANTED}, notes=notes)
+    health = HealthTotals.from_columns(cols[Topic.HEALTH])
+    recording = recording_note(health, log_paths(flight)[0])
+    if recording is not None:  # the log may hold less than the devices sent
+        notes.append(recording)
+    result = synchronise(sync_input_from_columns(cols), lines)
+    log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
+    info: dict[str, Any] = {}
+    traj = _trajectory(cols, result, opt, info, notes)
+    info["t_first_gps_ns"], info["t_last_gps_ns"] = (int(t) for t in traj.span_ns)
+    info["gps_time"] = gps_span_label(*traj.span_ns)
+    if isinstance(traj, PiecewiseTrajectory):
+        info["gaps"] = [{"t_first_gps_ns": a, "t_last_gps_ns": b}
+                        for a, b in traj.gaps_ns()]
+    name = (f"the trajectory {opt.trajectory}" if opt.trajectory is not None else
+            "the flight log's navigation")
+    return Handoff(result, traj, name, info, log_fixes, health)
+
+
+def _trajectory(cols: dict[str, Columns], result: SyncResult, opt: GeorefOptions,
+                info: dict[str, Any], notes: list[str]) -> Trajectory:
+    """The trajectory file's, or the log's navigation on the synchronised INS times; its
+    source (and a trajectory file's format and time scale) into `info`."""
+    antenna_offset_m = opt.sensor.mounting.antenna_offset_m
+    if opt.trajectory is None:
+        info["source"] = "flight log"
+        config = None if opt.max_gap_s is None else NavConfig(max_gps_gap_s=opt.max_gap_s)
+        return nav_from_columns(cols, result.ins, antenna_offset_m=antenna_offset_m,
+                                config=config)
+    info["source"] = str(opt.trajectory)
+    traj = read_trajectory_file(opt.trajectory, cols, result.ins,
+                                antenna_offset_m=antenna_offset_m,
+                                leap_seconds=opt.leap_seconds,
+                                fallback_leap_seconds=opt.leap_seconds_fallback,
+                                max_gap_s=opt.max_gap_s, report=info)
+    notes += info.pop("warnings", [])
+    if opt.leap_seconds is not None and info.get("time_scale") not in ("UTC", "JST"):
+        kind = "an SBET" if info.get("format") == "Applanix SBET" else "a .pos"
+        notes.append(f"--leap-seconds {opt.leap_seconds}: not used: {opt.trajectory} is "
+                     f"{kind} on GPS time (the option is for a .pos on UTC or JST)")
+    return traj
+
+
+def write_sync(out_dir: Path, result: SyncResult) -> None:
+    """The sync's files: INS record and line times, and its report, in out_dir/sync."""
+    sync_dir = out_dir / "sync"
+    sync_dir.mkdir(parents=True, exist_ok=True)
+    ins, ln = result.ins, result.lines
+    write_ins_times(sync_dir / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
+                    ins.status)
+    write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
+                     ln.t_gps_ns, ln.status)
+    write_report(sync_dir / "sync_report.json", result.report)

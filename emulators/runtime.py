@@ -5,7 +5,9 @@ scaled).
 A device schedules its own outputs (bytes on a serial port, CAN frames, pulse edges) on the
 emulation timeline, `t_ns` = true GPS ns, and accepts input edges (its sync or event input) that
 act at the edge's own timestamp. A sink receives every output in time order; in virtual time the
-sink may answer with input edges (the sync unit forwarding a pulse), delivered at once.
+sink may answer with input edges (the sync unit forwarding a pulse), delivered at once. An edge
+may give its device an output sooner than the one it had planned (the GPS receiver's TTT for an
+event): every device an edge reaches is asked for its next time again.
 """
 
 from __future__ import annotations
@@ -77,9 +79,12 @@ class Router:
             for line in getattr(dev, "input_lines", ()):
                 self._listeners.setdefault(int(line), []).append(dev)
 
-    def deliver(self, edge: Edge) -> None:
-        for dev in self._listeners.get(int(edge.line), ()):
+    def deliver(self, edge: Edge) -> list[Device]:
+        """Hand the edge to its listeners; the devices it reached."""
+        devices = self._listeners.get(int(edge.line), [])
+        for dev in devices:
             dev.on_edge(edge)
+        return devices
 
 
 class Runner:
@@ -96,6 +101,10 @@ class Runner:
         self.sink = sink
         self.speed = speed
         self.router = Router(self.devices)
+        self._index = {id(d): i for i, d in enumerate(self.devices)}
+        self._heap: list[tuple[int, int, int]] = []  # (time, device, entry number)
+        self._due: dict[int, tuple[int, int]] = {}  # device → (time, number) of its valid entry
+        self._entries = 0
         self.outputs = 0
         self.late_ns_max = 0
         # edges from another process (real time): drained before every emission
@@ -105,14 +114,22 @@ class Runner:
             skip_until_ns: int | None = None) -> None:
         """Emit in time order until `until_ns`. Outputs before `skip_until_ns` are produced as
         fast as possible and dropped (a start offset: the devices' state runs on)."""
-        heap = [(t, i) for i, d in enumerate(self.devices) if (t := d.next_time_ns()) is not None]
-        heapq.heapify(heap)
+        # each device has one valid entry: an edge can move a device's next output earlier (the
+        # receiver's TTT for an event, 30 ms on), which then waited for the output it had
+        # planned before (the next PPS, up to a second later); superseded entries are skipped
+        self._heap, self._due = [], {}
+        for i in range(len(self.devices)):
+            self._reschedule(i)
+        heap = self._heap
         skip = skip_until_ns if skip_until_ns is not None else -(2**63)
         wall0: int | None = None  # the wall clock is anchored at the first paced emission
         t0 = max(heap[0][0] if heap else 0, skip)
         try:
             while heap:
-                t_ns, i = heapq.heappop(heap)
+                t_ns, i, entry = heapq.heappop(heap)
+                if self._due.get(i) != (t_ns, entry):
+                    continue  # superseded: the device was rescheduled by an edge
+                del self._due[i]
                 if until_ns is not None and t_ns > until_ns:
                     break
                 if should_stop is not None and should_stop():
@@ -129,18 +146,31 @@ class Runner:
                             break
                     self._drain_inbox()
                     self._deliver(dev.emit(t_ns))
-                nxt = dev.next_time_ns()
-                if nxt is not None:
-                    heapq.heappush(heap, (nxt, i))
+                self._reschedule(i)
         finally:
             for dev in self.devices:
                 dev.finish()
+
+    def _reschedule(self, i: int) -> None:
+        """Ask device i for its next time; a new time replaces its entry in the heap."""
+        nxt = self.devices[i].next_time_ns()
+        due = self._due.get(i)
+        if nxt is None:
+            self._due.pop(i, None)
+        elif due is None or due[0] != nxt:
+            self._entries += 1
+            self._due[i] = (nxt, self._entries)
+            heapq.heappush(self._heap, (nxt, i, self._entries))
+
+    def _edge(self, edge: Edge) -> None:
+        for dev in self.router.deliver(edge):
+            self._reschedule(self._index[id(dev)])
 
     def _deliver(self, outputs: list[Output]) -> None:
         for out in outputs:
             self.outputs += 1
             for edge in self.sink(out):
-                self.router.deliver(edge)
+                self._edge(edge)
 
     def _drain_inbox(self) -> None:
         while True:
@@ -148,7 +178,7 @@ class Runner:
                 edge = self.inbox.get_nowait()
             except queue.Empty:
                 return
-            self.router.deliver(edge)
+            self._edge(edge)
 
     def _pace(self, due_wall_ns: int, should_stop: Callable[[], bool] | None) -> bool:
         """Sleep until the emission is due, never spin: what a device emits carries its own

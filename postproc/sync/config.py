@@ -44,6 +44,8 @@ class SyncConfig:
             "0 < pattern.tol_s < 0.1": 0 < p.tol_s < 0.1,
             "pattern.min_matches ≥ 2": p.min_matches >= 2,
             "pattern.min_margin ≥ 1": p.min_margin >= 1,
+            "0 < pattern.max_false_match < 1": 0 < p.max_false_match < 1,
+            "pattern.density_window_s > 0": p.density_window_s > 0,
             "0 < assoc_tol_s < pattern.tol_s": 0 < self.assoc_tol_s < p.tol_s,
             "max_extrapolation_s ≥ 0": self.max_extrapolation_s >= 0,
             "line_max_extrapolation_s ≥ 0": self.line_max_extrapolation_s >= 0,

@@ -13,8 +13,20 @@ A maximal-length register of n bits repeats every 2^n − 1 s, so the window mus
 that period; inside it a mode-1 shift by k ≠ 0 seconds keeps about half the pulses (the
 m-sequence's autocorrelation), the true shift keeps all. Mode-2 trains are nearly periodic and
 may match equally well one pulse off: such a block stays unresolved here (its latches are later
-associated through the clock fitted on resolved blocks). A block is resolved only when its best
-shift beats every other shift (further than 2·tol from it) by `min_margin` latches.
+associated through the clock fitted on resolved blocks).
+
+A block is resolved only when the probability that its best shift is wrong is negligible
+(docs/sync.md, "The false-match bound"). Each shift s is a hypothesis: the latches it puts on a
+pulse are genuine, the u(s) others are unexplained (spurious, or their pulse missing from the
+log), and an unexplained latch falls within tol of a pulse at any other shift only by chance,
+with probability at most q (2·tol × the highest pulse rate of the pattern over
+`density_window_s`). If s were true, the a(s) latches the best shift explains and s does not
+would be such chance agreements: P ≤ P(Bin(u(s), q/(1 − q)) ≥ a(s)), and the best shift is one
+of M = 4·window/tol + 1 candidates (one per tol/2), so the probability of taking a wrong shift is
+at most M · max over s of that tail (a union bound). The block is resolved when this bound is at
+most `max_false_match` (1e-9) and no other shift rules the best one out by the same test (two
+shifts each explaining many latches: the coarse time drifted across the block, or the clock
+jumped in it); `min_margin` and `min_matches` still apply.
 """
 
 from __future__ import annotations
@@ -24,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import binom
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -36,6 +49,8 @@ class PatternConfig:
     tol_s: float = 3e-3  # a latch matches a pulse this close (after the coarse drift)
     min_matches: int = 4
     min_margin: int = 3
+    max_false_match: float = 1e-9  # per block: bound on the probability of taking a wrong shift
+    density_window_s: float = 2.0  # chance agreement: 2·tol × most pulses in any such span / span
 
 
 @dataclass(frozen=True)
@@ -44,10 +59,19 @@ class ShiftScore:
     best: int
     second: int
     matched: I64  # per latch: index of its pulse at the best shift, −1 if none
+    false_match: float = 1.0  # bound on the probability that the best shift is wrong
+    contradiction: float = 1.0  # the same test with the best shift as the hypothesis: small
+    # means another shift explains more of the latches it leaves out than chance allows
+    chance: float = float("nan")  # q: one latch, one wrong shift, within tol of a pulse
+    cells: int = 0  # M: shifts the search tells apart (the union bound's factor)
 
     @property
     def margin(self) -> int:
         return self.best - self.second
+
+    def decisive(self, max_false_match: float) -> bool:
+        """Every other shift ruled out, and none rules this one out."""
+        return self.false_match <= max_false_match < self.contradiction
 
 
 @dataclass(frozen=True)
@@ -68,9 +92,34 @@ def nearest(y: F64, t: F64) -> tuple[I64, F64]:
     return np.where(dlo <= dhi, lo, hi), np.minimum(dlo, dhi)
 
 
-def score_shifts(u: F64, y: F64, window_s: float, tol_s: float) -> ShiftScore:
-    """Best shift s (|s| ≤ window) putting latches u + s onto pulses y (sorted), its score,
-    and the best score of any shift further than 2·tol from it."""
+def chance_rate(y: F64, tol_s: float, span_s: float) -> float:
+    """q: the probability that a latch unrelated to the pulses falls within tol of one, at one
+    shift: 2·tol × the highest pulse rate of y (sorted) over any span_s (≤ 1)."""
+    if y.size == 0:
+        return 0.0
+    most = int(np.max(np.searchsorted(y, y + span_s, side="left") - np.arange(y.size)))
+    return min(1.0, 2.0 * tol_s * most / span_s)
+
+
+def shift_cells(window_s: float, tol_s: float) -> int:
+    """M: the shifts the search tells apart (candidates are kept one per tol/2 of ±window)."""
+    return int(np.floor(2.0 * window_s / (0.5 * tol_s))) + 1
+
+
+def chance_tail(agree: I64, unexplained: I64, q: float) -> F64:
+    """P(Bin(unexplained, q/(1 − q)) ≥ agree): that many of the latches a hypothesis leaves
+    unexplained agree at another shift by chance. q/(1 − q) bounds the chance of agreeing
+    there given that a latch does not agree at the hypothesis's own shift."""
+    qc = 1.0 if q >= 0.5 else q / (1.0 - q)
+    tail = binom.sf(np.asarray(agree) - 1, np.asarray(unexplained), qc)
+    return np.asarray(np.where(np.asarray(agree) <= 0, 1.0, tail), dtype=np.float64)
+
+
+def score_shifts(u: F64, y: F64, window_s: float, tol_s: float,
+                 density_window_s: float = 2.0) -> ShiftScore:
+    """Best shift s (|s| ≤ window) putting latches u + s onto pulses y (sorted), its score, the
+    best score of any shift further than 2·tol from it, and the false-match bound of taking it
+    (module doc)."""
     none = ShiftScore(float("nan"), 0, 0, np.full(u.size, -1, dtype=np.int64))
     if u.size == 0 or y.size == 0:
         return none
@@ -85,13 +134,27 @@ def score_shifts(u: F64, y: F64, window_s: float, tol_s: float) -> ShiftScore:
     _, first = np.unique(np.rint(cand / (0.5 * tol_s)), return_index=True)
     cand = cand[first]
     _, dist = nearest(y[lo:hi], u[None, :] + cand[:, None])
-    scores = np.count_nonzero(dist <= tol_s, axis=1)
+    hit = dist <= tol_s
+    scores = np.count_nonzero(hit, axis=1)
     b = int(np.argmax(scores))
-    others = scores[np.abs(cand - cand[b]) > 2.0 * tol_s]
+    far = np.abs(cand - cand[b]) > 2.0 * tol_s
+    others = scores[far]
     idx, d = nearest(y, u + cand[b])
     matched = np.where(d <= tol_s, idx, -1).astype(np.int64)
-    return ShiftScore(float(cand[b]), int(scores[b]), int(others.max()) if others.size else 0,
-                      matched)
+    # each other shift as the hypothesis (plus a shift that explains nothing, as every shift
+    # off the candidates does): the latches the best explains and it does not, by chance?
+    best, n = int(scores[b]), u.size
+    q, cells = chance_rate(y[lo:hi], tol_s, density_window_s), shift_cells(window_s, tol_s)
+    alt = hit[far]
+    agree = np.append(np.count_nonzero(hit[b] & ~alt, axis=1), best)
+    unexplained = np.append(n - others, n)
+    false_match = min(1.0, cells * float(np.max(chance_tail(agree, unexplained, q))))
+    # the best as the hypothesis: the latches another shift explains and it does not
+    rival = int(np.max(np.count_nonzero(alt & ~hit[b], axis=1), initial=0))
+    contradiction = min(1.0, cells * float(chance_tail(np.array([rival]),
+                                                       np.array([n - best]), q)[0]))
+    return ShiftScore(float(cand[b]), best, int(others.max()) if others.size else 0, matched,
+                      false_match, contradiction, q, cells)
 
 
 def block_ranges(x_s: F64, piece: I64, block_s: float) -> list[tuple[int, int]]:
@@ -114,7 +177,9 @@ def match_blocks(u_s: F64, x_s: F64, piece: I64, y_s: F64, cfg: PatternConfig
     pulses y_s (sorted GPS seconds)."""
     out = []
     for first, stop in block_ranges(x_s, piece, cfg.block_s):
-        score = score_shifts(u_s[first:stop], y_s, cfg.window_s, cfg.tol_s)
-        resolved = score.best >= cfg.min_matches and score.margin >= cfg.min_margin
+        score = score_shifts(u_s[first:stop], y_s, cfg.window_s, cfg.tol_s,
+                             cfg.density_window_s)
+        resolved = (score.best >= cfg.min_matches and score.margin >= cfg.min_margin
+                    and score.decisive(cfg.max_false_match))
         out.append(BlockMatch(int(piece[first]), first, stop, score, resolved))
     return out

@@ -42,6 +42,50 @@ def test_outputs_in_time_order_and_feedback_delivered():
     assert [e.t_ns for e in a.inputs] == [t + 5 for t in seen]
 
 
+class Echo(Device):
+    """Like the GPS receiver's event input: an edge schedules an output 30 ns after it; its own
+    outputs come every 1000 ns."""
+
+    input_lines = (PulseLine.GPS_EVENT,)
+
+    def __init__(self):
+        self.own, self.replies = 0, []
+
+    def next_time_ns(self):
+        times = [*self.replies[:1], *([self.own] if self.own <= 3000 else [])]
+        return min(times) if times else None
+
+    def emit(self, t_ns):
+        if self.replies and self.replies[0] <= t_ns:
+            self.replies.pop(0)
+            return [Output(t_ns, Port.GPS_SERIAL, b"TTT")]
+        self.own += 1000
+        return [Output(t_ns, Port.GPS_SERIAL, b"PPS")]
+
+    def on_edge(self, edge):
+        self.replies.append(edge.t_ns + 30)
+
+
+def test_an_edge_that_moves_a_device_earlier_is_acted_on_in_time():
+    """The receiver's TTT for an event waited for the receiver's next planned output (the next
+    PPS, up to a second later): fast event trains reached the log in bursts once a second, and
+    their host times pulled the host clock map off by ~850 ppm (issue 32). An edge's device is
+    asked for its next time again."""
+    ticks, echo = Ticker(300, 8), Echo()
+    seen = []
+
+    def sink(out):
+        seen.append((out.t_ns, out.payload))
+        if out.port is Port.PULSES:
+            return [Edge(PulseLine.GPS_EVENT, 0, out.t_ns + 5)]
+        return []
+
+    Runner([ticks, echo], sink).run()
+    assert [t for t, _ in seen] == sorted(t for t, _ in seen)
+    assert [t for t, p in seen if p == b"TTT"] == [300 * k + 35 for k in range(8)]
+    assert [t for t, p in seen if p == b"PPS"] == [0, 1000, 2000, 3000]
+
+
 def test_real_time_pacing_and_speed():
     dev = Ticker(20_000_000, 6)  # 6 outputs 20 ms apart = 100 ms of emulation
     stamps = []

@@ -11,7 +11,7 @@ through no fault, 5 % lost pulses, 0.5 Hz spurious pulses, and both. Every run i
 records timed, flagged, the `ok` rows off by more than 5 µs, lines timed; then the totals.
 The acceptance: 0 `ok` rows off by more than 5 µs (the exit code is 1 otherwise).
 
-Blocks (--blocks N): the matcher alone (postproc.pattern.match_blocks), on two kinds of
+Blocks (--blocks N): the matcher alone (postproc.sync.pattern.match_blocks), on two kinds of
 synthetic 30 s blocks, against the old rule (a margin of 3 latches):
 - the issue's failure: latches across a strip edge whose coarse times drift 30–3000 ppm
   (tests/postproc/test_sync_false_match.drifting_block): blocks resolved at a wrong shift;
@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from postproc.pattern import PatternConfig, match_blocks
 from postproc.sync import TimeStatus, read_sync_input, synchronise
+from postproc.sync.pattern import PatternConfig, match_blocks
 
 ROOT = Path(__file__).resolve().parents[1]
 WRONG_NS = 5_000  # an `ok` time off by more than this is wrong (the acceptance)
@@ -84,7 +84,7 @@ def profile(seed: int) -> tuple[int, float, str, dict[str, Any]]:
 
 def one_run(seed: int) -> RunResult:
     from emulators.scenario import scenario_from_table
-    from sisa.simulation import simulate
+    from sisa.wiring.simulation import simulate
 
     _with_tests()
     from tests.postproc.test_sync import ins_truth_ns, line_truth_ns

@@ -76,7 +76,7 @@ def _block(b: Any, sol: InsSolution) -> dict[str, Any]:
     return {"piece": b.piece, "latches": b.stop - b.first, "best": s.best, "second": s.second,
             "margin": s.margin, "resolved": b.resolved,
             "shift_s": None if np.isnan(s.shift_s) else round(s.shift_s, 6),
-            # the probability bound that decided it (postproc.pattern; docs/sync.md)
+            # the probability bound that decided it (postproc.sync.pattern; docs/sync.md)
             "false_match_bound": float(f"{s.false_match:.3g}"),
             "contradiction_bound": float(f"{s.contradiction:.3g}"),
             "chance_agreement": None if np.isnan(s.chance) else round(s.chance, 6),

@@ -1,4 +1,4 @@
-"""The pattern matcher's false-match bound (postproc.pattern; docs/sync.md, "The false-match
+"""The pattern matcher's false-match bound (postproc.sync.pattern; docs/sync.md, "The false-match
 bound"): a block is resolved only when the probability that its shift is wrong is below
 1e-9, and it falls back to unresolved (its records `ambiguous`), never to a wrong second.
 
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from acquisition.lfsr import Lfsr
-from postproc.pattern import (
+from postproc.sync.pattern import (
     PatternConfig,
     chance_rate,
     chance_tail,

@@ -165,7 +165,9 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
                       g.tag_t_gps_ns, g.tag_is_ptt)
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
-                                 max_board_gap_s=cfg.max_board_gap_s)
+                                 max_board_gap_s=cfg.max_board_gap_s,
+                                 agree_floor_ns=cfg.board_agree_floor_ns,
+                                 tag_lsb_ns=cfg.tag_lsb_ns)
     epoch = flight_epoch_ns(inp, host)
     ins_times, sol = solve_ins(inp.ins, pulses, host, epoch, cfg)
     line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from acquisition.syncfilter import GATE_DELAY_NS, SyncFilterConfig
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
 from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
@@ -29,6 +30,10 @@ PROFILES: dict[str, dict[str, Any]] = {
     "lost_pulses_1pct": {"faults": {"lost_pulse_fraction": 0.01}},
     "lost_pulses_10pct": {"faults": {"lost_pulse_fraction": 0.10}},
     "spurious_pulses": {"faults": {"spurious_pulse_rate_hz": 0.5}},
+    # issue 32 items 3 and 4: 3 Hz of spurious pulses, those on the PPS line within 1.5 ms of
+    # the true edge (the 1 ms whole-second rule took ~40 of them for the PPS and forwarded ~17)
+    "spurious_3hz_pps_glitches": {"faults": {"spurious_pulse_rate_hz": 3.0,
+                                             "spurious_pps_near_second_ms": 1.5}},
     "pps_outage_60s": {"faults": {"pps_outages": [{"at_s": 100.0, "duration_s": 60.0}]}},
     "ins_clock_jump": {"faults": {"ins_clock_jumps": list(JUMPS)}},
     "ins_reboot": {"faults": {"ins_reboots": [{"at_s": 125.0, "duration_s": 5.0}]}},
@@ -61,12 +66,30 @@ def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
     assert np.abs(e_ins).max() < WRONG_NS  # zero wrong tags
     assert np.abs(e_line).max() < WRONG_NS
     assert (res.lines.status == TimeStatus.OK).all()  # the scanner side resolves in every case
+    _every_forwarded_pulse_is_a_real_edge(tmp_path)
     flagged = res.ins.status != TimeStatus.OK
     if profile == "ins_clock_jump":
         _only_the_unplaceable_jump_flagged(res, truth, scn.block.t_start_gps_ns)
     else:
         assert not flagged.any()  # 100 % of the INS records
     _report_shows_the_fault(profile, res.report, tmp_path)
+
+
+def _every_forwarded_pulse_is_a_real_edge(run: Path) -> None:
+    """Every pulse the box sent the INS is, within the locked PPS gate, a true PPS edge, a true
+    frame pulse, or a spurious frame pulse forwarded in mode 2 (its TTT times it; its counter
+    is unknown): never a PPS-line glitch (issue 32, item 3)."""
+    truth = run / "truth"
+    sent = read_truth_csv(truth / "ins_sync_pulses.csv")["t_pulse_gps_ns"]
+    faults = read_truth_csv(truth / "faults.csv")
+    glitch = (faults["kind"] == "spurious_pulse") & (faults["target"] == "PPF")
+    edges = np.sort(np.concatenate([read_truth_csv(truth / "pps.csv")["t_edge_gps_ns"],
+                                    read_truth_csv(truth / "frames.csv")["t_mid_gps_ns"],
+                                    faults["t_gps_ns"][glitch].astype(np.int64)]))
+    i = np.clip(np.searchsorted(edges, sent - GATE_DELAY_NS), 1, edges.size - 1)
+    off = np.minimum(np.abs(sent - GATE_DELAY_NS - edges[i - 1]),
+                     np.abs(sent - GATE_DELAY_NS - edges[i]))
+    assert off.max(initial=0) <= SyncFilterConfig().pps_gate_ns
 
 
 def _only_the_unplaceable_jump_flagged(res: SyncResult, truth: np.ndarray, t0: int) -> None:
@@ -121,7 +144,7 @@ def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> Non
         assert lost_pps > 0 or profile == "lost_pulses_1pct"
         assert pulses["pps_seen"] == read_truth_csv(run / "truth" / "pps.csv")[
             "t_edge_gps_ns"].size - lost_pps
-    elif profile == "spurious_pulses":
+    elif profile.startswith("spurious"):
         assert pulses["pps_rejected_as_spurious"] > 0
     elif profile == "pps_outage_60s":
         assert pulses["timed_by"]["board"] > 0  # frame pulses of the outage: no TTT

@@ -25,8 +25,12 @@ Design choices, and why:
   is the timing board's own prediction: the last edge plus whole measured periods, within
   `pps_gate_ns` (a few µs, + 0.1 ppm of the gap). A locked train gives way only to a new chain
   of such edges none of which was accepted (the PPS moved), or after PPS_HOLD_S without a PPS.
-- Scanner on = `scanner_on_after_ppf` ppf at a steady rate (default 3; 1 = the seed's "first
-  ppf"), so a stray ppf in mode 1 does not break the PPS pattern. Scanner off = no ppf for
+- Scanner on = evidence a spurious ppf cannot fake: a frame header with a ppf in its latency
+  window, or `scanner_on_after_ppf` ppf (default 3; 1 = the seed's "first ppf", which a stray
+  ppf can fake) at the configured line rate (every interval within interval_tolerance of
+  `line_period_ns`). Three ppf merely alike in rate were enough before: 3 Hz of spurious pulses
+  switched an idle unit to mode 2 four times a flight, and its forwards had no counter. A
+  scanner at another line rate switches on its first header. Scanner off = no ppf for
   `idle_after_ns`. These are the only mode switches.
 - Minimum spacing between ANY two forwarded pulses, so the receiver's dead time (1 / max event rate)
   never eats one, across mode switches too. Two PPS forwards may be `spacing_tolerance_ns` closer
@@ -113,7 +117,8 @@ class CounterSource(StrEnum):
 
 
 class SwitchReason(StrEnum):
-    SCANNER_ON = "scanner on: steady ppf"
+    SCANNER_ON = "scanner on: ppf at the line rate"
+    SCANNER_HEADER = "scanner on: frame header"
     SCANNER_OFF = "scanner off: no ppf for"
 
 
@@ -426,12 +431,19 @@ class _FrameRun:
         del self.matched[:cut]
 
     def steady(self, count: int) -> bool:
-        """At least `count` ppf, the last count − 1 intervals alike (a scanner, not noise)."""
+        """At least `count` ppf, the last count − 1 intervals at the configured line period
+        (a scanner; random spurious intervals are almost never that close to it twice)."""
         if self.next_index < count:
             return False
         recent = list(self.intervals)[len(self.intervals) - (count - 1):] if count > 1 else []
-        return not recent or (max(recent) - min(recent)
-                              <= self.cfg.interval_tolerance * statistics.median(recent))
+        nominal = self.cfg.line_period_ns
+        return all(abs(i - nominal) <= self.cfg.interval_tolerance * nominal for i in recent)
+
+    def ppf_for_header(self, header: FrameHeader, t_host_ns: int) -> _Frame | None:
+        """The latest ppf of this stretch in the header's latency window (host time)."""
+        lo, hi = self._window(header)
+        return next((f for f in reversed(self.frames) if lo <= t_host_ns - f.t_host_ns <= hi),
+                    None)
 
     def frame(self, index: int) -> _Frame | None:
         if not self.frames:
@@ -735,13 +747,19 @@ class SyncFilter:
                 or self._since_forward + ppf_unseen + 1 >= self.config.one_of_n)
 
     def on_header(self, header: FrameHeader, t_host_ns: int) -> list[Action]:
-        """A frame header from the scanner's serial port."""
+        """A frame header from the scanner's serial port (in mode 1, with a ppf of the
+        tentative stretch in its window: the scanner is on)."""
+        logs: list[Log] = []
+        ppf = (self._run.ppf_for_header(header, t_host_ns)
+               if self.mode is Mode.PPS and self._run is not None else None)
+        if ppf is not None:  # on since that ppf, on the board counter
+            logs = self._switch(Mode.FRAMES, ppf.board_ns, t_host_ns, SwitchReason.SCANNER_HEADER)
         if self._run is not None and self._run.match_header(header, t_host_ns):
             self.counters.headers_matched += 1
             self._resolve_frames(ended=False)
         else:
             self.counters.headers_unmatched += 1
-        return self._actions(None, self._emit_forwards())
+        return self._actions(None, logs + self._emit_forwards())
 
     def tick(self, board_ns: int, t_host_ns: int | None = None) -> list[Action]:
         """Time passes: scanner-off detection, PPS records whose PTT never came."""

@@ -506,18 +506,52 @@ def test_flight_with_lost_headers_every_counter_right_or_unknown(bits, start):
     assert c.headers_unmatched == 0
 
 
+def _segment_ppf(stream: Stream, seg: Segment) -> list[int]:
+    return sorted(e.board_ns for e in stream.events if e.kind == "ppf" and board(round(
+        seg.start_s * S)) <= e.board_ns < board(round(seg.end_s * S)))
+
+
 def test_modes_switch_only_at_scanner_on_and_off():
+    """Scanner on at the first frame header (a ppf in its window), which comes before the
+    second ppf, at either line rate: on since the first ppf; off after the idle time."""
     cfg, stream, run = _flight_run(16, 0, seed=3)
     switches = run.logs(SyncModeSwitch)
     assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 3
-    third_ppf = [sorted(e.board_ns for e in stream.events if e.kind == "ppf" and board(round(
-        seg.start_s * S)) <= e.board_ns < board(round(seg.end_s * S)))[2] for seg in FLIGHT]
-    assert [s.board_ns for s in switches[::2]] == third_ppf  # 3 steady ppf: scanner on
+    for seg, on in zip(FLIGHT, switches[::2], strict=True):
+        assert on.board_ns == _segment_ppf(stream, seg)[0]
+        assert on.reason == "scanner on: frame header"
     for seg, off in zip(FLIGHT, switches[1::2], strict=True):
         delay = off.board_ns - board(round(seg.end_s * S))
         assert cfg.idle_after_ns - 16 * MS <= delay <= cfg.idle_after_ns + 120 * MS
         assert off.reason.startswith("scanner off")
-    assert all(s.reason.startswith("scanner on") for s in switches[::2])
+
+
+def test_without_headers_the_scanner_is_on_at_three_ppf_at_the_line_rate():
+    """Every header lost: three ppf at the configured line period (16 ms) turn the scanner on;
+    the 48 ms segment, at another rate, never does (its frames stay mode 1: PPS forwarded)."""
+    _cfg, stream, run = _flight_run(16, 0, seed=3, header_lost=1.0)
+    switches = run.logs(SyncModeSwitch)
+    assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 2
+    on = switches[::2]
+    assert [s.board_ns for s in on] == [_segment_ppf(stream, FLIGHT[i])[2] for i in (0, 2)]
+    assert all(s.reason == "scanner on: ppf at the line rate" for s in on)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_spurious_ppf_never_switch_modes(seed: int) -> None:
+    """Issue 32, item 4: 3 Hz of spurious ppf and no scanner. Three ppf alike in rate switched
+    the unit to mode 2 26-34 times in 300 s (forwards with counter unknown); at the line rate or
+    with a frame header, never."""
+    stream = make_stream(300, [], faults=Faults(spurious_ppf_per_s=3.0), seed=seed)
+    run = drive(config(), stream.events)
+    assert run.logs(SyncModeSwitch) == []
+    assert all(f.source is PulseSource.PPS for f, _ in run.forwards)
+    _cfg, stream, run = _flight_run(16, 0, seed=seed, spurious_ppf_per_s=3.0)
+    switches = run.logs(SyncModeSwitch)
+    assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 3
+    for seg, on in zip(FLIGHT, switches[::2], strict=True):
+        assert board(round(seg.start_s * S)) <= on.board_ns <= board(round(seg.end_s * S))
+    assert wrong_counters(run) == []
 
 
 def test_ppf_noise_does_not_switch_modes():

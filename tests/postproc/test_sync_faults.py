@@ -8,6 +8,7 @@ segments) so the matrix runs in well under two minutes on two cores.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,8 @@ from acquisition.syncfilter import GATE_DELAY_NS, SyncFilterConfig
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
 from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
+from recorder.messages import Topic
+from recorder.reader import read_columns
 from sisa.simulation import simulate
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
 
@@ -57,7 +60,7 @@ def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
 def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
     scn = scenario_from_table(_merge({"base": "bench", "seed": seed, **SHORT},
                                      PROFILES[profile]))
-    simulate(scn, tmp_path, images=False)
+    wiring = simulate(scn, tmp_path, images=False)
     inp = read_sync_input(tmp_path / "flight.mcap")
     res = synchronise(inp)
     truth = ins_truth_ns(tmp_path, inp)
@@ -67,6 +70,7 @@ def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
     assert np.abs(e_line).max() < WRONG_NS
     assert (res.lines.status == TimeStatus.OK).all()  # the scanner side resolves in every case
     _every_forwarded_pulse_is_a_real_edge(tmp_path)
+    _scanner_on_only_while_the_scanner_runs(tmp_path, wiring.host.now_ns)
     flagged = res.ins.status != TimeStatus.OK
     if profile == "ins_clock_jump":
         _only_the_unplaceable_jump_flagged(res, truth, scn.block.t_start_gps_ns)
@@ -90,6 +94,20 @@ def _every_forwarded_pulse_is_a_real_edge(run: Path) -> None:
     off = np.minimum(np.abs(sent - GATE_DELAY_NS - edges[i - 1]),
                      np.abs(sent - GATE_DELAY_NS - edges[i]))
     assert off.max(initial=0) <= SyncFilterConfig().pps_gate_ns
+
+
+def _scanner_on_only_while_the_scanner_runs(run: Path, host_ns: Callable[[int], int]) -> None:
+    """Every switch to mode 2 falls inside a recording segment (from its first frame to its
+    last), and every segment has one: no mode switch without a scanner (issue 32, item 4)."""
+    frames = read_truth_csv(run / "truth" / "frames.csv")
+    spans = [(host_ns(int(t.min())), host_ns(int(t.max())))
+             for seg in np.unique(frames["segment"])
+             for t in [frames["t_mid_gps_ns"][frames["segment"] == seg]]]
+    modes = read_columns(run / "flight.mcap", Topic.SYNC_MODE)
+    on = modes["t_host_ns"][modes["to_mode"] == 2]
+    inside = [[a <= t <= b + 50_000_000 for a, b in spans] for t in on.tolist()]
+    assert all(any(row) for row in inside)
+    assert all(any(row[i] for row in inside) for i in range(len(spans)))
 
 
 def _only_the_unplaceable_jump_flagged(res: SyncResult, truth: np.ndarray, t0: int) -> None:

@@ -8,7 +8,8 @@
 
 The pieces, each in its own module: `clockmap` (host clock and timing board → GPS), `pulses`
 (GPS time of every forwarded pulse), `insclock` (INS counters, clock pieces, latches), `pattern`
-(whole-second ambiguity), `insfit` (clock fits, record times), `lines` (scan lines).
+(whole-second ambiguity), `insfit` (clock fits, record times), `insjumps` (fits carried
+across a clock jump the records do not show), `lines` (scan lines).
 
 Never a silent wrong time: an item whose time cannot be established has t_gps_ns = −1 and a
 TimeStatus saying why. Post-processing reads only the flight log (and the scanner's own lines
@@ -29,6 +30,7 @@ from postproc.clockmap import ClockMap, board_map, host_map
 from postproc.coarse import coarse_latches
 from postproc.insclock import TICK_NS, InsTimeline, ins_timeline
 from postproc.insfit import ClockRun, fit_runs
+from postproc.insjumps import carry_runs
 from postproc.insrecords import latch_noise_s, tag_records
 from postproc.pattern import BlockMatch
 from postproc.pulses import SisaPulses, sisa_pulses
@@ -119,7 +121,10 @@ def solve_ins(ins: InsColumns, pulses: SisaPulses, host: ClockMap, epoch_ns: int
     order = usable[np.argsort(pulses.t_gps_ns[usable], kind="stable")]
     y_s = (pulses.t_gps_ns[order] - epoch_ns).astype(np.float64) / NS_PER_S
     noise = latch_noise_s(tl, cfg.tag_lsb_ns)
-    runs, blocks = fit_runs(lat, y_s, cfg, noise, tl.resolution_ticks * TICK_NS * 1e-9)
+    resolution_s = tl.resolution_ticks * TICK_NS * 1e-9
+    runs, blocks = fit_runs(lat, y_s, cfg, noise, resolution_s)
+    runs = carry_runs(runs, lat, y_s, noise, cfg.assoc_tol_s + resolution_s,
+                      tl.period_ticks * TICK_NS * 1e-9)
     t, status, run = tag_records(tl, lat, runs, epoch_ns, noise, cfg)
     times = InsTimes(tl.seq, ins.counter, t, status)
     x_rec = tl.seconds(tl.clock_ticks, tl.piece)

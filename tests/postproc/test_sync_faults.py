@@ -29,6 +29,7 @@ SHORT: dict[str, Any] = {
     "flight": {"static_alignment_s": 20.0, "figure_eights": 0, "run_in_s": 5.0},
 }
 JUMPS = ({"at_s": 80.0, "jump_ms": 1000.0}, {"at_s": 170.0, "jump_ms": 0.05})
+LATE_JUMP = {"at_s": 226.0, "jump_ms": -0.4}  # in the last strip, 7.6 s before the log ends
 PROFILES: dict[str, dict[str, Any]] = {
     "lost_pulses_1pct": {"faults": {"lost_pulse_fraction": 0.01}},
     "lost_pulses_10pct": {"faults": {"lost_pulse_fraction": 0.10}},
@@ -39,6 +40,8 @@ PROFILES: dict[str, dict[str, Any]] = {
                                              "spurious_pps_near_second_ms": 1.5}},
     "pps_outage_60s": {"faults": {"pps_outages": [{"at_s": 100.0, "duration_s": 60.0}]}},
     "ins_clock_jump": {"faults": {"ins_clock_jumps": list(JUMPS)}},
+    # issue 32 item 2: only frame pulses and two PPS follow; every later record was ambiguous
+    "ins_clock_jump_in_last_strip": {"faults": {"ins_clock_jumps": [LATE_JUMP]}},
     "ins_reboot": {"faults": {"ins_reboots": [{"at_s": 125.0, "duration_s": 5.0}]}},
     "sync_restart": {"faults": {"sync_restarts": [{"at_s": 126.0, "duration_s": 3.0}]}},
     "frames_dropped": {"faults": {"dropped_frame_fraction": 0.05}},
@@ -72,8 +75,13 @@ def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
     _every_forwarded_pulse_is_a_real_edge(tmp_path)
     _scanner_on_only_while_the_scanner_runs(tmp_path, wiring.host.now_ns)
     flagged = res.ins.status != TimeStatus.OK
+    t0 = scn.block.t_start_gps_ns
     if profile == "ins_clock_jump":
-        _only_the_unplaceable_jump_flagged(res, truth, scn.block.t_start_gps_ns)
+        big = t0 + round(JUMPS[0]["at_s"] * 1e9)
+        assert not flagged[np.abs(truth - big) <= NEAR_JUMP_S * 1e9].any()
+        _only_between_the_latches_around(res, truth, [t0 + round(JUMPS[1]["at_s"] * 1e9)])
+    elif profile == "ins_clock_jump_in_last_strip":
+        _only_between_the_latches_around(res, truth, [t0 + round(LATE_JUMP["at_s"] * 1e9)])
     else:
         assert not flagged.any()  # 100 % of the INS records
     _report_shows_the_fault(profile, res.report, tmp_path)
@@ -110,31 +118,37 @@ def _scanner_on_only_while_the_scanner_runs(run: Path, host_ns: Callable[[int], 
     assert all(any(row[i] for row in inside) for i in range(len(spans)))
 
 
-def _only_the_unplaceable_jump_flagged(res: SyncResult, truth: np.ndarray, t0: int) -> None:
-    """The 1 s jump shows in the records (a new clock piece): every record around it is timed.
-    The 50 µs one does not: the INS measures on its own clock grid, so across the jump every
-    record interval is still exactly one period of INS ticks (the epochs move in GPS time,
-    not on the INS clock) and no latch falls between the pulses bracketing it. Exactly the
-    records between those two latches are flagged `clock_jump`, none other."""
+def _only_between_the_latches_around(res: SyncResult, truth: np.ndarray,
+                                     jumps_ns: list[int]) -> None:
+    """A jump smaller than a record period does not show in the records: the INS measures on
+    its own clock grid, so across the jump every record interval is still exactly one period
+    of INS ticks (the epochs move in GPS time, not on the INS clock) and no latch falls between
+    the pulses bracketing it. Exactly the records between those two latches are flagged
+    `clock_jump`, none other: the records after the jump are timed again from the pulses that
+    follow it (issue 32, item 2), the loss bounded by the pulse spacing."""
     tl, flagged = res.ins_solution.timeline, res.ins.status != TimeStatus.OK
-    big, small = (t0 + round(j["at_s"] * 1e9) for j in JUMPS)
-    assert not flagged[np.abs(truth - big) <= NEAR_JUMP_S * 1e9].any()
-    k = int(np.searchsorted(truth, small))  # first record measured after the small jump
     lr = tl.latch_record
-    last, first = int(lr[lr < k].max()), int(lr[lr > k].min())  # latches on either side
     x_lat, x_rec = res.ins_solution.latch_x_s, res.ins_solution.record_x_s
     between = np.zeros(flagged.size, dtype=np.bool_)
-    between[last:first + 1] = True
-    between &= (x_rec > x_lat[lr == last][0]) & (x_rec < x_lat[lr == first][0])
+    for jump in jumps_ns:
+        k = int(np.searchsorted(truth, jump))  # first record measured after the jump
+        last, first = int(lr[lr < k].max()), int(lr[lr > k].min())  # latches on either side
+        here = np.zeros(flagged.size, dtype=np.bool_)
+        here[last:first + 1] = True
+        between |= here & (x_rec > x_lat[lr == last][0]) & (x_rec < x_lat[lr == first][0])
+        assert (np.diff(tl.clock_ticks[last:first + 1]) == round(tl.period_ticks)).all()
+        assert (truth[first] - truth[last]) / 1e9 <= 4.1  # the pulse spacing
     assert np.array_equal(flagged, between)
     assert (res.ins.status[flagged] == TimeStatus.CLOCK_JUMP).all()
-    assert (np.diff(tl.clock_ticks[last:first + 1]) == round(tl.period_ticks)).all()
 
 
 def test_clock_jumps_inside_scanner_strips_are_never_timed_wrong(tmp_path: Path) -> None:
     """A 7 ms jump mid-strip and a −3 ms one in the last strip, 10 s before the log ends: the
     frame-pulse train alone cannot say which pulse a latch after the last jump is (they repeat
-    every 1.024 s), so those records are flagged, never extrapolated across the jump."""
+    every 1.024 s), but a jump the records do not show is less than a record period, so the
+    pulse a run's line puts within one period of each latch is its own: only the records
+    between the latches around each jump are flagged (they were all flagged after the last
+    jump before issue 32, item 2)."""
     jumps = ({"at_s": 127.0, "jump_ms": 7.0}, {"at_s": 223.0, "jump_ms": -3.0})
     scn = scenario_from_table(_merge({"base": "bench", **SHORT},
                                      {"faults": {"ins_clock_jumps": list(jumps)}}))
@@ -144,11 +158,7 @@ def test_clock_jumps_inside_scanner_strips_are_never_timed_wrong(tmp_path: Path)
     truth = ins_truth_ns(tmp_path, inp)
     assert np.abs(ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)).max() < 5_000
     t0 = scn.block.t_start_gps_ns
-    flagged_at_s = (truth[res.ins.status != TimeStatus.OK] - t0) / 1e9
-    first, second = (j["at_s"] for j in jumps)
-    assert (flagged_at_s > first - NEAR_JUMP_S).all()
-    assert ((flagged_at_s < first + NEAR_JUMP_S) | (flagged_at_s > second - NEAR_JUMP_S)).all()
-    assert (flagged_at_s > second).sum() > 0.5 * (truth > t0 + second * 1e9).sum()
+    _only_between_the_latches_around(res, truth, [t0 + round(j["at_s"] * 1e9) for j in jumps])
 
 
 def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> None:
@@ -169,6 +179,9 @@ def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> Non
     elif profile == "ins_clock_jump":
         assert ins["clock_jumps"] == 1  # the 1 s jump shows in the records
         assert len(ins["clock_models"]) == 3  # the 50 µs one only in the pulses
+    elif profile == "ins_clock_jump_in_last_strip":
+        assert ins["clock_jumps"] == 0
+        assert len(ins["clock_models"]) == 2
     elif profile == "ins_reboot":
         assert ins["reboots"] == 1
         assert ins["clock_pieces"] == 2

@@ -14,11 +14,23 @@ Design choices, and why:
   resumes where it would have been after a scanner stretch, and every SyncPps record carries the
   real state and bit (`mode` says whether it was a gate). Each restart (new session) starts from
   the initial state again; post-processing treats every session on its own.
-- A PPS edge that is not whole seconds (board counter, 1 ms + 100 ppm) after the last accepted
-  one is spurious: logged with lfsr_state = lfsr_bit = −1, never forwarded, register not stepped.
-  Two rejected edges one second apart replace the reference (it was the spurious one).
-- Scanner on = `scanner_on_after_ppf` ppf at a steady rate (default 3; 1 = the seed's "first
-  ppf"), so a stray ppf in mode 1 does not break the PPS pattern. Scanner off = no ppf for
+- A PPS edge must fall where the PPS train puts it, else it is spurious: logged with
+  lfsr_state = lfsr_bit = −1, never forwarded, register not stepped. Unlocked (at the start, or
+  while the PPS jitters more than the gate), "where the train puts it" is whole seconds (board
+  counter, 1 ms + 100 ppm) after the last accepted edge, and two rejected edges one second apart
+  replace the reference (it was the spurious one). That steps the register, but a glitch up to
+  1 ms from the true edge passes it (0.57 and 1.05 ms did, and the true edge was then logged
+  spurious): so nothing is forwarded unlocked. Locked (PPS_LOCK_EDGES edges, whichever were
+  accepted, a whole board period apart within half the gate: the first 3 s of a session), it
+  is the timing board's own prediction: the last edge plus whole measured periods, within
+  `pps_gate_ns` (a few µs, + 0.1 ppm of the gap). A locked train gives way only to a new chain
+  of such edges none of which was accepted (the PPS moved), or after PPS_HOLD_S without a PPS.
+- Scanner on = evidence a spurious ppf cannot fake: a frame header with a ppf in its latency
+  window, or `scanner_on_after_ppf` ppf (default 3; 1 = the seed's "first ppf", which a stray
+  ppf can fake) at the configured line rate (every interval within interval_tolerance of
+  `line_period_ns`). Three ppf merely alike in rate were enough before: 3 Hz of spurious pulses
+  switched an idle unit to mode 2 four times a flight, and its forwards had no counter. A
+  scanner at another line rate switches on its first header. Scanner off = no ppf for
   `idle_after_ns`. These are the only mode switches.
 - Minimum spacing between ANY two forwarded pulses, so the receiver's dead time (1 / max event rate)
   never eats one, across mode switches too. Two PPS forwards may be `spacing_tolerance_ns` closer
@@ -80,6 +92,11 @@ MAD_TO_SIGMA: Final = 1.4826
 NEIGHBOURS: Final = 3  # ppf each side that tell a spurious header-matched ppf
 SECOND_TOLERANCE_NS: Final = 1_000_000  # "whole seconds apart" on the board: 1 ms + 100 ppm
 SECOND_TOLERANCE_PPM: Final = 100.0
+PPS_LOCK_EDGES: Final = 4  # edges a whole board period apart within half the gate: locked
+PPS_RECENT_MAX: Final = 512  # edges kept to search for a lock (4 s of them)
+PPS_ANCHORS: Final = 16  # recent accepted edges that estimate the board's PPS period
+PPS_GATE_GROWTH_NS_PER_S: Final = 100  # the locked gate widens by 0.1 ppm of the gap
+PPS_HOLD_S: Final = 600  # no PPS for this long: the prediction is not trusted any more
 
 
 class Mode(IntEnum):
@@ -100,7 +117,8 @@ class CounterSource(StrEnum):
 
 
 class SwitchReason(StrEnum):
-    SCANNER_ON = "scanner on: steady ppf"
+    SCANNER_ON = "scanner on: ppf at the line rate"
+    SCANNER_HEADER = "scanner on: frame header"
     SCANNER_OFF = "scanner off: no ppf for"
 
 
@@ -144,6 +162,7 @@ class SyncFilterConfig:
     interval_tolerance: float = 0.05  # ppf grid: most intervals agree this well; max tolerance
     infer_max_gap_frames: int = 1000  # bracketing frames further apart: no inference
     scanner_on_after_ppf: int = 3  # ppf at a steady rate that mean "scanner on" (1: the first)
+    pps_gate_ns: int = 5_000  # locked: a PPS edge this close to the board's prediction, or spurious
 
     def __post_init__(self) -> None:
         Lfsr(self.lfsr_bits, self.taps, self.lfsr_initial_state)
@@ -159,6 +178,8 @@ class SyncFilterConfig:
             "0 ≤ spacing_tolerance_ns < 1 / max_event_rate_hz":
                 0 <= self.spacing_tolerance_ns < NS_PER_S / self.max_event_rate_hz,
             "ptt_window_ns > 0": self.ptt_window_ns > 0,
+            "0 < pps_gate_ns < SECOND_TOLERANCE_NS":
+                0 < self.pps_gate_ns < SECOND_TOLERANCE_NS,
             "0 < interval_tolerance < 0.5": 0 < self.interval_tolerance < 0.5,
             "infer_max_gap_frames ≥ 1": self.infer_max_gap_frames >= 1,
             f"1 ≤ scanner_on_after_ppf ≤ {PERIOD_WINDOW}":
@@ -199,7 +220,10 @@ class SyncCounters:
     """Health counters of one session."""
 
     pps_seen: int = 0
-    pps_rejected: int = 0  # not whole seconds after the PPS train: spurious, register not stepped
+    pps_rejected: int = 0  # not where the PPS train puts it: spurious, register not stepped
+    pps_rejected_by_gate: int = 0  # of those, refused by the locked gate (the 1 ms rule took them)
+    pps_lock_lost: int = 0  # a locked train given up (a new train, or no PPS for PPS_HOLD_S)
+    pps_not_forwarded_unlocked: int = 0  # one-bits while the PPS train was not locked
     ppf_seen: int = 0
     ppf_bursts_ignored: int = 0  # ppf that stopped before they were steady: no mode switch
     headers_matched: int = 0
@@ -263,6 +287,116 @@ class _Frame:
 
 
 # ---------------------------------------------------------------------------------------------
+# The PPS train on the timing board
+# ---------------------------------------------------------------------------------------------
+
+
+class _PpsTrain:
+    """Which PPS edges are the PPS.
+
+    Unlocked: an edge whole seconds (1 ms + 100 ppm) after the last accepted one is the PPS
+    (two rejected edges one second apart replace the reference). That steps the register, but
+    a glitch up to ~1 ms from the true edge passes it, so nothing is forwarded unlocked.
+    Locked: PPS_LOCK_EDGES edges (any seen, accepted or not) a whole board period apart within
+    half the gate; then only an edge within the gate of the last accepted one plus whole
+    measured periods is the PPS. A locked train gives way to a new such chain of edges none
+    accepted (the PPS itself moved), or after PPS_HOLD_S without a PPS."""
+
+    def __init__(self, gate_ns: int) -> None:
+        self.gate_ns = gate_ns
+        self.anchors: deque[tuple[int, int]] = deque(maxlen=PPS_ANCHORS)  # (second, board ns)
+        self.recent: deque[int] = deque(maxlen=PPS_RECENT_MAX)  # every edge lately, board ns
+        self.ref: int | None = None  # unlocked: the last accepted edge
+        self.doubt: int | None = None  # unlocked: the last rejected one
+        self.locked = False
+
+    def accept(self, board_ns: int) -> tuple[bool, str]:
+        """Whether this edge is the PPS, and a remark: "gate" when only the locked gate refused
+        it (the whole-second rule would have taken it), "lock lost" when a locked train gave way."""
+        self._remember(board_ns)
+        remark = ""
+        if self.locked:
+            k, residual = self._predict(board_ns)
+            if 1 <= k <= PPS_HOLD_S and abs(residual) <= self.window_ns(k):
+                self._add(k, board_ns)
+                return True, ""
+            chain = self._chain(board_ns, after=self.anchors[-1][1])
+            if chain is not None:  # the PPS moved: four edges on a new phase, none accepted
+                self._lock(chain)
+                return True, "lock lost"
+            if k <= PPS_HOLD_S:
+                whole = _whole_seconds(board_ns - self.anchors[-1][1]) is not None
+                return False, "gate" if whole else ""
+            self.locked, remark = False, "lock lost"  # too long without a PPS
+            self.ref, self.doubt = self.anchors[-1][1], None
+        ok = self._whole_second_rule(board_ns)
+        last = self.ref
+        chain = self._chain(board_ns, after=None)
+        if chain is not None and (ok or last is None or board_ns - last > NS_PER_S // 2):
+            self._lock(chain)  # (not when a glitch already took this second: next second)
+            self.ref, self.doubt = board_ns, None
+            return True, remark
+        return ok, remark
+
+    def _whole_second_rule(self, board_ns: int) -> bool:
+        ref, doubt = self.ref, self.doubt
+        in_train = ref is None or _whole_seconds(board_ns - ref) is not None
+        new_train = doubt is not None and _whole_seconds(board_ns - doubt) == 1
+        if in_train or new_train:
+            self.ref, self.doubt = board_ns, None
+            return True
+        self.doubt = board_ns
+        return False
+
+    def window_ns(self, seconds: int) -> float:
+        return self.gate_ns + PPS_GATE_GROWTH_NS_PER_S * seconds
+
+    def _period_ns(self) -> float:
+        (i0, b0), (i1, b1) = self.anchors[0], self.anchors[-1]
+        return (b1 - b0) / (i1 - i0)
+
+    def _predict(self, board_ns: int) -> tuple[int, float]:
+        """Whole periods after the last accepted edge, and this edge's distance from there."""
+        last = self.anchors[-1][1]
+        period = self._period_ns()
+        k = round((board_ns - last) / period)
+        return k, board_ns - last - k * period
+
+    def _remember(self, board_ns: int) -> None:
+        while self.recent and board_ns - self.recent[0] > PPS_LOCK_EDGES * NS_PER_S:
+            self.recent.popleft()
+        self.recent.append(board_ns)
+
+    def _chain(self, board_ns: int, after: int | None) -> list[int] | None:
+        """PPS_LOCK_EDGES edges ending with this one, a whole period apart within half the
+        gate (the period from this edge and one about a second before it), all later than
+        `after`; oldest first. None if there is no such chain."""
+        half = self.gate_ns / 2
+        earlier = [b for b in self.recent if b < board_ns and (after is None or b > after)]
+        for first in reversed(earlier):
+            period = board_ns - first
+            if _whole_seconds(period) != 1:
+                continue
+            chain = [board_ns, first]
+            for j in range(2, PPS_LOCK_EDGES):
+                near = _nearest(earlier, board_ns - j * period)
+                if abs(near - (board_ns - j * period)) > half:
+                    break
+                chain.append(near)
+            else:
+                return chain[::-1]
+        return None
+
+    def _lock(self, chain: list[int]) -> None:
+        self.anchors.clear()
+        self.anchors.extend(enumerate(chain))
+        self.locked = True
+
+    def _add(self, seconds: int, board_ns: int) -> None:
+        self.anchors.append((self.anchors[-1][0] + seconds, board_ns))
+
+
+# ---------------------------------------------------------------------------------------------
 # One scanner-on stretch: ppf, headers, counters
 # ---------------------------------------------------------------------------------------------
 
@@ -297,12 +431,19 @@ class _FrameRun:
         del self.matched[:cut]
 
     def steady(self, count: int) -> bool:
-        """At least `count` ppf, the last count − 1 intervals alike (a scanner, not noise)."""
+        """At least `count` ppf, the last count − 1 intervals at the configured line period
+        (a scanner; random spurious intervals are almost never that close to it twice)."""
         if self.next_index < count:
             return False
         recent = list(self.intervals)[len(self.intervals) - (count - 1):] if count > 1 else []
-        return not recent or (max(recent) - min(recent)
-                              <= self.cfg.interval_tolerance * statistics.median(recent))
+        nominal = self.cfg.line_period_ns
+        return all(abs(i - nominal) <= self.cfg.interval_tolerance * nominal for i in recent)
+
+    def ppf_for_header(self, header: FrameHeader, t_host_ns: int) -> _Frame | None:
+        """The latest ppf of this stretch in the header's latency window (host time)."""
+        lo, hi = self._window(header)
+        return next((f for f in reversed(self.frames) if lo <= t_host_ns - f.t_host_ns <= hi),
+                    None)
 
     def frame(self, index: int) -> _Frame | None:
         if not self.frames:
@@ -527,8 +668,7 @@ class SyncFilter:
         self._last_ppf_board_ns: int | None = None
         self._last_second: tuple[int, int] | None = None  # (board_ns, gps_second_ns) of a PTT
         self._challenger: tuple[int, int] | None = None  # a refused lone PTT match
-        self._pps_ref: int | None = None  # board_ns of the last accepted PPS
-        self._pps_doubt: int | None = None  # the last rejected one
+        self._pps_train = _PpsTrain(config.pps_gate_ns)
         self._clock = (board_ns, t_host_ns)  # latest (board_ns, t_host_ns) seen
         self._startup: list[Action] = [Log(self._session_record(board_ns, t_host_ns))]
 
@@ -559,7 +699,9 @@ class SyncFilter:
             return self._actions(None, logs + self._emit_forwards())
         bit = self._lfsr.step()
         fwd = None
-        if self.mode is Mode.PPS and bit:
+        if self.mode is Mode.PPS and bit and not self.pps_locked:
+            self.counters.pps_not_forwarded_unlocked += 1
+        elif self.mode is Mode.PPS and bit:
             fwd = self._try_forward(board_ns, t_host_ns, PulseSource.PPS,
                                     self.config.event_input_in_mode1)
         self._pps.append(_PendingPps(board_ns, t_host_ns, self.mode, self._lfsr.state, bit, fwd))
@@ -605,13 +747,19 @@ class SyncFilter:
                 or self._since_forward + ppf_unseen + 1 >= self.config.one_of_n)
 
     def on_header(self, header: FrameHeader, t_host_ns: int) -> list[Action]:
-        """A frame header from the scanner's serial port."""
+        """A frame header from the scanner's serial port (in mode 1, with a ppf of the
+        tentative stretch in its window: the scanner is on)."""
+        logs: list[Log] = []
+        ppf = (self._run.ppf_for_header(header, t_host_ns)
+               if self.mode is Mode.PPS and self._run is not None else None)
+        if ppf is not None:  # on since that ppf, on the board counter
+            logs = self._switch(Mode.FRAMES, ppf.board_ns, t_host_ns, SwitchReason.SCANNER_HEADER)
         if self._run is not None and self._run.match_header(header, t_host_ns):
             self.counters.headers_matched += 1
             self._resolve_frames(ended=False)
         else:
             self.counters.headers_unmatched += 1
-        return self._actions(None, self._emit_forwards())
+        return self._actions(None, logs + self._emit_forwards())
 
     def tick(self, board_ns: int, t_host_ns: int | None = None) -> list[Action]:
         """Time passes: scanner-off detection, PPS records whose PTT never came."""
@@ -717,17 +865,19 @@ class SyncFilter:
         return None
 
     def _pps_in_train(self, board_ns: int) -> bool:
-        """A real PPS comes whole seconds after the last one; anything else is spurious and
-        does not step the register. Two rejected edges one second apart mean the train itself
-        was wrong (e.g. the first edge was spurious): follow them."""
-        ref, doubt = self._pps_ref, self._pps_doubt
-        in_train = ref is None or _whole_seconds(board_ns - ref) is not None
-        new_train = doubt is not None and _whole_seconds(board_ns - doubt) == 1
-        if in_train or new_train:
-            self._pps_ref, self._pps_doubt = board_ns, None
-            return True
-        self._pps_doubt = board_ns
-        return False
+        """Is this edge the PPS (`_PpsTrain`)? Anything else is spurious and does not step
+        the register."""
+        ok, why = self._pps_train.accept(board_ns)
+        if why == "gate":
+            self.counters.pps_rejected_by_gate += 1
+        elif why == "lock lost":
+            self.counters.pps_lock_lost += 1
+        return ok
+
+    @property
+    def pps_locked(self) -> bool:
+        """The PPS train is locked: edges are gated by the board's prediction."""
+        return self._pps_train.locked
 
     def _close_stale_pps(self, board_ns: int) -> list[Log]:
         """PPS records whose PTT can no longer come (by the next PPS, or a tick)."""
@@ -770,6 +920,11 @@ class SyncFilter:
                                         f.gps_second_ns, f.frame_counter,
                                         str(f.counter_source))))
         return logs
+
+
+def _nearest(values: list[int], want: float) -> int:
+    """The value closest to `want` (values not empty)."""
+    return min(values, key=lambda v: abs(v - want))
 
 
 def _whole_seconds(d_board_ns: int) -> int | None:

@@ -15,6 +15,7 @@ from acquisition.pulses import Edge, PulseLine
 from emulators.runtime import Device, Output, Port
 from emulators.scenario import FaultProfile
 from emulators.truth import TruthTable
+from sisa.core.timescale import NS_PER_S
 
 
 def fault_table() -> TruthTable:
@@ -95,34 +96,48 @@ class WireFaults:
 
 class SpuriousPulses(Device):
     """Pulses that no device meant to send (ground bounce, a loose connector), at a Poisson rate,
-    on the given lines."""
+    on the given lines. With `pps_near_second_ns` > 0, those on the PPS line fall within that
+    much of a whole GPS second, where the true PPS edge is (a glitch next to the edge: the
+    hardest spurious PPS for the sync unit to refuse)."""
 
     name = "spurious"
 
     def __init__(self, rate_hz: float, lines: Sequence[PulseLine], t_start_ns: int,
-                 t_end_ns: int, rng: np.random.Generator, truth: TruthTable) -> None:
+                 t_end_ns: int, rng: np.random.Generator, truth: TruthTable,
+                 pps_near_second_ns: int = 0) -> None:
         self.rate_hz = rate_hz
         self.lines = tuple(lines)
         self.t_end_ns = t_end_ns
         self.rng = rng
         self.truth = truth
+        self.pps_near_second_ns = pps_near_second_ns
         self._seq = 0
-        self._next: int | None = t_start_ns
+        self._base: int | None = t_start_ns  # the Poisson process
+        self._next: int | None = t_start_ns  # the next pulse (moved next to a second)
+        self._line = self.lines[0]
         self._advance()
 
     def _advance(self) -> None:
-        if self._next is None or self.rate_hz <= 0:
-            self._next = None
+        if self._base is None or self.rate_hz <= 0:
+            self._base = self._next = None
             return
-        self._next += int(self.rng.exponential(1e9 / self.rate_hz))
-        if self._next > self.t_end_ns:
-            self._next = None
+        self._base += int(self.rng.exponential(1e9 / self.rate_hz))
+        if self._base > self.t_end_ns:
+            self._base = self._next = None
+            return
+        self._line = self.lines[int(self.rng.integers(len(self.lines)))]
+        previous = self._next if self._next is not None else self._base
+        self._next = self._base
+        if self._line is PulseLine.PPS and self.pps_near_second_ns > 0:
+            near = self.pps_near_second_ns
+            second = (self._base + NS_PER_S // 2) // NS_PER_S * NS_PER_S
+            self._next = max(previous, second + int(self.rng.integers(-near, near + 1)))
 
     def next_time_ns(self) -> int | None:
         return self._next
 
     def emit(self, t_ns: int) -> list[Output]:
-        line = self.lines[int(self.rng.integers(len(self.lines)))]
+        line = self._line
         self._seq += 1
         self.truth.append(t_gps_ns=t_ns, kind="spurious_pulse", target=line.name,
                           detail=f"seq {self._seq}")

@@ -310,6 +310,10 @@ class SisaSettings(StrictModel):
         description="where a frame header's host time may fall after its frame "
         "ends; headers tie to frames on time alone only if this is narrower than a line period"
     )
+    pps_gate_us: float = Field(
+        5.0, gt=0, lt=1000, description="once locked on the PPS train, a PPS edge further than "
+        "this from the timing board's prediction is spurious (keep it ≥ 6 × gps.pps_jitter_ns)"
+    )
 
     @model_validator(mode="after")
     def _taps_in_range(self) -> SisaSettings:
@@ -338,6 +342,9 @@ class FaultProfile(StrictModel):
 
     lost_pulse_fraction: float = Field(0.0, ge=0, le=1)
     spurious_pulse_rate_hz: float = Field(0.0, ge=0, le=100)
+    spurious_pps_near_second_ms: float = Field(
+        0.0, ge=0, le=400, description="0: spurious pulses anywhere; else those on the PPS line "
+        "fall within this of a whole GPS second, next to the true edge")
     corrupt_byte_rate: float = Field(0.0, ge=0, le=0.5, description="per byte")
     lost_byte_rate: float = Field(0.0, ge=0, le=0.5, description="per byte")
     lost_can_frame_fraction: float = Field(0.0, ge=0, le=1)

@@ -63,7 +63,7 @@ class EmulatedSystem:
             self.devices.append(SpuriousPulses(
                 scn.faults.spurious_pulse_rate_hz, (PulseLine.PPS, PulseLine.PPF),
                 self.traj.t_start_ns, self.traj.t_end_ns, self._rng(Stream.SPURIOUS),
-                self.faults))
+                self.faults, round(scn.faults.spurious_pps_near_second_ms * 1e6)))
         self.wire = WireFaults(scn.faults, self._rng(Stream.WIRE), self.faults)
 
     def _rng(self, stream: Stream) -> np.random.Generator:

@@ -30,6 +30,7 @@ class SyncConfig:
     max_time_sigma_s: float = 1e-6  # predicted error (1 σ) of a time from its fit
     line_max_extrapolation_s: float = 2.0  # scan lines beyond the first/last timed frame
     ttt_window_ns: int = 50_000  # forward ↔ TTT tag through the timing board
+    board_agree_floor_ns: int = 2_000  # a PTT/TTT and its board time: at least this close
     max_board_gap_s: float = 120.0  # timing-board time of an untagged pulse: PPS this close
     step_min_s: float = 1e-6  # smallest INS clock step the pulse fit splits at
     step_z: float = 10.0  # ... and its significance (step / its standard error)
@@ -51,6 +52,8 @@ class SyncConfig:
             "line_max_extrapolation_s ≥ 0": self.line_max_extrapolation_s >= 0,
             "max_time_sigma_s > 0": self.max_time_sigma_s > 0,
             "ttt_window_ns > 0": self.ttt_window_ns > 0,
+            "0 < board_agree_floor_ns ≤ ttt_window_ns":
+                0 < self.board_agree_floor_ns <= self.ttt_window_ns,
             "max_board_gap_s ≥ 0": self.max_board_gap_s >= 0,
             "step_min_s > 0": self.step_min_s > 0,
             "step_z > 0": self.step_z > 0,

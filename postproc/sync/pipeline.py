@@ -8,7 +8,8 @@
 
 The pieces, each in its own module: `clockmap` (host clock and timing board → GPS), `pulses`
 (GPS time of every forwarded pulse), `insclock` (INS counters, clock pieces, latches), `pattern`
-(whole-second ambiguity), `insfit` (clock fits, record times), `lines` (scan lines).
+(whole-second ambiguity), `insfit` (clock fits, record times), `insjumps` (fits carried
+across a clock jump the records do not show), `lines` (scan lines).
 
 Never a silent wrong time: an item whose time cannot be established has t_gps_ns = −1 and a
 TimeStatus saying why. Post-processing reads only the flight log (and the scanner's own lines
@@ -30,6 +31,7 @@ from postproc.sync.config import SyncConfig
 from postproc.sync.flightlog import InsColumns, SyncInput, read_sync_input
 from postproc.sync.insclock import TICK_NS, ins_timeline
 from postproc.sync.insfit import fit_runs
+from postproc.sync.insjumps import carry_runs
 from postproc.sync.insrecords import latch_noise_s, tag_records
 from postproc.sync.pulses import SisaPulses, sisa_pulses
 from postproc.sync.report import ins_report, line_report, pulse_report
@@ -69,7 +71,10 @@ def solve_ins(ins: InsColumns, pulses: SisaPulses, host: ClockMap, epoch_ns: int
     order = usable[np.argsort(pulses.t_gps_ns[usable], kind="stable")]
     y_s = (pulses.t_gps_ns[order] - epoch_ns).astype(np.float64) / NS_PER_S
     noise = latch_noise_s(tl, cfg.tag_lsb_ns)
-    runs, blocks = fit_runs(lat, y_s, cfg, noise, tl.resolution_ticks * TICK_NS * 1e-9)
+    resolution_s = tl.resolution_ticks * TICK_NS * 1e-9
+    runs, blocks = fit_runs(lat, y_s, cfg, noise, resolution_s)
+    runs = carry_runs(runs, lat, y_s, noise, cfg.assoc_tol_s + resolution_s,
+                      tl.period_ticks * TICK_NS * 1e-9)
     t, status, run = tag_records(tl, lat, runs, epoch_ns, noise, cfg)
     times = InsTimes(tl.seq, ins.counter, t, status)
     x_rec = tl.seconds(tl.clock_ticks, tl.piece)
@@ -115,7 +120,9 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
                       g.tag_t_gps_ns, g.tag_is_ptt)
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
-                                 max_board_gap_s=cfg.max_board_gap_s)
+                                 max_board_gap_s=cfg.max_board_gap_s,
+                                 agree_floor_ns=cfg.board_agree_floor_ns,
+                                 tag_lsb_ns=cfg.tag_lsb_ns)
     epoch = flight_epoch_ns(inp, host)
     ins_times, sol = solve_ins(inp.ins, pulses, host, epoch, cfg)
     line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)

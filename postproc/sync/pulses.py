@@ -7,8 +7,12 @@ time, best source first:
   timing board (the forward's board time, mapped to GPS, must fall within `ttt_window_ns` of it);
 - otherwise the board time mapped to GPS, if PPS pin the board down within `max_board_gap_s`;
 - otherwise, for mode 1, the GPS second the box logged, plus the gate delay.
-A mode-1 time that disagrees with the board by more than the TTT window is rejected: two
-independent records of one edge must agree.
+A pulse whose PTT or TTT time disagrees with its own board time (through the board map) by more
+than the board map's error is rejected, never used: two independent records of one edge must
+agree. The map's error is its residual scatter (tens of ns: the PPS jitter, the tag rounding)
+times BOARD_AGREE_SIGMAS, widened by the prediction's leverage, never below `agree_floor_ns`
+(2 µs), plus one tag LSB: far inside the sync unit's locked PPS gate (5 µs), far below the
+0.5–1 ms of a glitch the box once took for the PPS. (It was the 50 µs TTT window, PTT only.)
 """
 
 from __future__ import annotations
@@ -22,12 +26,15 @@ import numpy.typing as npt
 
 from postproc.sync.clockmap import ClockMap, ptt_of_seconds
 from postproc.sync.flightlog import GpsTimes, SisaColumns
+from sisa.core.timescale import NS_PER_S
 
 I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
 Bool = npt.NDArray[np.bool_]
 
 GATE_DELAY_NS: Final = 1_000  # the SISA box, input edge → output edge (its specification)
 HOST_TTT_WINDOW_NS: Final = 300_000_000  # without a board map: TTT vs forward on host time
+BOARD_AGREE_SIGMAS: Final = 6.0  # a tag and its board time agree within this many map sigmas
 
 
 class PulseSource(IntEnum):
@@ -65,6 +72,16 @@ def _board_times(sisa: SisaColumns, board: ClockMap | None, max_gap_s: float
     return board.gps_ns(sisa.fwd_board_ns), np.asarray(ok, dtype=np.bool_)
 
 
+def board_agreement_ns(board: ClockMap, board_ns: I64, floor_ns: int, tag_lsb_ns: int) -> F64:
+    """How far a tag (PTT, TTT) may lie from its pulse's board time through the map: the map's
+    predicted error there (BOARD_AGREE_SIGMAS of its residual scatter, with the fit's
+    leverage), at least floor_ns, plus one tag LSB."""
+    x = (np.asarray(board_ns, dtype=np.int64) - board.epoch_ns).astype(np.float64) / NS_PER_S
+    sigma_ns = board.line.sigma * NS_PER_S * np.sqrt(1.0 + board.line.leverage(x))
+    return np.asarray(np.maximum(BOARD_AGREE_SIGMAS * sigma_ns, floor_ns) + tag_lsb_ns,
+                      dtype=np.float64)
+
+
 def _ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64:
     """The TTT tag nearest each wanted estimate, if within the window; each tag used once."""
     out = np.full(estimate_ns.shape, -1, dtype=np.int64)
@@ -92,27 +109,33 @@ def _tags(sisa: SisaColumns, ttt: I64, board: ClockMap | None, by_board: I64,
 
 
 def sisa_pulses(sisa: SisaColumns, gps: GpsTimes, board: ClockMap | None, host: ClockMap, *,
-                ttt_window_ns: int, max_board_gap_s: float) -> tuple[SisaPulses, dict[str, int]]:
+                ttt_window_ns: int, max_board_gap_s: float, agree_floor_ns: int = 2_000,
+                tag_lsb_ns: int = 100) -> tuple[SisaPulses, dict[str, int]]:
     """GPS time of every forwarded pulse, and counts of tags and rejections."""
     n = sisa.fwd_board_ns.size
     t = np.full(n, -1, dtype=np.int64)
     source = np.full(n, int(PulseSource.NONE), dtype=np.int64)
     by_board, board_ok = _board_times(sisa, board, max_board_gap_s)
+    tolerance = (board_agreement_ns(board, sisa.fwd_board_ns, agree_floor_ns, tag_lsb_ns)
+                 if board is not None else np.full(n, np.inf))
     mode1 = ~sisa.fwd_is_ppf
     ptt = ptt_of_seconds(sisa.fwd_gps_second_ns, gps.tag_t_gps_ns, gps.tag_is_ptt)
     from_ptt = mode1 & (ptt >= 0)
     t[from_ptt], source[from_ptt] = ptt[from_ptt] + GATE_DELAY_NS, PulseSource.PTT
-    disagree = from_ptt & board_ok & (np.abs(t - by_board) > ttt_window_ns)
+    disagree = from_ptt & board_ok & (np.abs(t - by_board) > tolerance)
     ttt = np.sort(gps.tag_t_gps_ns[~gps.tag_is_ptt])
     tagged = _tags(sisa, ttt, board, by_board, board_ok, host, ttt_window_ns)
     has_ttt = (tagged >= 0) & ~from_ptt
     t[has_ttt], source[has_ttt] = tagged[has_ttt], PulseSource.TTT
+    ttt_disagree = has_ttt & board_ok & (np.abs(tagged - by_board) > tolerance)
     rest = (source == PulseSource.NONE) & board_ok
     t[rest], source[rest] = by_board[rest], PulseSource.BOARD
     second = (source == PulseSource.NONE) & mode1 & (sisa.fwd_gps_second_ns >= 0)
     t[second], source[second] = sisa.fwd_gps_second_ns[second] + GATE_DELAY_NS, PulseSource.SECOND
-    t[disagree], source[disagree] = -1, PulseSource.NONE
+    bad = disagree | ttt_disagree
+    t[bad], source[bad] = -1, PulseSource.NONE
     stats = {"ttt_tags": int(ttt.size),
              "ttt_unclaimed": int(ttt.size - np.count_nonzero(tagged >= 0)),
-             "rejected_ptt_board_disagree": int(np.count_nonzero(disagree))}
+             "rejected_ptt_board_disagree": int(np.count_nonzero(disagree)),
+             "rejected_ttt_board_disagree": int(np.count_nonzero(ttt_disagree))}
     return SisaPulses(t, source, sisa.fwd_mode, sisa.fwd_session, sisa.fwd_frame_counter), stats

@@ -87,6 +87,12 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
                      "ms after its frame ends (scanner.header_latency_ms + "
                      "sisa.read_interval_ms), past the end of sisa.header_window_ms: such "
                      "headers are not tied to their pulses")
+    gate_ns = scn.sisa.pps_gate_us * 1e3
+    if 6 * scn.gps.pps_jitter_ns > gate_ns:
+        notes.append(f"gps.pps_jitter_ns = {scn.gps.pps_jitter_ns:g} is more than a sixth of "
+                     f"sisa.pps_gate_us = {scn.sisa.pps_gate_us:g}: the sync unit may never lock "
+                     "on the PPS train (it forwards no PPS unlocked) or refuse true edges: a "
+                     "wider gate")
     if (problem := ground_point_room_problem(scn)) is not None:
         notes.append(f"{problem} (sisa truth and sisa simulate refuse this scenario)")
     return notes

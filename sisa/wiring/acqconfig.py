@@ -24,6 +24,7 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
         frame_counter_bits=scn.scanner.frame_counter_bits,
         header_latency_min_ns=round(scn.sisa.header_window_ms[0] * 1e6),
         header_latency_max_ns=round(scn.sisa.header_window_ms[1] * 1e6),
+        pps_gate_ns=round(scn.sisa.pps_gate_us * 1e3),
     )
     return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,

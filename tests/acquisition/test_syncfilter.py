@@ -20,6 +20,7 @@ from acquisition.lfsr import Lfsr
 from acquisition.scanner_header import FrameHeader, ScannerMode
 from acquisition.syncfilter import (
     GATE_DELAY_NS,
+    PPS_LOCK_EDGES,
     CounterSource,
     Forward,
     Log,
@@ -342,6 +343,102 @@ def test_a_spurious_first_pps_is_left_after_two_real_ones():
     assert -1 not in bits[2:]
 
 
+def _with_spurious_pps(stream: Stream, offsets_ns: dict[int, int]) -> list[Event]:
+    """The stream plus a spurious PPS edge `offset` ns from the true edge of second k (for each
+    k: offset), reaching the box in time order (early ones before the true edge)."""
+    true_pps = {(e.truth - GPS0) // S: e for e in stream.events if e.kind == "pps"}
+    events = list(stream.events)
+    for k, offset in offsets_ns.items():
+        edge = true_pps[k]
+        events.append(Event(edge.t_host_ns + offset, len(events), "pps", edge.board_ns + offset,
+                            truth=None))
+    return sorted(events)
+
+
+def test_a_glitch_near_the_second_is_never_taken_for_the_pps_once_locked():
+    """Issue 32, item 3: a spurious edge 0.57 ms before the true PPS (and one 1.05 ms before
+    another) fell inside the 1 ms whole-second rule, was taken for the PPS, and the true edge
+    was logged as spurious; on a one-bit second the INS would have latched the glitch. Locked
+    on the board's period, the box gates edges to a few µs: the glitches are refused, the true
+    edges accepted and forwarded."""
+    bits = Lfsr(4, (4, 3), 1).sequence(30)
+    ones = [k for k in range(8, 30) if bits[k] == 1]
+    stream = make_stream(30, [], seed=5)
+    events = _with_spurious_pps(stream, {ones[0]: -570_000, ones[1]: -1_050_000,
+                                         ones[2]: 800_000, ones[3]: -9_000})
+    cfg = config()
+    run = drive(cfg, events)
+    recs = run.logs(SyncPps)
+    truth = {e.board_ns: e.truth for e in events if e.kind == "pps"}
+    accepted = [r for r in recs if r.lfsr_bit >= 0]
+    assert [truth[r.board_ns] for r in accepted] == [GPS0 + k * S for k in range(30)]
+    assert [r.forwarded for r in accepted] == [b == 1 for b in bits]
+    assert all(ev.truth is not None for _, ev in run.forwards)  # no glitch went out
+    assert run.filter.counters.pps_rejected == 4
+    assert run.filter.counters.pps_rejected_by_gate == 3  # the 1 ms rule took those three
+    assert run.filter.pps_locked
+
+
+def test_locked_gate_forwards_no_pps_further_than_the_gate_from_the_true_edge():
+    """Many glitches 6 µs to 1.5 ms from the true seconds, on every kind of second: once
+    locked, every accepted and every forwarded PPS is a true edge (so within its jitter, far
+    inside the gate), and the register steps once a second."""
+    rng = random.Random(7)
+    stream = make_stream(120, [], faults=Faults(pps_jitter_ns=50), seed=8)
+    glitches = {k: rng.choice([-1, 1]) * rng.randint(6_000, 1_500_000)
+                for k in range(6, 120) if rng.random() < 0.4}
+    events = _with_spurious_pps(stream, glitches)
+    run = drive(config(event_input_in_mode1=True), events)
+    truth = {e.board_ns: e.truth for e in events if e.kind == "pps"}
+    accepted = [r for r in run.logs(SyncPps) if r.lfsr_bit >= 0]
+    assert [truth[r.board_ns] for r in accepted] == [GPS0 + k * S for k in range(120)]
+    assert all(ev.truth is not None for _, ev in run.forwards)
+    assert run.filter.counters.pps_rejected == len(glitches)
+
+
+def test_the_gate_follows_a_pps_train_that_moved():
+    """The PPS itself moved by 0.3 ms (a receiver reset): its first edges on the new phase are
+    refused by the gate until four of them, none accepted, make a new chain; then it is locked
+    on the new phase."""
+    flt = SyncFilter(config())
+    flt.start_actions()
+    for k in range(10):
+        flt.on_pps(board(k * S), k * S)
+    assert flt.pps_locked
+    for k in range(10, 20):
+        flt.on_pps(board(k * S + 300_000), k * S)
+    assert flt.counters.pps_rejected == PPS_LOCK_EDGES - 1
+    assert flt.counters.pps_lock_lost == 1
+    assert flt.pps_locked
+
+
+def test_nothing_is_forwarded_before_the_pps_train_locks():
+    """Unlocked, a glitch within ~1 ms of the second passes the whole-second rule: the box
+    forwards a PPS only once PPS_LOCK_EDGES edges lie a period apart within half the gate, even
+    with glitches among them from the start."""
+    stream = make_stream(20, [], seed=6)
+    events = _with_spurious_pps(stream, {0: -400_000, 1: -700_000, 2: 300_000, 3: -900_000})
+    run = drive(config(), events)
+    truth = {e.board_ns: e.truth for e in events if e.kind == "pps"}
+    assert all(ev.truth is not None for _, ev in run.forwards)
+    bits = Lfsr(4, (4, 3), 1).sequence(20)
+    sent = [(ev.truth - GPS0) // S for _, ev in run.forwards]
+    assert sent == [k for k in range(PPS_LOCK_EDGES, 20) if bits[k]]  # from the first lock on
+    accepted = [truth[r.board_ns] for r in run.logs(SyncPps) if r.lfsr_bit >= 0]
+    assert accepted.count(None) == 3  # unlocked, three glitches took their seconds ...
+    assert accepted[PPS_LOCK_EDGES:] == [GPS0 + k * S for k in range(PPS_LOCK_EDGES, 20)]
+    assert run.filter.counters.pps_not_forwarded_unlocked == 1  # ... one a one-bit, held back
+
+
+def test_a_jittery_pps_never_locks_and_keeps_the_whole_second_rule():
+    """PPS jitter far above the gate (100 µs): the train never locks, so no true edge is ever
+    refused by the gate."""
+    stream = make_stream(40, [], faults=Faults(pps_jitter_ns=100_000), seed=3)
+    run = drive(config(), stream.events)
+    assert not run.filter.pps_locked
+    assert run.filter.counters.pps_rejected == 0
+
+
 def test_session_record_and_restart_from_the_initial_state():
     cfg = config(lfsr_bits=5, lfsr_initial_state=0b10011, one_of_n=7)
     stream = make_stream(40, [], seed=2)
@@ -409,18 +506,52 @@ def test_flight_with_lost_headers_every_counter_right_or_unknown(bits, start):
     assert c.headers_unmatched == 0
 
 
+def _segment_ppf(stream: Stream, seg: Segment) -> list[int]:
+    return sorted(e.board_ns for e in stream.events if e.kind == "ppf" and board(round(
+        seg.start_s * S)) <= e.board_ns < board(round(seg.end_s * S)))
+
+
 def test_modes_switch_only_at_scanner_on_and_off():
+    """Scanner on at the first frame header (a ppf in its window), which comes before the
+    second ppf, at either line rate: on since the first ppf; off after the idle time."""
     cfg, stream, run = _flight_run(16, 0, seed=3)
     switches = run.logs(SyncModeSwitch)
     assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 3
-    third_ppf = [sorted(e.board_ns for e in stream.events if e.kind == "ppf" and board(round(
-        seg.start_s * S)) <= e.board_ns < board(round(seg.end_s * S)))[2] for seg in FLIGHT]
-    assert [s.board_ns for s in switches[::2]] == third_ppf  # 3 steady ppf: scanner on
+    for seg, on in zip(FLIGHT, switches[::2], strict=True):
+        assert on.board_ns == _segment_ppf(stream, seg)[0]
+        assert on.reason == "scanner on: frame header"
     for seg, off in zip(FLIGHT, switches[1::2], strict=True):
         delay = off.board_ns - board(round(seg.end_s * S))
         assert cfg.idle_after_ns - 16 * MS <= delay <= cfg.idle_after_ns + 120 * MS
         assert off.reason.startswith("scanner off")
-    assert all(s.reason.startswith("scanner on") for s in switches[::2])
+
+
+def test_without_headers_the_scanner_is_on_at_three_ppf_at_the_line_rate():
+    """Every header lost: three ppf at the configured line period (16 ms) turn the scanner on;
+    the 48 ms segment, at another rate, never does (its frames stay mode 1: PPS forwarded)."""
+    _cfg, stream, run = _flight_run(16, 0, seed=3, header_lost=1.0)
+    switches = run.logs(SyncModeSwitch)
+    assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 2
+    on = switches[::2]
+    assert [s.board_ns for s in on] == [_segment_ppf(stream, FLIGHT[i])[2] for i in (0, 2)]
+    assert all(s.reason == "scanner on: ppf at the line rate" for s in on)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_spurious_ppf_never_switch_modes(seed: int) -> None:
+    """Issue 32, item 4: 3 Hz of spurious ppf and no scanner. Three ppf alike in rate switched
+    the unit to mode 2 26-34 times in 300 s (forwards with counter unknown); at the line rate or
+    with a frame header, never."""
+    stream = make_stream(300, [], faults=Faults(spurious_ppf_per_s=3.0), seed=seed)
+    run = drive(config(), stream.events)
+    assert run.logs(SyncModeSwitch) == []
+    assert all(f.source is PulseSource.PPS for f, _ in run.forwards)
+    _cfg, stream, run = _flight_run(16, 0, seed=seed, spurious_ppf_per_s=3.0)
+    switches = run.logs(SyncModeSwitch)
+    assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 3
+    for seg, on in zip(FLIGHT, switches[::2], strict=True):
+        assert board(round(seg.start_s * S)) <= on.board_ns <= board(round(seg.end_s * S))
+    assert wrong_counters(run) == []
 
 
 def test_ppf_noise_does_not_switch_modes():

@@ -3,11 +3,11 @@ flight log and the scanner's own recording only (docs/sync.md).
 
 Inside, in the order data flows: `flightlog` reads what the sync needs from the log; `pulses`
 and `clockmap` put the sync unit's pulses and the host's clock on GPS time; `insclock`,
-`coarse`, `pattern`, `insfit`, `insjumps` and `insrecords` find the INS clock's runs (across its jumps), match its latched
-pulses to the unit's pulse pattern and fit each run; `lines` and `linefit` time every scan line
-by its frame counter; `report` says what was found and how good it is; `files` reads the
-scanner folder and writes the results; `pipeline` runs them in order. Other stages and the
-commands use only the names below.
+`coarse`, `pattern`, `insfit`, `insjumps` and `insrecords` find the INS clock's runs (across
+its jumps), match its latched pulses to the unit's pulse pattern and fit each run; `lines` and
+`linefit` time every scan line by its frame counter; `report` says what was found and how good
+it is; `files` reads the scanner folder and writes the results; `pipeline` runs them in order.
+Other stages and the commands use only the names below.
 """
 
 from postproc.sync.config import SyncConfig, TimeStatus

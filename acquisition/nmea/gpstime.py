@@ -16,7 +16,7 @@ from acquisition.nmea.sentences import (
     RmcStatus,
     Zda,
 )
-from acquisition.nmea.wire import _GPS_EPOCH_DATE, _round_half_up
+from acquisition.nmea.wire import GPS_EPOCH_DATE, round_half_up
 from sisa.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK
 
 # ---------------------------------------------------------------------------------------------
@@ -26,13 +26,13 @@ from sisa.timescale import NS_PER_DAY, NS_PER_S, NS_PER_WEEK
 def _utc_date_and_time(t_gps_ns: int, leap_s: int) -> tuple[dt.date, int]:
     """UTC date and time of day, rounded to the NMEA clock on the instant so a carry reaches
     the date."""
-    t_utc_ns = _round_half_up(t_gps_ns - leap_s * NS_PER_S, UTC_CLOCK.resolution_ns)
+    t_utc_ns = round_half_up(t_gps_ns - leap_s * NS_PER_S, UTC_CLOCK.resolution_ns)
     days, time_of_day_ns = divmod(t_utc_ns, NS_PER_DAY)
-    return _GPS_EPOCH_DATE + dt.timedelta(days=days), time_of_day_ns
+    return GPS_EPOCH_DATE + dt.timedelta(days=days), time_of_day_ns
 
 
 def _time_of_week(t_gps_ns: int) -> int:
-    return _round_half_up(t_gps_ns, TIME_TAG.clock.resolution_ns) % NS_PER_WEEK
+    return round_half_up(t_gps_ns, TIME_TAG.clock.resolution_ns) % NS_PER_WEEK
 
 
 def gga_from_fix(t_gps_ns: int, leap_s: int, lat_deg: float, lon_deg: float,
@@ -51,7 +51,7 @@ def rmc_from_fix(t_gps_ns: int, leap_s: int, lat_deg: float, lon_deg: float, spe
     utc_date, time_of_day_ns = _utc_date_and_time(t_gps_ns, leap_s)
     status = RmcStatus.VOID if mode is ModeIndicator.NOT_VALID else RmcStatus.ACTIVE
     return Rmc(time_of_day_ns, status, lat_deg, lon_deg, speed_m_s, course_true_deg, utc_date,
-               mode)
+               mode=mode)
 
 
 def zda_from_gps_ns(t_gps_ns: int, leap_s: int) -> Zda:
@@ -88,6 +88,6 @@ def gps_ns_from_utc_time_of_day(utc_time_of_day_ns: int, leap_s: int, near_gps_n
 
 def gps_ns_from_utc(utc_date: dt.date, utc_time_of_day_ns: int, leap_s: int) -> int:
     """GPS ns of a UTC date and time of day (RMC, ZDA)."""
-    days = (utc_date - _GPS_EPOCH_DATE).days
+    days = (utc_date - GPS_EPOCH_DATE).days
     return days * NS_PER_DAY + utc_time_of_day_ns + leap_s * NS_PER_S
 

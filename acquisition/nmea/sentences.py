@@ -1,5 +1,10 @@
-"""The sentences we speak, each declared once as a table: NMEA 0183 GGA, RMC, ZDA and the Ashtech
-`$PASHR,PTT` / `$PASHR,TTT` time tags."""
+"""The sentences we speak, each declared once as a table: NMEA 0183 GGA, RMC, ZDA, GNS and GST
+from any talker, and the Ashtech `$PASHR,PTT` / `$PASHR,TTT` time tags.
+
+Every field that a receiver may leave null decodes to None ("absent"); a sentence from an older
+NMEA version decodes with its newer fields None. The emulated receiver (Ashtech Z-12 profile)
+fills every field it has and writes NMEA 2.3 (RMC with its mode indicator).
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 from typing import Any
 
-from acquisition.nmea.tables import Constant, Field, SentenceKind, SentenceSpec, Unit
+from acquisition.nmea.tables import Field, NmeaVersion, SentenceKind, SentenceSpec, Unit
 from acquisition.nmea.wire import (
     FIRST_DAY_OF_WEEK,
     KNOTS_PER_M_S,
@@ -18,21 +23,34 @@ from acquisition.nmea.wire import (
     DateDdMmYy,
     DayAndTimeOfWeek,
     DegreesMinutes,
+    EnumString,
     EnumToken,
     FixedPoint,
     Hemisphere,
     Integer,
+    Signed,
     TimeOfDay,
+    WithUnit,
 )
 from sisa.timescale import NS_PER_DAY
 
 
-class Address(StrEnum):
-    """Talker + sentence formatter of the sentences we speak."""
+class Talker(StrEnum):
+    """Talker ids of satellite receivers (any other two letters are read as well)."""
 
-    GPGGA = "GPGGA"
-    GPRMC = "GPRMC"
-    GPZDA = "GPZDA"
+    GPS = "GP"
+    GLONASS = "GL"
+    GALILEO = "GA"
+    BEIDOU = "GB"  # NMEA 4.11; BD before it
+    BEIDOU_OLD = "BD"
+    QZSS = "GQ"
+    NAVIC = "GI"
+    MULTI = "GN"  # a solution from several constellations
+
+
+class ProprietaryAddress(StrEnum):
+    """Address of the proprietary sentences we speak (`P` + manufacturer + sentence)."""
+
     PASHR = "PASHR"
 
 
@@ -43,8 +61,7 @@ class AshtechId(StrEnum):
     TTT = "TTT"  # GPS time of a pulse on the event input
 
 
-class UnitLetter(StrEnum):
-    METRES = "M"
+UNIT_METRES = "M"
 
 
 class FixQuality(IntEnum):
@@ -67,7 +84,7 @@ class RmcStatus(StrEnum):
 
 
 class ModeIndicator(StrEnum):
-    """RMC mode indicator (NMEA 2.3; P, R, F from 4.x)."""
+    """Mode indicator of RMC (NMEA 2.3) and GNS (P, R, F from 4.x)."""
 
     AUTONOMOUS = "A"
     DIFFERENTIAL = "D"
@@ -80,6 +97,15 @@ class ModeIndicator(StrEnum):
     RTK_FLOAT = "F"
 
 
+class NavStatus(StrEnum):
+    """Navigational status of RMC and GNS (NMEA 4.1): the integrity the receiver claims."""
+
+    SAFE = "S"
+    CAUTION = "C"
+    UNSAFE = "U"
+    NOT_VALID = "V"
+
+
 # ---------------------------------------------------------------------------------------------
 # Messages and their tables.
 
@@ -87,25 +113,37 @@ UTC_CLOCK = TimeOfDay(decimals=2)  # hhmmss.ss: 10 ms
 TIME_TAG = DayAndTimeOfWeek(TimeOfDay(decimals=7, style=ClockStyle.COLON))  # 100 ns
 LATITUDE = DegreesMinutes(2, 90, Hemisphere.NORTH, Hemisphere.SOUTH, decimals=7)
 LONGITUDE = DegreesMinutes(3, 180, Hemisphere.EAST, Hemisphere.WEST, decimals=7)
-METRES = Constant(UnitLetter.METRES.value)
-EMPTY = Constant("")
+SATELLITES = Integer(2, 0, 99)
+DOP = FixedPoint(decimals=1, maximum=99.9, signed=False)
+ALTITUDE = FixedPoint(decimals=3, maximum=99_999.999)
+GEOID_SEPARATION = FixedPoint(decimals=3, maximum=999.999)
+DGPS_AGE = FixedPoint(decimals=1, maximum=999.9, signed=False)
+DGPS_STATION = Integer(4, 0, 1023)
+SIGMA = FixedPoint(decimals=3, maximum=99_999.999, signed=False)
+ANGLE = FixedPoint(decimals=2, maximum=359.99, signed=False, modulus=360.0)
+
+
+def _blank_time() -> Field:
+    return Field("utc_time_of_day_ns", Blankable(UTC_CLOCK), Unit.NANOSECOND)
 
 
 @dataclass(frozen=True)
 class Gga:
     """Fix data. Altitude is above the geoid: altitude = ellipsoidal height − geoid separation
-    (gpsd recovers altHAE = altMSL + separation). Position fields are None without a fix."""
+    (gpsd recovers altHAE = altMSL + separation). A field the receiver left null is None (no
+    fix: position, often the time too)."""
 
-    utc_time_of_day_ns: int
+    utc_time_of_day_ns: int | None
     lat_deg: float | None
     lon_deg: float | None
-    quality: FixQuality
-    satellites: int
+    quality: FixQuality | None
+    satellites: int | None
     hdop: float | None
     altitude_msl_m: float | None
     geoid_separation_m: float | None
     dgps_age_s: float | None = None
     dgps_station: int | None = None
+    talker: str = Talker.GPS.value
 
     @property
     def height_ellipsoidal_m(self) -> float | None:
@@ -114,50 +152,53 @@ class Gga:
         return self.altitude_msl_m + self.geoid_separation_m
 
 
-GGA_SPEC = SentenceSpec(SentenceKind.GGA, (Address.GPGGA.value,), Gga, (
-    Field("utc_time_of_day_ns", UTC_CLOCK, Unit.NANOSECOND),
+GGA_SPEC = SentenceSpec(SentenceKind.GGA, (SentenceKind.GGA.value,), Gga, (
+    _blank_time(),
     Field("lat_deg", Blankable(LATITUDE), Unit.DEGREE),
     Field("lon_deg", Blankable(LONGITUDE), Unit.DEGREE),
-    Field("quality", EnumToken(FixQuality)),
-    Field("satellites", Integer(2, 0, 99), Unit.COUNT),
-    Field("hdop", Blankable(FixedPoint(decimals=1, maximum=99.9, signed=False))),
-    Field("altitude_msl_m", Blankable(FixedPoint(decimals=3, maximum=99_999.999)), Unit.METRE),
-    METRES,
-    Field("geoid_separation_m", Blankable(FixedPoint(decimals=3, maximum=999.999)), Unit.METRE),
-    METRES,
-    Field("dgps_age_s", Blankable(FixedPoint(decimals=1, maximum=999.9, signed=False)),
-          Unit.SECOND),
-    Field("dgps_station", Blankable(Integer(4, 0, 1023))),
+    Field("quality", Blankable(EnumToken(FixQuality))),
+    Field("satellites", Blankable(SATELLITES), Unit.COUNT),
+    Field("hdop", Blankable(DOP)),
+    Field("altitude_msl_m", Blankable(WithUnit(ALTITUDE, UNIT_METRES)), Unit.METRE),
+    Field("geoid_separation_m", Blankable(WithUnit(GEOID_SEPARATION, UNIT_METRES)), Unit.METRE),
+    Field("dgps_age_s", Blankable(DGPS_AGE), Unit.SECOND),
+    Field("dgps_station", Blankable(DGPS_STATION)),
 ))
 
 
 @dataclass(frozen=True)
 class Rmc:
-    """Recommended minimum data: UTC date and time, position, speed over ground, true course."""
+    """Recommended minimum data: UTC date and time, position, speed over ground, true course,
+    magnetic variation (east positive); the mode indicator from NMEA 2.3, the navigational
+    status from 4.1."""
 
-    utc_time_of_day_ns: int
-    status: RmcStatus
+    utc_time_of_day_ns: int | None
+    status: RmcStatus | None
     lat_deg: float | None
     lon_deg: float | None
     speed_m_s: float | None
     course_true_deg: float | None
-    utc_date: dt.date
-    mode: ModeIndicator
+    utc_date: dt.date | None
+    magnetic_variation_deg: float | None = None
+    mode: ModeIndicator | None = None
+    nav_status: NavStatus | None = None
+    talker: str = Talker.GPS.value
 
 
-RMC_SPEC = SentenceSpec(SentenceKind.RMC, (Address.GPRMC.value,), Rmc, (
-    Field("utc_time_of_day_ns", UTC_CLOCK, Unit.NANOSECOND),
-    Field("status", EnumToken(RmcStatus)),
+RMC_SPEC = SentenceSpec(SentenceKind.RMC, (SentenceKind.RMC.value,), Rmc, (
+    _blank_time(),
+    Field("status", Blankable(EnumToken(RmcStatus))),
     Field("lat_deg", Blankable(LATITUDE), Unit.DEGREE),
     Field("lon_deg", Blankable(LONGITUDE), Unit.DEGREE),
     Field("speed_m_s", Blankable(FixedPoint(decimals=3, maximum=9999.999, scale=KNOTS_PER_M_S,
                                             signed=False)), Unit.METRE_PER_SECOND),
-    Field("course_true_deg", Blankable(FixedPoint(decimals=2, maximum=359.99, signed=False,
-                                                  modulus=360.0)), Unit.DEGREE),
-    Field("utc_date", DateDdMmYy()),
-    EMPTY,  # magnetic variation
-    EMPTY,  # its direction E/W
-    Field("mode", EnumToken(ModeIndicator)),
+    Field("course_true_deg", Blankable(ANGLE), Unit.DEGREE),
+    Field("utc_date", Blankable(DateDdMmYy())),
+    Field("magnetic_variation_deg",
+          Blankable(Signed(FixedPoint(decimals=1, maximum=180.0, signed=False),
+                           Hemisphere.EAST, Hemisphere.WEST)), Unit.DEGREE),
+    Field("mode", Blankable(EnumToken(ModeIndicator)), since=NmeaVersion.V2_3),
+    Field("nav_status", Blankable(EnumToken(NavStatus)), since=NmeaVersion.V4_1),
 ))
 
 
@@ -165,17 +206,107 @@ RMC_SPEC = SentenceSpec(SentenceKind.RMC, (Address.GPRMC.value,), Rmc, (
 class Zda:
     """UTC date and time, and the local time zone (hours, minutes) the receiver was told."""
 
-    utc_time_of_day_ns: int
-    utc_date: dt.date
-    zone_hours: int = 0
-    zone_minutes: int = 0
+    utc_time_of_day_ns: int | None
+    utc_date: dt.date | None
+    zone_hours: int | None = 0
+    zone_minutes: int | None = 0
+    talker: str = Talker.GPS.value
 
 
-ZDA_SPEC = SentenceSpec(SentenceKind.ZDA, (Address.GPZDA.value,), Zda, (
-    Field("utc_time_of_day_ns", UTC_CLOCK, Unit.NANOSECOND),
-    Field("utc_date", DateDayMonthYear()),
-    Field("zone_hours", Integer(2, -13, 13)),
-    Field("zone_minutes", Integer(2, 0, 59)),
+ZDA_SPEC = SentenceSpec(SentenceKind.ZDA, (SentenceKind.ZDA.value,), Zda, (
+    _blank_time(),
+    Field("utc_date", Blankable(DateDayMonthYear())),
+    Field("zone_hours", Blankable(Integer(2, -13, 13))),
+    Field("zone_minutes", Blankable(Integer(2, 0, 59))),
+))
+
+
+@dataclass(frozen=True)
+class Gns:
+    """Fix data of a multi-constellation receiver: one mode indicator per constellation (GPS,
+    GLONASS, Galileo, BeiDou, QZSS, NavIC, in that order, as many as the receiver tracks),
+    altitude above the geoid as in GGA; the navigational status from NMEA 4.1."""
+
+    utc_time_of_day_ns: int | None
+    lat_deg: float | None
+    lon_deg: float | None
+    modes: tuple[ModeIndicator, ...] | None
+    satellites: int | None
+    hdop: float | None
+    altitude_msl_m: float | None
+    geoid_separation_m: float | None
+    dgps_age_s: float | None = None
+    dgps_station: int | None = None
+    nav_status: NavStatus | None = None
+    talker: str = Talker.MULTI.value
+
+    @property
+    def height_ellipsoidal_m(self) -> float | None:
+        if self.altitude_msl_m is None or self.geoid_separation_m is None:
+            return None
+        return self.altitude_msl_m + self.geoid_separation_m
+
+    @property
+    def quality(self) -> FixQuality | None:
+        """The GGA quality of the best constellation's mode (None if the modes are null)."""
+        if self.modes is None:
+            return None
+        return max((QUALITY_OF_MODE[m] for m in self.modes), key=_QUALITY_RANK.index,
+                   default=FixQuality.INVALID)
+
+
+# the GGA quality a mode indicator stands for, and the qualities from worst to best
+QUALITY_OF_MODE: dict[ModeIndicator, FixQuality] = {
+    ModeIndicator.NOT_VALID: FixQuality.INVALID, ModeIndicator.SIMULATOR: FixQuality.SIMULATION,
+    ModeIndicator.MANUAL: FixQuality.MANUAL, ModeIndicator.ESTIMATED: FixQuality.ESTIMATED,
+    ModeIndicator.AUTONOMOUS: FixQuality.GPS, ModeIndicator.PRECISE: FixQuality.PPS,
+    ModeIndicator.DIFFERENTIAL: FixQuality.DGPS, ModeIndicator.RTK_FLOAT: FixQuality.RTK_FLOAT,
+    ModeIndicator.RTK_FIXED: FixQuality.RTK_FIXED,
+}
+_QUALITY_RANK = list(QUALITY_OF_MODE.values())
+
+
+GNS_SPEC = SentenceSpec(SentenceKind.GNS, (SentenceKind.GNS.value,), Gns, (
+    _blank_time(),
+    Field("lat_deg", Blankable(LATITUDE), Unit.DEGREE),
+    Field("lon_deg", Blankable(LONGITUDE), Unit.DEGREE),
+    Field("modes", Blankable(EnumString(ModeIndicator))),
+    Field("satellites", Blankable(SATELLITES), Unit.COUNT),
+    Field("hdop", Blankable(DOP)),
+    Field("altitude_msl_m", Blankable(ALTITUDE), Unit.METRE),
+    Field("geoid_separation_m", Blankable(GEOID_SEPARATION), Unit.METRE),
+    Field("dgps_age_s", Blankable(DGPS_AGE), Unit.SECOND),
+    Field("dgps_station", Blankable(DGPS_STATION)),
+    Field("nav_status", Blankable(EnumToken(NavStatus)), since=NmeaVersion.V4_1),
+))
+
+
+@dataclass(frozen=True)
+class Gst:
+    """Pseudorange error statistics: RMS of the range residuals, the 1σ error ellipse (semi-
+    major and semi-minor axes, the major axis's orientation from true north) and the 1σ errors
+    of latitude, longitude and altitude, in metres."""
+
+    utc_time_of_day_ns: int | None
+    range_rms_m: float | None
+    sigma_major_m: float | None
+    sigma_minor_m: float | None
+    major_orientation_deg: float | None
+    sigma_lat_m: float | None
+    sigma_lon_m: float | None
+    sigma_alt_m: float | None
+    talker: str = Talker.GPS.value
+
+
+GST_SPEC = SentenceSpec(SentenceKind.GST, (SentenceKind.GST.value,), Gst, (
+    _blank_time(),
+    Field("range_rms_m", Blankable(SIGMA), Unit.METRE),
+    Field("sigma_major_m", Blankable(SIGMA), Unit.METRE),
+    Field("sigma_minor_m", Blankable(SIGMA), Unit.METRE),
+    Field("major_orientation_deg", Blankable(ANGLE), Unit.DEGREE),
+    Field("sigma_lat_m", Blankable(SIGMA), Unit.METRE),
+    Field("sigma_lon_m", Blankable(SIGMA), Unit.METRE),
+    Field("sigma_alt_m", Blankable(SIGMA), Unit.METRE),
 ))
 
 
@@ -201,32 +332,33 @@ class PashrTtt:
         return self.gps_time_of_week_ns // NS_PER_DAY + FIRST_DAY_OF_WEEK
 
 
-PTT_SPEC = SentenceSpec(SentenceKind.PTT, (Address.PASHR.value, AshtechId.PTT.value), PashrPtt, (
-    Field("gps_time_of_week_ns", TIME_TAG, Unit.NANOSECOND),
-))
-TTT_SPEC = SentenceSpec(SentenceKind.TTT, (Address.PASHR.value, AshtechId.TTT.value), PashrTtt, (
-    Field("gps_time_of_week_ns", TIME_TAG, Unit.NANOSECOND),
-))
+def _ashtech(kind: SentenceKind, sub_id: AshtechId, build: type[Any]) -> SentenceSpec[Any]:
+    return SentenceSpec(kind, (ProprietaryAddress.PASHR.value, sub_id.value), build, (
+        Field("gps_time_of_week_ns", TIME_TAG, Unit.NANOSECOND),
+    ), proprietary=True)
+
+
+PTT_SPEC: SentenceSpec[PashrPtt] = _ashtech(SentenceKind.PTT, AshtechId.PTT, PashrPtt)
+TTT_SPEC: SentenceSpec[PashrTtt] = _ashtech(SentenceKind.TTT, AshtechId.TTT, PashrTtt)
 
 
 @dataclass(frozen=True)
 class UnknownSentence:
-    """A well-framed sentence we have no table for (another talker or formatter): kept, counted."""
+    """A well-framed sentence we have no table for (another formatter or proprietary
+    sentence): kept, counted."""
 
     address: str
     fields: tuple[str, ...]
 
 
-KnownMessage = Gga | Rmc | Zda | PashrPtt | PashrTtt
+KnownMessage = Gga | Rmc | Zda | Gns | Gst | PashrPtt | PashrTtt
 NmeaMessage = KnownMessage | UnknownSentence
-SPECS: tuple[SentenceSpec[Any], ...] = (GGA_SPEC, RMC_SPEC, ZDA_SPEC, PTT_SPEC, TTT_SPEC)
-_SPEC_BY_TYPE: dict[Any, SentenceSpec[Any]] = {spec.build: spec for spec in SPECS}
-_SPEC_BY_HEADER = {spec.header: spec for spec in SPECS}
-_MAX_HEADER_TOKENS = max(len(spec.header) for spec in SPECS)
+SPECS: tuple[SentenceSpec[Any], ...] = (GGA_SPEC, RMC_SPEC, ZDA_SPEC, GNS_SPEC, GST_SPEC,
+                                        PTT_SPEC, TTT_SPEC)
+SPEC_BY_TYPE: dict[Any, SentenceSpec[Any]] = {spec.build: spec for spec in SPECS}
 
 
 def message_kind(message: NmeaMessage) -> SentenceKind:
     """The counter name of a message."""
-    spec = _SPEC_BY_TYPE.get(type(message))
+    spec = SPEC_BY_TYPE.get(type(message))
     return SentenceKind.UNKNOWN if spec is None else spec.kind
-

@@ -1,4 +1,11 @@
-"""How one message attribute becomes one or more comma-separated NMEA tokens, and back."""
+"""How one message attribute becomes one or more comma-separated NMEA tokens, and back.
+
+Encoders write exactly one form (the resolution the format declares) and refuse what the wire
+cannot carry. Decoders read every form NMEA 0183 allows for the field, from version 2.0 to
+4.11: any number of decimals (or none), a number without leading digits, and a null (empty)
+field wherever a receiver has no value (`Blankable`); qualifier letters that go with a value (a
+hemisphere, a unit) may be present or empty when the value itself is null.
+"""
 
 from __future__ import annotations
 
@@ -23,6 +30,7 @@ MINUTES_PER_DEGREE = 60
 SECONDS_PER_MINUTE = 60
 MINUTES_PER_HOUR = 60
 HOURS_PER_DAY = 24
+LEAP_SECOND = 60  # UTC's 23:59:60, the second a leap second inserts
 MINUTE_DIGITS = 2  # the "mm" of ddmm.mmmmmmm
 NS_DIGITS = 9  # decimals of a second that an int ns holds
 FIRST_DAY_OF_WEEK = 1  # Ashtech: Sunday = 1 (the GPS epoch was a Sunday)
@@ -30,7 +38,8 @@ DAYS_PER_WEEK = 7
 TWO_DIGIT_YEAR_PIVOT = 80  # ddmmyy: yy >= 80 is 19yy, else 20yy (GPS began in 1980)
 FIRST_CENTURY, SECOND_CENTURY = 1900, 2000
 YEARS_PER_CENTURY = 100
-_GPS_EPOCH_DATE = GPS_EPOCH.date()
+GPS_EPOCH_DATE = GPS_EPOCH.date()
+
 
 class Hemisphere(StrEnum):
     NORTH = "N"
@@ -46,23 +55,15 @@ class ClockStyle(StrEnum):
     COLON = ":"
 
 
-# ---------------------------------------------------------------------------------------------
-# Wire formats: how one attribute becomes one or more comma-separated tokens, and back.
-
-
-def _round_half_up(value: int, step: int) -> int:
+def round_half_up(value: int, step: int) -> int:
     """Nearest multiple of `step` (ties up): integer-exact, for ns times."""
     return (value + step // 2) // step * step
-
-
-def _bad(reason: str) -> DecodeError:
-    return DecodeError(reason)
 
 
 def _match(pattern: re.Pattern[str], token: str, what: str) -> re.Match[str]:
     found = pattern.fullmatch(token)
     if found is None:
-        raise _bad(f"{what}: cannot read {token!r}")
+        raise DecodeError(f"{what}: cannot read {token!r}")
     return found
 
 
@@ -78,6 +79,11 @@ class WireFormat(ABC, Generic[T]):
         """One LSB in the attribute's unit, for scaled numbers; None otherwise."""
         return None
 
+    def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
+        """Whether the tokens after a null value are what a receiver writes with it: all
+        empty, unless the format says which letters may stay."""
+        return not any(tokens)
+
     @abstractmethod
     def encode(self, value: T) -> tuple[str, ...]: ...
 
@@ -85,7 +91,8 @@ class WireFormat(ABC, Generic[T]):
     def decode(self, tokens: Sequence[str]) -> T: ...
 
 
-_DECIMAL = re.compile(r"[+-]?\d+(\.\d+)?")
+# digits with an optional point, or a point and digits ("12", "12.", "12.5", ".5")
+_DECIMAL = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)")
 _INTEGER = re.compile(r"[+-]?\d+")
 
 
@@ -98,10 +105,11 @@ def _format_units(units: int, decimals: int) -> str:
 
 @dataclass(frozen=True)
 class FixedPoint(WireFormat[float]):
-    """A decimal number with a fixed count of decimals; wire value = attribute · scale."""
+    """A decimal number, written with a fixed count of decimals (read with any);
+    wire value = attribute · scale."""
 
     decimals: int
-    maximum: float  # largest |wire value| the field's width allows
+    maximum: float  # largest |wire value| the field's width allows (for encoding)
     scale: float = 1.0
     signed: bool = True
     modulus: float | None = None  # angles: a rounded 360.00 is written 0.00
@@ -127,7 +135,7 @@ class FixedPoint(WireFormat[float]):
 
 @dataclass(frozen=True)
 class Integer(WireFormat[int]):
-    """A zero-padded integer (satellites, station id, calendar fields)."""
+    """A zero-padded integer (satellites, station id, calendar fields), read with any padding."""
 
     digits: int
     minimum: int
@@ -142,7 +150,7 @@ class Integer(WireFormat[int]):
     def decode(self, tokens: Sequence[str]) -> int:
         value = int(_match(_INTEGER, tokens[0], "integer").group(0))
         if not self.minimum <= value <= self.maximum:
-            raise _bad(f"{value} outside [{self.minimum}, {self.maximum}]")
+            raise DecodeError(f"{value} outside [{self.minimum}, {self.maximum}]")
         return value
 
 
@@ -159,12 +167,29 @@ class EnumToken(WireFormat[E]):
         for member in self.enum:
             if str(member.value) == tokens[0]:
                 return member
-        raise _bad(f"{tokens[0]!r} is not a {self.enum.__name__}")
+        raise DecodeError(f"{tokens[0]!r} is not a {self.enum.__name__}")
+
+
+@dataclass(frozen=True)
+class EnumString(WireFormat[tuple[E, ...]]):
+    """Several one-letter enum members in one token, in a declared order (GNS: one mode
+    indicator per constellation, GPS, GLONASS, Galileo, BeiDou, QZSS, NavIC, …)."""
+
+    enum: type[E]
+
+    def encode(self, value: tuple[E, ...]) -> tuple[str, ...]:
+        if not value:
+            raise EncodeError(f"no {self.enum.__name__} to write")
+        return ("".join(str(member.value) for member in value),)
+
+    def decode(self, tokens: Sequence[str]) -> tuple[E, ...]:
+        letter = EnumToken(self.enum)
+        return tuple(letter.decode((char,)) for char in tokens[0])
 
 
 @dataclass(frozen=True)
 class Blankable(WireFormat[T | None]):
-    """A field that a receiver leaves empty when it has no value (no fix, no DGPS)."""
+    """A field that a receiver leaves null when it has no value: None on our side."""
 
     inner: WireFormat[T]
 
@@ -180,12 +205,77 @@ class Blankable(WireFormat[T | None]):
         return ("",) * self.width if value is None else self.inner.encode(value)
 
     def decode(self, tokens: Sequence[str]) -> T | None:
-        return None if not any(tokens) else self.inner.decode(tokens)
+        if tokens[0] == "":
+            if not self.inner.null_qualifiers_ok(tokens[1:]):
+                raise DecodeError(f"a null value with {tokens[1:]!r}")
+            return None
+        return self.inner.decode(tokens)
+
+
+@dataclass(frozen=True)
+class WithUnit(WireFormat[float]):
+    """A number followed by its unit letter (GGA's `545.4,M`); the letter may also be null."""
+
+    number: FixedPoint
+    unit: str
+
+    @property
+    def width(self) -> int:
+        return 2
+
+    @property
+    def resolution(self) -> float:
+        return self.number.resolution
+
+    def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
+        return tokens[0] in ("", self.unit)
+
+    def encode(self, value: float) -> tuple[str, ...]:
+        return (*self.number.encode(value), self.unit)
+
+    def decode(self, tokens: Sequence[str]) -> float:
+        if tokens[1] not in ("", self.unit):
+            raise DecodeError(f"unit {tokens[1]!r} is not {self.unit!r}")
+        return self.number.decode(tokens[:1])
+
+
+@dataclass(frozen=True)
+class Signed(WireFormat[float]):
+    """An unsigned number and a letter for its sign (RMC's magnetic variation `3.1,W`:
+    east positive)."""
+
+    number: FixedPoint
+    positive: Hemisphere
+    negative: Hemisphere
+
+    @property
+    def width(self) -> int:
+        return 2
+
+    @property
+    def resolution(self) -> float:
+        return self.number.resolution
+
+    def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
+        return tokens[0] in ("", self.positive, self.negative)
+
+    def encode(self, value: float) -> tuple[str, ...]:
+        (text,) = self.number.encode(abs(value))
+        negative = value < 0 and text.strip("0.") != ""
+        return (text, (self.negative if negative else self.positive).value)
+
+    def decode(self, tokens: Sequence[str]) -> float:
+        magnitude = self.number.decode(tokens[:1])
+        if tokens[1] not in (self.positive, self.negative) or magnitude < 0:
+            raise DecodeError(f"{tokens[0]!r},{tokens[1]!r} is not a magnitude and "
+                              f"{self.positive}/{self.negative}")
+        return -magnitude if tokens[1] == self.negative else magnitude
 
 
 @dataclass(frozen=True)
 class DegreesMinutes(WireFormat[float]):
-    """Signed degrees as `(d)ddmm.mmmmmmm` plus a hemisphere letter (two tokens)."""
+    """Signed degrees as `(d)ddmm.mmmmmmm` plus a hemisphere letter (two tokens). Written with
+    the standard's leading zeros and `decimals` decimals of minutes; read with any."""
 
     degree_digits: int
     maximum_deg: int
@@ -200,6 +290,9 @@ class DegreesMinutes(WireFormat[float]):
     @property
     def resolution(self) -> float:
         return 10.0**-self.decimals / MINUTES_PER_DEGREE
+
+    def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
+        return tokens[0] in ("", self.positive, self.negative)
 
     def encode(self, value: float) -> tuple[str, ...]:
         if not math.isfinite(value):
@@ -216,22 +309,34 @@ class DegreesMinutes(WireFormat[float]):
 
     @cached_property
     def _pattern(self) -> re.Pattern[str]:
-        return re.compile(rf"(\d{{{self.degree_digits}}})(\d{{{MINUTE_DIGITS}}}(?:\.\d+)?)")
+        return re.compile(rf"(\d{{0,{self.degree_digits}}})(\d{{{MINUTE_DIGITS}}}(?:\.\d*)?)")
 
     def decode(self, tokens: Sequence[str]) -> float:
         found = _match(self._pattern, tokens[0], "degrees-minutes")
-        degrees, minutes = int(found.group(1)), float(found.group(2))
+        degrees, minutes = int(found.group(1) or "0"), float(found.group(2))
         value = degrees + minutes / MINUTES_PER_DEGREE
         if minutes >= MINUTES_PER_DEGREE or value > self.maximum_deg:
-            raise _bad(f"angle out of range: {tokens[0]!r}")
+            raise DecodeError(f"angle out of range: {tokens[0]!r}")
         if tokens[1] not in (self.positive, self.negative):
-            raise _bad(f"hemisphere {tokens[1]!r} is not {self.positive}/{self.negative}")
+            raise DecodeError(f"hemisphere {tokens[1]!r} is not {self.positive}/{self.negative}")
         return -value if tokens[1] == self.negative else value
+
+
+def _fraction_ns(digits: str | None) -> int:
+    """Decimals of a second as ns, rounded to the nearest ns (ties up) past nine digits."""
+    if not digits:
+        return 0
+    if len(digits) <= NS_DIGITS:
+        return int(digits.ljust(NS_DIGITS, "0"))
+    step: int = 10 ** (len(digits) - NS_DIGITS)
+    return round_half_up(int(digits), step) // step
 
 
 @dataclass(frozen=True)
 class TimeOfDay(WireFormat[int]):
-    """Time of day in ns as `hhmmss.ss` (NMEA) or `hh:mm:ss.sssssss` (Ashtech)."""
+    """Time of day in ns as `hhmmss.ss` (NMEA) or `hh:mm:ss.sssssss` (Ashtech); read with any
+    number of decimals. UTC's leap second 23:59:60 reads as 86 400 s and more (the day it
+    ends is one second longer)."""
 
     decimals: int
     style: ClockStyle = ClockStyle.COMPACT
@@ -245,7 +350,7 @@ class TimeOfDay(WireFormat[int]):
         return float(self.resolution_ns)
 
     def encode(self, value: int) -> tuple[str, ...]:
-        rounded = _round_half_up(value, self.resolution_ns)
+        rounded = round_half_up(value, self.resolution_ns)
         if not 0 <= value < NS_PER_DAY or rounded >= NS_PER_DAY:
             raise EncodeError(
                 f"time of day {value} ns is not in [0, 24 h) once rounded; round the instant "
@@ -261,15 +366,17 @@ class TimeOfDay(WireFormat[int]):
     @cached_property
     def _pattern(self) -> re.Pattern[str]:
         sep = re.escape(self.style.value)
-        return re.compile(rf"(\d\d){sep}(\d\d){sep}(\d\d)(?:\.(\d{{1,{NS_DIGITS}}}))?")
+        return re.compile(rf"(\d\d){sep}(\d\d){sep}(\d\d)(?:\.(\d*))?")
 
     def decode(self, tokens: Sequence[str]) -> int:
         *clock, fraction = _match(self._pattern, tokens[0], "time").groups()
         hour, minute, second = (int(part) for part in clock)
-        if hour >= HOURS_PER_DAY or minute >= MINUTES_PER_HOUR or second >= SECONDS_PER_MINUTE:
-            raise _bad(f"not a time of day: {tokens[0]!r}")
+        leap = (hour, minute, second) == (HOURS_PER_DAY - 1, MINUTES_PER_HOUR - 1, LEAP_SECOND)
+        if (hour >= HOURS_PER_DAY or minute >= MINUTES_PER_HOUR
+                or (second >= SECONDS_PER_MINUTE and not leap)):
+            raise DecodeError(f"not a time of day: {tokens[0]!r}")
         seconds = (hour * MINUTES_PER_HOUR + minute) * SECONDS_PER_MINUTE + second
-        return seconds * NS_PER_S + int((fraction or "0").ljust(NS_DIGITS, "0"))
+        return seconds * NS_PER_S + _fraction_ns(fraction)
 
 
 _DAY_OF_WEEK = Integer(1, FIRST_DAY_OF_WEEK, DAYS_PER_WEEK)
@@ -290,7 +397,7 @@ class DayAndTimeOfWeek(WireFormat[int]):
         return self.clock.resolution
 
     def encode(self, value: int) -> tuple[str, ...]:
-        rounded = _round_half_up(value, self.clock.resolution_ns)
+        rounded = round_half_up(value, self.clock.resolution_ns)
         if not 0 <= value < NS_PER_WEEK or rounded >= NS_PER_WEEK:
             raise EncodeError(
                 f"time of week {value} ns is not in [0, 1 week) once rounded; round the "
@@ -301,14 +408,17 @@ class DayAndTimeOfWeek(WireFormat[int]):
 
     def decode(self, tokens: Sequence[str]) -> int:
         day = _DAY_OF_WEEK.decode(tokens[:1])
-        return (day - FIRST_DAY_OF_WEEK) * NS_PER_DAY + self.clock.decode(tokens[1:])
+        time_of_day = self.clock.decode(tokens[1:])
+        if time_of_day >= NS_PER_DAY:
+            raise DecodeError(f"GPS time has no leap second: {tokens[1]!r}")
+        return (day - FIRST_DAY_OF_WEEK) * NS_PER_DAY + time_of_day
 
 
 def _date_or_error(year: int, month: int, day: int) -> dt.date:
     try:
         return dt.date(year, month, day)
     except ValueError as err:
-        raise _bad(f"not a date: {year}-{month}-{day}") from err
+        raise DecodeError(f"not a date: {year}-{month}-{day}") from err
 
 
 class DateDdMmYy(WireFormat[dt.date]):
@@ -349,4 +459,3 @@ class DateDayMonthYear(WireFormat[dt.date]):
         day, month, year = (fmt.decode(tokens[i:i + 1])
                             for i, fmt in enumerate((self._DAY, self._MONTH, self._YEAR)))
         return _date_or_error(year, month, day)
-

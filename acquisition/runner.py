@@ -389,6 +389,7 @@ class Acquisition:
         counters = [self.streams[name] for name in SOURCE_STREAMS[source]]
         stats = [c.stats for c in counters]
         link = self.links[source]
+        reasons, counts = _refused(stats)
         self.log(StreamHealth(
             t_host_ns, source, sum(c.messages for c in counters),
             sum(c.rate_hz for c in counters), sum(c.expected_hz for c in counters),
@@ -396,7 +397,8 @@ class Acquisition:
             sum(s.framing_errors for s in stats), sum(s.bytes_skipped for s in stats),
             sum(c.drops for c in counters), sum(c.deadline_misses for c in counters),
             event=event, link_lost_ns=lost_ns, link_restored_ns=restored_ns,
-            disconnects=link.disconnects, reconnects=link.reconnects, link_error=detail), None)
+            disconnects=link.disconnects, reconnects=link.reconnects, link_error=detail,
+            refused_reasons=reasons, refused_counts=counts), None)
 
     # --- lifecycle -------------------------------------------------------------------------
 
@@ -433,11 +435,13 @@ class Acquisition:
             c.rate_hz = c.window_messages / window_s
             link = self.links[STREAM_SOURCE[name]]
             lost = -1 if link.lost_t_host_ns is None else link.lost_t_host_ns
+            reasons, counts = _refused([s])
             self.log(StreamHealth(t_host_ns, name, c.messages, c.rate_hz,
                                   c.expected_hz, c.gaps, s.checksum_errors, s.framing_errors,
                                   s.bytes_skipped, c.drops, c.deadline_misses,
                                   link_lost_ns=lost, disconnects=link.disconnects,
-                                  reconnects=link.reconnects), None)
+                                  reconnects=link.reconnects, refused_reasons=reasons,
+                                  refused_counts=counts), None)
             c.window_messages = 0
         self._next_health_ns = t_host_ns + self.config.health_interval_ns
 
@@ -487,6 +491,16 @@ class _CanBatch:
                              bytes(self.data))
         self._clear()
         return batch
+
+
+def _refused(stats: Sequence[DecodeStats]) -> tuple[list[str], list[int]]:
+    """The streams' refusals by reason, summed: reasons sorted, and their counts."""
+    total: dict[str, int] = {}
+    for s in stats:
+        for reason, n in s.refused.items():
+            total[reason] = total.get(reason, 0) + n
+    reasons = sorted(total)
+    return reasons, [total[r] for r in reasons]
 
 
 def _ins_log(t_host_ns: int, rec: InsRecord) -> InsRecordLog:

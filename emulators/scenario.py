@@ -307,6 +307,10 @@ class SisaSettings(StrictModel):
         (-2.0, 10.0), description="where a frame header's host time may fall after its frame "
         "ends; headers tie to frames on time alone only if this is narrower than a line period"
     )
+    accept_nmea_without_checksum: bool = Field(
+        False, description="take NMEA sentences that carry no *hh checksum (some old receivers "
+        "send none); by default they are refused and counted (nmea.no_checksum)"
+    )
 
     @model_validator(mode="after")
     def _taps_in_range(self) -> SisaSettings:

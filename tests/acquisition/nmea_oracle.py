@@ -1,21 +1,32 @@
 """pynmeagps as the independent decoder of NMEA sentences: what it reads from the same bytes,
-compared field by field with what acquisition.nmea decoded.
+compared field by field with what acquisition.nmea decoded; and the sentences of a corpus
+judged with it (`judge_sentences`: used by tests and by bench/nmea_corpus.py).
 
 Agreement means: the same talker; times equal to the microsecond (pynmeagps's resolution);
 latitude and longitude within 1 mm on the ground; heights, separations and σ within 1 mm;
 every other value equal; a field null on one side exactly where it is null on the other.
+
+A candidate sentence (`$ttGGA/RMC/ZDA/GNS/GST,...*hh` with a right checksum) is standard-valid
+when it has a field count some NMEA version gives that sentence (GGA 14, RMC 11–13, ZDA 6, GNS
+12–13, GST 8), pynmeagps parses it, and the rules pynmeagps does not check hold
+(`breaks_a_rule_pynmeagps_leaves`).
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import math
+import re
+from collections import Counter
+from pathlib import Path
 from typing import Any
 
 from pynmeagps import VALCKSUM, NMEAReader
 
-from acquisition.nmea import Gga, Gns, Gst, NmeaMessage, Rmc, Zda
+from acquisition.nmea import Gga, Gns, Gst, NmeaMessage, Rmc, Zda, decode_sentence
 from acquisition.nmea.wire import KNOTS_PER_M_S
+from sisa.errors import DecodeError
+from sisa.nmea import checksum
 
 M_PER_DEG = 111_320.0  # a degree of latitude, and of longitude on the equator, to < 1 %
 MM = 1e-3
@@ -122,3 +133,97 @@ def disagreements(ours: NmeaMessage, theirs: Any) -> list[str]:
     found.append(_time(time_ns, theirs.time))
     found += _differences(ours, theirs)
     return [d for d in found if d is not None]
+
+
+# --- a corpus judged ---------------------------------------------------------------------
+
+STANDARD_FIELDS = {"GGA": {14}, "RMC": {11, 12, 13}, "ZDA": {6}, "GNS": {12, 13}, "GST": {8}}
+CANDIDATE = re.compile(rb"\$([A-Z][A-Z0-9])(GGA|RMC|ZDA|GNS|GST),"
+                       rb"([\x20-\x23\x25-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})")
+
+
+def files_of(paths: list[Path]) -> list[Path]:
+    """The files given, and the `*.log` files of the folders given."""
+    out: list[Path] = []
+    for path in paths:
+        out += sorted(path.glob("*.log")) if path.is_dir() else [path]
+    return out
+
+
+class SentenceTally:
+    """Outcomes of the candidate sentences, by formatter, with examples."""
+
+    def __init__(self) -> None:
+        self.counts: Counter[tuple[str, str]] = Counter()  # (formatter, outcome)
+        self.examples: dict[str, list[str]] = {}
+
+    def note(self, formatter: str, outcome: str, example: str = "") -> None:
+        self.counts[formatter, outcome] += 1
+        if example:
+            self.examples.setdefault(outcome, []).append(example)
+
+    def of(self, outcome: str, formatter: str | None = None) -> int:
+        return sum(n for (f, o), n in self.counts.items()
+                   if o == outcome and formatter in (None, f))
+
+
+POSITION_AT = {"GGA": (1, 3), "RMC": (2, 4), "GNS": (1, 3)}  # lat, lon token after address
+RMC_VARIATION_DIRECTION, RMC_DATE = 10, 8
+DEGREES_MINUTES = re.compile(r"(\d*)(\d\d(?:\.\d*)?)")
+TIME = re.compile(r"(\d\d\d\d\d\d(?:\.\d*)?)?")
+DATE = re.compile(r"(\d{6})?")
+
+
+def breaks_a_rule_pynmeagps_leaves(formatter: str, tokens: list[str]) -> str | None:
+    """The first standard rule the sentence breaks that pynmeagps does not check, or None:
+    positions as (d)ddmm.mm… with minutes below 60 and at most 90° / 180°, times as
+    hhmmss.ss…, RMC dates as ddmmyy, magnetic variation direction E or W."""
+    if TIME.fullmatch(tokens[0]) is None:
+        return f"time {tokens[0]!r}"
+    for at, limit in zip(POSITION_AT.get(formatter, ()), (90, 180), strict=False):
+        found = DEGREES_MINUTES.fullmatch(tokens[at])
+        if tokens[at] and found is None:
+            return f"position {tokens[at]!r}"
+        if found is not None and (float(found.group(2)) >= 60
+                                  or int(found.group(1) or 0) + float(found.group(2)) / 60 > limit):
+            return f"position {tokens[at]!r} beyond the range or minutes not below 60"
+    if formatter == "RMC" and DATE.fullmatch(tokens[RMC_DATE]) is None:
+        return f"date {tokens[RMC_DATE]!r}"
+    if formatter == "RMC" and tokens[RMC_VARIATION_DIRECTION] not in ("", "E", "W"):
+        return f"magnetic variation direction {tokens[RMC_VARIATION_DIRECTION]!r}"
+    return None
+
+
+def _judge(raw: bytes, formatter: str, tokens: list[str], tally: SentenceTally) -> None:
+    if len(tokens) not in STANDARD_FIELDS[formatter]:
+        tally.note(formatter, "not standard: field count", raw.decode().strip())
+        return
+    try:
+        theirs = pynmeagps_read(raw)
+    except Exception as err:  # pynmeagps's own errors: not standard-valid for the reference
+        tally.note(formatter, "pynmeagps refuses", f"{raw.decode().strip()}  ({err})")
+        return
+    broken = breaks_a_rule_pynmeagps_leaves(formatter, tokens)
+    if broken is not None:
+        tally.note(formatter, "not standard: a value", f"{raw.decode().strip()}  ({broken})")
+        return
+    tally.note(formatter, "standard-valid")
+    try:
+        ours: NmeaMessage = decode_sentence(raw)
+    except DecodeError as err:
+        tally.note(formatter, "refused by us", f"{raw.decode().strip()}  ({err})")
+        return
+    found = disagreements(ours, theirs)
+    if found:
+        tally.note(formatter, "values differ", f"{raw.decode().strip()}  {found}")
+    else:
+        tally.note(formatter, "agree")
+
+
+def judge_sentences(data: bytes, tally: SentenceTally) -> None:
+    for m in CANDIDATE.finditer(data):
+        raw = m.group(0)
+        if checksum(raw[1:raw.rindex(b"*")]) != int(m.group(4), 16):
+            tally.note(m.group(2).decode(), "damaged in the log")
+            continue
+        _judge(raw + b"\r\n", m.group(2).decode(), m.group(3).decode().split(","), tally)

@@ -18,7 +18,9 @@ from acquisition.clocks import TimingBoard
 from acquisition.codec import DecodeStats, ErrorPolicy
 from acquisition.ins_can import InsRecord, InsRecordAssembler
 from acquisition.nmea import (
+    FixQuality,
     Gga,
+    Gns,
     NmeaStreamDecoder,
     PashrPtt,
     PashrTtt,
@@ -104,6 +106,7 @@ class AcquisitionConfig:
     health_interval_ns: int = NS_PER_S
     edge_deadline_ns: int = 20_000_000  # an edge later than this (beyond the link's best) is a miss
     read_interval_ns: int = 0  # real time: devices read on this clock (LiveSources), 0: at once
+    accept_nmea_without_checksum: bool = False  # else such sentences are refused and counted
 
 
 def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
@@ -138,7 +141,8 @@ class Acquisition:
         self.filter = SyncFilter(config.sync, session=0, board_ns=self.board.start_count_ns,
                                  t_host_ns=0)  # replaced by the first event's times in _start
         self._started = False
-        self.nmea = NmeaStreamDecoder(ErrorPolicy.COUNT)
+        self.nmea = NmeaStreamDecoder(
+            ErrorPolicy.COUNT, accept_missing_checksum=config.accept_nmea_without_checksum)
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
         self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
         self.streams = {
@@ -153,6 +157,7 @@ class Acquisition:
         self.links = {source: LinkCounters() for source in SOURCE_STREAMS}
         self._utc_date: dt.date | None = None
         self._last_fix_gps_ns: int | None = None
+        self._gga_seen = False  # GNS fixes are logged only from a receiver that sends no GGA
         self._last_in: dict[PulseLine, tuple[int, int]] = {}  # line → (board_ns, t_edge_ns)
         self._next_health_ns: int | None = None
         self.last_pps_gps_ns: int | None = None
@@ -176,10 +181,14 @@ class Acquisition:
         self.streams["gps"].stats = self.nmea.stats
 
     def _on_nmea(self, t_host_ns: int, msg: object) -> None:
-        if isinstance(msg, Rmc | Zda):
+        if isinstance(msg, Rmc | Zda) and msg.utc_date is not None:
             self._utc_date = msg.utc_date
-        if isinstance(msg, Gga) and self._utc_date is not None and msg.lat_deg is not None:
-            self._log_fix(t_host_ns, msg, self._utc_date)
+        if isinstance(msg, Gga):
+            self._gga_seen = True
+        if isinstance(msg, Gga) or (isinstance(msg, Gns) and not self._gga_seen):
+            if (self._utc_date is not None and msg.utc_time_of_day_ns is not None
+                    and msg.lat_deg is not None and msg.lon_deg is not None):
+                self._log_fix(t_host_ns, msg, msg.utc_time_of_day_ns, self._utc_date)
         elif isinstance(msg, PashrPtt | PashrTtt):
             kind = "PTT" if isinstance(msg, PashrPtt) else "TTT"
             t_gps = gps_ns_from_time_of_week(msg.gps_time_of_week_ns, self._gps_estimate(t_host_ns))
@@ -189,15 +198,20 @@ class Acquisition:
                 self.last_pps_gps_ns = second
                 self._apply(self.filter.on_gps_time(second, t_host_ns))
 
-    def _log_fix(self, t_host_ns: int, gga: Gga, utc_date: dt.date) -> None:
-        t_gps = gps_ns_from_utc(utc_date, gga.utc_time_of_day_ns, self.config.leap_s)
+    def _log_fix(self, t_host_ns: int, fix: Gga | Gns, utc_time_of_day_ns: int,
+                 utc_date: dt.date) -> None:
+        """A GGA (or GNS) with time and position: quality 0 if the receiver left it null (GNS
+        has none: its best mode indicator stands for it), satellites -1 if null."""
+        t_gps = gps_ns_from_utc(utc_date, utc_time_of_day_ns, self.config.leap_s)
         if self._last_fix_gps_ns is not None and t_gps < self._last_fix_gps_ns - 43_200 * NS_PER_S:
             t_gps += 86_400 * NS_PER_S  # GGA after midnight before the next RMC/ZDA date
         self._last_fix_gps_ns = t_gps
-        height = gga.height_ellipsoidal_m
-        self.log(GpsFix(t_host_ns, t_gps, gga.lat_deg or 0.0, gga.lon_deg or 0.0,
-                        height if height is not None else float("nan"), int(gga.quality),
-                        gga.satellites, gga.hdop if gga.hdop is not None else float("nan")), None)
+        height = fix.height_ellipsoidal_m
+        quality = fix.quality if fix.quality is not None else FixQuality.INVALID
+        self.log(GpsFix(t_host_ns, t_gps, fix.lat_deg or 0.0, fix.lon_deg or 0.0,
+                        height if height is not None else float("nan"), int(quality),
+                        fix.satellites if fix.satellites is not None else -1,
+                        fix.hdop if fix.hdop is not None else float("nan")), None)
 
     def _gps_estimate(self, t_host_ns: int) -> int:
         """Best guess of GPS time now, to pick the GPS week of a time-of-week tag."""
@@ -375,6 +389,7 @@ class Acquisition:
         counters = [self.streams[name] for name in SOURCE_STREAMS[source]]
         stats = [c.stats for c in counters]
         link = self.links[source]
+        reasons, counts = _refused(stats)
         self.log(StreamHealth(
             t_host_ns, source, sum(c.messages for c in counters),
             sum(c.rate_hz for c in counters), sum(c.expected_hz for c in counters),
@@ -382,7 +397,8 @@ class Acquisition:
             sum(s.framing_errors for s in stats), sum(s.bytes_skipped for s in stats),
             sum(c.drops for c in counters), sum(c.deadline_misses for c in counters),
             event=event, link_lost_ns=lost_ns, link_restored_ns=restored_ns,
-            disconnects=link.disconnects, reconnects=link.reconnects, link_error=detail), None)
+            disconnects=link.disconnects, reconnects=link.reconnects, link_error=detail,
+            refused_reasons=reasons, refused_counts=counts), None)
 
     # --- lifecycle -------------------------------------------------------------------------
 
@@ -419,11 +435,13 @@ class Acquisition:
             c.rate_hz = c.window_messages / window_s
             link = self.links[STREAM_SOURCE[name]]
             lost = -1 if link.lost_t_host_ns is None else link.lost_t_host_ns
+            reasons, counts = _refused([s])
             self.log(StreamHealth(t_host_ns, name, c.messages, c.rate_hz,
                                   c.expected_hz, c.gaps, s.checksum_errors, s.framing_errors,
                                   s.bytes_skipped, c.drops, c.deadline_misses,
                                   link_lost_ns=lost, disconnects=link.disconnects,
-                                  reconnects=link.reconnects), None)
+                                  reconnects=link.reconnects, refused_reasons=reasons,
+                                  refused_counts=counts), None)
             c.window_messages = 0
         self._next_health_ns = t_host_ns + self.config.health_interval_ns
 
@@ -473,6 +491,16 @@ class _CanBatch:
                              bytes(self.data))
         self._clear()
         return batch
+
+
+def _refused(stats: Sequence[DecodeStats]) -> tuple[list[str], list[int]]:
+    """The streams' refusals by reason, summed: reasons sorted, and their counts."""
+    total: dict[str, int] = {}
+    for s in stats:
+        for reason, n in s.refused.items():
+            total[reason] = total.get(reason, 0) + n
+    reasons = sorted(total)
+    return reasons, [total[r] for r in reasons]
 
 
 def _ins_log(t_host_ns: int, rec: InsRecord) -> InsRecordLog:

@@ -40,7 +40,7 @@ PRESETS = ("bench", "garrotxa", "bellmunt")
 
 # GPS time is int64 ns from the GPS epoch (sisa.core.timescale), so nothing can start before it (and
 # int64 would end in 2262). The binding upper limit is NMEA: RMC dates carry a two-digit year read
-# as 1980..2079 (acquisition/nmea.py, DateDdMmYy). A flight lasts at most MAX_FLIGHT_H, and UTC
+# as 1980..2079 (acquisition/nmea/wire.py, DateDdMmYy). A flight lasts at most MAX_FLIGHT_H, and UTC
 # runs behind GPS time, so a start before the last day of 2079 keeps every sentence datable.
 START_GPS_MIN = "1980-01-06T00:00:00"
 START_GPS_MAX = "2079-12-31T00:00:00"  # exclusive
@@ -313,6 +313,10 @@ class SisaSettings(StrictModel):
     pps_gate_us: float = Field(
         5.0, gt=0, lt=1000, description="once locked on the PPS train, a PPS edge further than "
         "this from the timing board's prediction is spurious (keep it ≥ 6 × gps.pps_jitter_ns)"
+    )
+    accept_nmea_without_checksum: bool = Field(
+        False, description="take NMEA sentences that carry no *hh checksum (some old receivers "
+        "send none); by default they are refused and counted (nmea.no_checksum)"
     )
 
     @model_validator(mode="after")

@@ -41,14 +41,23 @@ class StreamTotals:
     _done_messages: int = 0  # the finished runs' totals
     _done: dict[str, int] = field(default_factory=lambda: dict.fromkeys(COUNTERS, 0))
     _last: dict[str, int] = field(default_factory=dict)  # the current run's last report
+    _done_refused: dict[str, int] = field(default_factory=dict)
+    _last_refused: dict[str, int] = field(default_factory=dict)
 
-    def add(self, values: dict[str, int]) -> None:
+    def add(self, values: dict[str, int], refused: dict[str, int] | None = None) -> None:
         if self._last and values["messages"] < self._last["messages"]:  # a new run
             self._done_messages += self._last["messages"]
             for name in COUNTERS:
                 self._done[name] += self._last[name]
+            self._done_refused = _summed(self._done_refused, self._last_refused)
         self._last = values
+        self._last_refused = refused or {}
         self.reports += 1
+
+    @property
+    def refused(self) -> dict[str, int]:
+        """The decode errors by reason (a log from before reasons were reported has none)."""
+        return _summed(self._done_refused, self._last_refused)
 
     @property
     def messages(self) -> int:
@@ -76,10 +85,14 @@ class HealthTotals:
                 type(v) is int and v >= 0 for v in values.values()):
             self.unreadable += 1
             return
+        refused = _refusals(report)
+        if refused is None:
+            self.unreadable += 1
+            return
         if report.get("event"):
             return
         self.streams.setdefault(stream, StreamTotals(stream)).add(
-            {k: v for k, v in values.items() if isinstance(v, int)})
+            {k: v for k, v in values.items() if isinstance(v, int)}, refused)
 
     @classmethod
     def from_columns(cls, columns: dict[str, npt.NDArray[Any]]) -> HealthTotals:
@@ -97,7 +110,8 @@ class HealthTotals:
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON: the problems' phrases ([] when clean) and each stream's totals."""
         return {"problems": self.problems(), "unreadable_reports": self.unreadable,
-                "streams": {t.stream: {"reports": t.reports, "messages": t.messages, **t.counts}
+                "streams": {t.stream: {"reports": t.reports, "messages": t.messages, **t.counts,
+                                       "refused_by_reason": t.refused}
                             for t in self.ordered()}}
 
     def ordered(self) -> list[StreamTotals]:
@@ -113,6 +127,21 @@ class HealthTotals:
                 (sum(t.counts["disconnects"] for t in streams if t.stream != "ppf"),
                  "disconnect")]  # pps and ppf share the pulse link: counted once, as pps
         return [f"{n} {what}{'s' if n != 1 else ''}" for n, what in sums if n]
+
+
+def _summed(a: dict[str, int], b: dict[str, int]) -> dict[str, int]:
+    return {k: a.get(k, 0) + b.get(k, 0) for k in sorted(a.keys() | b.keys())}
+
+
+def _refusals(report: dict[str, Any]) -> dict[str, int] | None:
+    """A report's refusals by reason; {} from a log from before them; None if damaged."""
+    reasons, counts = report.get("refused_reasons", []), report.get("refused_counts", [])
+    if (not isinstance(reasons, list) or not isinstance(counts, list)
+            or len(reasons) != len(counts)
+            or not all(isinstance(r, str) for r in reasons)
+            or not all(type(n) is int and n >= 0 for n in counts)):
+        return None
+    return dict(zip(reasons, counts, strict=True))
 
 
 def recording_note(health: HealthTotals, flight: Path) -> str | None:

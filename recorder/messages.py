@@ -237,6 +237,10 @@ class StreamHealth(LoggedMessage):
     disconnects: int = 0  # times the device went away since the recording started
     reconnects: int = 0  # times it came back
     link_error: str = ""  # link_lost: why (the read error); link_restored: the reopen attempts
+    # the checksum and framing errors again, by reason (e.g. "nmea.no_checksum": 3): the
+    # decoder's reason names, sorted, and the count of each (a report from before has none)
+    refused_reasons: list[str] = dataclasses.field(default_factory=list)
+    refused_counts: list[int] = dataclasses.field(default_factory=list)
 
 
 LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (
@@ -251,6 +255,7 @@ _JSON_TYPES: dict[object, dict[str, Any]] = {
     bool: {"type": "boolean"},
     bytes: {"type": "string", "contentEncoding": "base64"},
     list[int]: {"type": "array", "items": {"type": "integer"}},
+    list[str]: {"type": "array", "items": {"type": "string"}},
 }
 
 

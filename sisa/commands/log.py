@@ -231,6 +231,9 @@ def _health_lines(stats: LogStats) -> list[str]:
         lines += [f"  {t.stream:<8} {t.messages:>9} "
                   + " ".join(f"{t.counts[c]:>{w}}" for c, w in zip(COUNTERS, widths, strict=True))
                   for t in streams]
+        lines += [f"  {t.stream} refused by reason: "
+                  + ", ".join(f"{shown_text(r, 40)} {n}" for r, n in t.refused.items())
+                  for t in streams if t.refused]
     return lines
 
 

@@ -29,7 +29,8 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
     return AcquisitionConfig(leap_s=scn.block.leap_seconds, sync=sync,
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
                              line_rate_hz=1e9 / line_period_ns,
-                             read_interval_ns=round(scn.sisa.read_interval_ms * 1e6))
+                             read_interval_ns=round(scn.sisa.read_interval_ms * 1e6),
+                             accept_nmea_without_checksum=scn.sisa.accept_nmea_without_checksum)
 
 
 def recording_settings(config: AcquisitionConfig) -> dict[str, str]:

@@ -52,6 +52,19 @@ def test_events_are_not_counted_again_and_bad_reports_are_counted() -> None:
     assert health.problems() == ["1 disconnect"]
 
 
+def test_refusals_by_reason_add_up_over_runs_and_damaged_ones_are_counted() -> None:
+    health = HealthTotals()
+    for n, reasons, counts in ((100, ["nmea.checksum"], [2]),
+                               (200, ["nmea.checksum", "nmea.no_checksum"], [3, 1]),
+                               (50, ["junk"], [1])):  # a restarted recorder
+        health.add({**_report("gps", n), "refused_reasons": reasons, "refused_counts": counts})
+    health.add({**_report("gps", 60), "refused_reasons": ["junk"], "refused_counts": [-1]})
+    health.add({**_report("gps", 60), "refused_reasons": ["a", "b"], "refused_counts": [1]})
+    (gps,) = health.ordered()
+    assert gps.refused == {"junk": 1, "nmea.checksum": 3, "nmea.no_checksum": 1}
+    assert health.unreadable == 2
+
+
 def test_a_log_from_before_the_link_counters_is_read() -> None:
     health = HealthTotals()
     old = _report("ins", 7, drops=2)
@@ -67,18 +80,22 @@ def _log_with_reports(path: Path, reports: list[StreamHealth]) -> None:
             rec.write(r, None)
 
 
-def _health(t_s: int, stream: str, messages: int, **counts: int) -> StreamHealth:
+def _health(t_s: int, stream: str, messages: int, refused: dict[str, int] | None = None,
+            **counts: int) -> StreamHealth:
     values = {**dict.fromkeys(COUNTERS, 0), **counts}
+    refused = refused or {}
     return StreamHealth(t_s * 10**9, stream, messages, 1.0, 1.0, 0, values["checksum_errors"],
                         values["framing_errors"], values["bytes_skipped"], values["drops"],
                         values["deadline_misses"], disconnects=values["disconnects"],
-                        reconnects=values["reconnects"])
+                        reconnects=values["reconnects"], refused_reasons=list(refused),
+                        refused_counts=list(refused.values()))
 
 
 def test_log_info_shows_the_totals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "flight.mcap"
     _log_with_reports(path, [_health(1, "gps", 4), _health(1, "ins", 64),
-                             _health(2, "gps", 9, checksum_errors=2, bytes_skipped=37),
+                             _health(2, "gps", 9, {"nmea.checksum": 2}, checksum_errors=2,
+                                     bytes_skipped=37),
                              _health(2, "ins", 128, deadline_misses=1)])
     assert scan_log(path).health.problems() == ["2 decode errors", "1 late edge"]
     assert main(["log", "info", str(path)]) == 0
@@ -89,12 +106,14 @@ def test_log_info_shows_the_totals(tmp_path: Path, capsys: pytest.CaptureFixture
                                    "drops", "late", "disconnects", "reconnects"]
     assert out[at + 2].split() == ["gps", "9", "2", "0", "37", "0", "0", "0", "0"]
     assert out[at + 3].split() == ["ins", "128", "0", "0", "0", "0", "1", "0", "0"]
+    assert out[at + 4] == "  gps refused by reason: nmea.checksum 2"
     assert main(["log", "info", "--json", str(path)]) == 0
     health = json.loads(capsys.readouterr().out)["health"]
     assert health["problems"] == ["2 decode errors", "1 late edge"]
     assert health["streams"]["gps"] == {"reports": 2, "messages": 9, "checksum_errors": 2,
                                         "framing_errors": 0, "bytes_skipped": 37, "drops": 0,
-                                        "deadline_misses": 0, "disconnects": 0, "reconnects": 0}
+                                        "deadline_misses": 0, "disconnects": 0, "reconnects": 0,
+                                        "refused_by_reason": {"nmea.checksum": 2}}
 
 
 def test_log_info_says_nothing_of_health_without_reports(

@@ -1,0 +1,241 @@
+"""Messages of one or several protocols interleaved on one byte stream, cut anywhere: a receiver
+that sends NMEA sentences and binary frames on one port.
+
+Each protocol is a `Framer`: it names the bytes that can begin one of its messages, and, shown
+the bytes from such a byte on, says whether they hold a whole message (and how long it is), a
+damaged one, no message at all, or not enough bytes yet; then it decodes a whole message. One
+`StreamDecoder` runs any number of framers over a stream:
+
+- between messages it skips to the next byte that can begin one (CR and LF alone are filler,
+  not errors: text protocols end their lines with them);
+- a message that does not decode, or is damaged, is dropped, counted under its reason, and the
+  search goes on right after the bytes the framer says it spans, so a good message of another
+  protocol that follows a damaged one is never swallowed;
+- each bad stretch is one error: the bytes after a damaged message up to the next message start
+  belong to it when its framer says so (`Cut.run_on`), and so does whatever fails to decode
+  inside the length a damaged binary frame claimed (`Cut.shadow`), while a whole message found
+  there is still decoded;
+- it never holds more than the longest message a framer allows, and every byte fed ends up in
+  a `Decoded`'s raw, in `stats.bytes_skipped`, or still buffered.
+
+The result does not depend on how the stream was cut into chunks.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from enum import Enum, StrEnum
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
+
+from acquisition.codec import (
+    Decoded,
+    DecodeStats,
+    ErrorKind,
+    ErrorPolicy,
+    RefusedError,
+    report_error,
+)
+from sisa.core.errors import DecodeError
+
+M = TypeVar("M")
+M_co = TypeVar("M_co", covariant=True)
+
+FILLER = b"\r\n"  # tolerated between messages
+
+
+class StreamRefusal(StrEnum):
+    """Reasons the stream itself gives (a framer gives its protocol's own)."""
+
+    JUNK = "junk"  # bytes that are no message of any protocol
+    UNFINISHED = "unfinished"  # the stream ended inside a message
+
+
+class Verdict(Enum):
+    MORE = "more"  # not enough bytes to tell
+    WHOLE = "whole"  # a whole message of `length` bytes, to decode
+    DAMAGED = "damaged"  # a message start whose first `length` bytes are refused
+    NOT_A_START = "not_a_start"  # the byte looked like a start but is none: junk
+
+
+class Cut(NamedTuple):
+    """A framer's verdict on the bytes from a message-start byte on (a tuple: a stream of
+    garbage makes one per byte, and a frozen dataclass cost twice as much to build)."""
+
+    verdict: Verdict
+    length: int = 0
+    reason: str = ""  # DAMAGED: what it is counted under
+    detail: str = ""  # DAMAGED: for the error message
+    kind: ErrorKind = ErrorKind.FRAMING
+    run_on: bool = False  # DAMAGED: the bytes after it, up to the next start, are this error
+    shadow: int = 0  # DAMAGED: bytes (from the start) inside which failures are this error
+
+
+MORE = Cut(Verdict.MORE)
+# members as module names: an Enum class's attribute lookup is slow enough to show in a loop
+# that runs once per byte of garbage
+_MORE, _WHOLE, _DAMAGED = Verdict.MORE, Verdict.WHOLE, Verdict.DAMAGED
+
+
+class Framer(Protocol[M_co]):
+    """One protocol's messages on a stream."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def leads(self) -> bytes:
+        """The bytes a message can begin with."""
+        ...
+
+    @property
+    def max_message_bytes(self) -> int:
+        """The longest message it waits for (a cap on what garbage can make the stream hold)."""
+        ...
+
+    def cut(self, buffer: bytearray, start: int, at_end: bool) -> Cut:
+        """The verdict on buffer[start:] (buffer[start] is one of `leads`); `at_end`: no more
+        bytes will come. MORE only while fewer than max_message_bytes are there."""
+        ...
+
+    def decode(self, raw: bytes) -> M_co:
+        """A whole message; raises DecodeError (a `RefusedError` names its reason)."""
+        ...
+
+    def kind(self, message: Any) -> str:
+        """The name a decoded message is counted under in `DecodeStats.by_kind`."""
+        ...
+
+
+class StreamDecoder(Generic[M]):
+    """Messages from a byte stream cut anywhere, for the framers given (see the module)."""
+
+    def __init__(self, framers: Sequence[Framer[M]],
+                 policy: ErrorPolicy = ErrorPolicy.COUNT) -> None:
+        self.policy = policy
+        self.stats = DecodeStats()
+        self._by_lead = {lead: framer for framer in framers for lead in framer.leads}
+        if len(self._by_lead) != sum(len(framer.leads) for framer in framers):
+            raise ValueError("two framers claim the same lead byte")
+        self._next_lead = re.compile(b"[" + b"".join(re.escape(bytes([b])) for b in
+                                                     sorted(self._by_lead)) + b"]")
+        self._label = "+".join(framer.name for framer in framers)
+        self._buffer = bytearray()
+        self._pos = 0  # next unread byte of _buffer
+        self._base = 0  # stream offset of _buffer[0]
+        self._in_bad_run = False  # the bytes being skipped were already counted as an error
+        self._quiet_until = 0  # stream offset: failures before it belong to a counted error
+        self._at_end = False
+
+    @property
+    def buffered_bytes(self) -> int:
+        return len(self._buffer) - self._pos
+
+    def feed(self, data: bytes) -> list[Decoded[M]]:
+        """Messages completed by `data`. Under RAISE, raises DecodeError (offset = stream offset
+        of the bad bytes) after dropping them, so feeding may go on."""
+        self._buffer += data
+        out: list[Decoded[M]] = []
+        try:
+            self._run(out)
+        finally:
+            self._compact()
+        return out
+
+    def finish(self) -> list[Decoded[M]]:
+        """End of stream: messages that needed no more bytes than there are, then whatever is
+        still buffered is one error (a message cut short by the end)."""
+        self._at_end = True
+        try:
+            out = self.feed(b"")
+            if self.buffered_bytes:
+                self._reject(Cut(Verdict.DAMAGED, self.buffered_bytes, StreamRefusal.UNFINISHED,
+                                 "stream ended inside a message"))
+        finally:
+            self._at_end = False
+            self._compact()
+        return out
+
+    def _run(self, out: list[Decoded[M]]) -> None:
+        """Decode, skip and reject until the buffer holds only the start of a message (one
+        loop, not a call per step: a stream of garbage makes a step per byte)."""
+        buffer, by_lead = self._buffer, self._by_lead
+        while self._pos < len(buffer):
+            framer = by_lead.get(buffer[self._pos])
+            if framer is None:
+                self._skip_junk(0)
+                continue
+            cut = framer.cut(buffer, self._pos, self._at_end)
+            verdict = cut.verdict
+            if verdict is _MORE:
+                return
+            if verdict is _WHOLE:
+                self._accept(framer, cut.length, out)
+            elif verdict is _DAMAGED:
+                self._reject(cut)
+            else:
+                self._skip_junk(max(cut.length, 1))
+
+    def _skip_junk(self, at_least: int) -> None:
+        """Skip to the next byte that can begin a message (past the first `at_least` bytes)."""
+        found = self._next_lead.search(self._buffer, self._pos + at_least)
+        end = len(self._buffer) if found is None else found.start()
+        quiet_end = self._quiet_until - self._base
+        if self._pos < quiet_end:  # the rest of a damaged message, already counted
+            end = min(end, quiet_end)
+            self.stats.bytes_skipped += end - self._pos
+            self._pos = end
+            return
+        junk = bytes(self._buffer[self._pos:end])
+        offset = self._base + self._pos
+        self._pos = end
+        self.stats.bytes_skipped += len(junk)
+        has_junk = bool(junk.strip(FILLER))
+        already_counted = self._in_bad_run
+        self._in_bad_run = already_counted or has_junk
+        if has_junk and not already_counted:
+            self._error(ErrorKind.FRAMING, StreamRefusal.JUNK, "bytes outside a message",
+                        offset, junk)
+
+    def _accept(self, framer: Framer[M], length: int, out: list[Decoded[M]]) -> None:
+        offset = self._base + self._pos
+        raw = bytes(self._buffer[self._pos:self._pos + length])
+        self._pos += length
+        self._in_bad_run = False
+        try:
+            message = framer.decode(raw)
+        except RefusedError as err:
+            self.stats.bytes_skipped += length
+            self._error(err.kind, err.reason, str(err), offset, raw)
+            return
+        except DecodeError as err:
+            self.stats.bytes_skipped += length
+            self._error(ErrorKind.FRAMING, f"{framer.name}.malformed", str(err), offset, raw)
+            return
+        self.stats.count_message(framer.kind(message))
+        out.append(Decoded(raw, message))
+
+    def _reject(self, cut: Cut) -> None:
+        offset = self._base + self._pos
+        raw = bytes(self._buffer[self._pos:self._pos + cut.length])
+        self._pos += cut.length
+        self.stats.bytes_skipped += cut.length
+        self._in_bad_run = cut.run_on
+        quiet = offset < self._quiet_until  # inside a damaged frame already counted
+        if cut.shadow:
+            self._quiet_until = max(self._quiet_until, offset + cut.shadow)
+        if not quiet:
+            report_error(self.policy, self.stats, cut.kind, f"{self._label}: {cut.detail}",
+                         offset, raw, reason=cut.reason)
+
+    def _error(self, kind: ErrorKind, reason: str, detail: str, offset: int,
+               raw: bytes) -> None:
+        if offset < self._quiet_until:
+            return  # inside a damaged frame already counted
+        report_error(self.policy, self.stats, kind, f"{self._label}: {detail}", offset, raw,
+                     reason=reason)
+
+    def _compact(self) -> None:
+        del self._buffer[:self._pos]
+        self._base += self._pos
+        self._pos = 0

@@ -46,7 +46,8 @@ from tests.acquisition.nmea_oracle import (
 )
 
 CORPUS_LINES = nmea_0183.CORPUS.read_bytes().splitlines(keepends=True)
-GPSD_CORPUS = os.environ.get("SISA_GPSD_CORPUS")  # gpsd's test/daemon folder, if at hand
+# gpsd's regression logs: the subset kept here (gpsd_corpus/SOURCE.md), or SISA_GPSD_CORPUS for all
+GPSD_CORPUS = os.environ.get("SISA_GPSD_CORPUS") or str(Path(__file__).with_name("gpsd_corpus"))
 T0 = parse_gps_datetime("2026-06-15T09:00:00")
 LEAP_S = 18
 
@@ -83,13 +84,12 @@ def test_the_corpus_covers_what_the_standard_allows() -> None:
     assert b"GGA,,,,,,0,00,99.99,,,,,," in text  # no fix, no time
 
 
-@pytest.mark.skipif(GPSD_CORPUS is None, reason="set SISA_GPSD_CORPUS to gpsd's test/daemon")
 def test_gpsd_regression_logs_decode_as_pynmeagps_reads_them() -> None:
     tally = SentenceTally()
     for path in files_of([Path(str(GPSD_CORPUS))]):
         judge_sentences(path.read_bytes(), tally)
     valid = tally.of("standard-valid")
-    assert valid > 5000
+    assert valid > 2000
     assert tally.of("agree") >= 0.99 * valid, tally.examples
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from postproc.sync import GpsTimes, SisaColumns
 from postproc.sync.clockmap import board_map, host_map
-from postproc.sync.flightlog import GpsTimes, SisaColumns
 from postproc.sync.pulses import GATE_DELAY_NS, PulseSource, sisa_pulses
 
 S = 10**9

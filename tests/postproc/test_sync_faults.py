@@ -19,8 +19,8 @@ from acquisition.syncfilter import GATE_DELAY_NS, SyncFilterConfig
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
 from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
+from recorder.columns import read_columns
 from recorder.messages import Topic
-from recorder.reader import read_columns
 from sisa.wiring.simulation import simulate
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
 

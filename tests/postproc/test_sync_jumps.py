@@ -15,9 +15,16 @@ import numpy.typing as npt
 import pytest
 
 from acquisition.lfsr import Lfsr
-from postproc.sync import TimeStatus, synchronise
+from postproc.sync import (
+    GpsTimes,
+    HeaderColumns,
+    InsColumns,
+    SisaColumns,
+    SyncInput,
+    TimeStatus,
+    synchronise,
+)
 from postproc.sync.coarse import Latches
-from postproc.sync.flightlog import GpsTimes, HeaderColumns, InsColumns, SisaColumns, SyncInput
 from postproc.sync.insfit import ClockRun
 from postproc.sync.insjumps import carry_runs
 from postproc.sync.linefit import fit_line

@@ -31,8 +31,14 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from recorder.parts import flight_parts
-from sisa.commands import SubParsers, add_command, check_seed, say_warning
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    check_inputs,
+    check_seed,
+    flight_parts,
+    say_warning,
+)
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
@@ -449,6 +455,9 @@ def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_inputs(("", args.flight, "any"), ("--gcp", args.gcp, "file"),
+                 ("--obs", args.obs, "file"), ("--scanner", args.scanner, "folder"),
+                 ("--sensor", args.sensor, "file"), ("--dem", args.dem, "file"))
     import numpy as np
 
     from postproc.calibration import (

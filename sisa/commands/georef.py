@@ -28,11 +28,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from recorder.parts import flight_parts
 from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
+    check_inputs,
+    flight_parts,
     say_warning,
     terminal_progress,
 )
@@ -155,6 +156,9 @@ def headline(result: GeorefResult) -> str:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
+    check_inputs(("", args.flight, "file"), ("--scanner", args.scanner, "folder"),
+                 ("--dem", args.dem, "file"), ("--sensor", args.sensor, "file"),
+                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     options = options_from_args(args)
     with staged_output_dir(args.out) as out:
         result = run_georef(flight_parts(args.flight), args.scanner, out, options)

@@ -16,11 +16,10 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from recorder.parts import flight_parts
-from sisa.commands import SubParsers, add_command, say_warning
+from sisa.commands import SubParsers, add_command, check_inputs, flight_parts, say_warning
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
 from sisa.core.errors import InputError
-from sisa.core.outdir import staged_output_dir
+from sisa.core.outdir import name_taken, staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
@@ -90,13 +89,12 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
-    from postproc.georef import write_report
-    from sisa.core.jsonio import write_json
-    from sisa.wiring.accuracy import run_accuracy
-
     started = time.perf_counter()
     run: Path = args.run
+    if not name_taken(run) or not run.exists():
+        raise InputError(f"{run}: no such folder")
+    check_inputs(("--sensor", args.sensor, "file"),
+                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     if not (run / "flight.mcap").is_file():
         raise InputError(f"{run}: not a run folder of `sisa simulate` or `sisa bench` (no "
                          "flight.mcap)")
@@ -104,6 +102,11 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{run}: no scanner/ folder, so no image to georeference (a run of "
                          "`sisa simulate --no-images`? `sisa sync` times its lines without "
                          "images)")
+    from emulators.scenario import load_scenario
+    from postproc.georef import write_report
+    from sisa.core.jsonio import write_json
+    from sisa.wiring.accuracy import run_accuracy
+
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),

@@ -22,13 +22,13 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from recorder.parts import flight_parts
 from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
     check_endpoints_path,
     check_port,
+    flight_parts,
     write_endpoints,
 )
 from sisa.core.errors import ConfigError, InputError

@@ -13,8 +13,7 @@ import argparse
 import time
 from pathlib import Path
 
-from recorder.parts import flight_parts
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, say_warning
+from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, say_warning
 from sisa.core.outdir import staged_output_dir
 
 

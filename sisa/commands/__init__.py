@@ -161,6 +161,14 @@ def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: 
                           epilog=f"example:\n  {example}", formatter_class=Formatter)
 
 
+def add_force_arg(parser: argparse.ArgumentParser, what: str = "output folder") -> None:
+    """--force, the one way any command replaces an existing output."""
+    parser.add_argument("--force", action="store_true",
+                        help=f"replace an existing {what} (without it, an existing one is "
+                             "refused); the new one is made beside it and takes its place "
+                             "only once complete")
+
+
 def add_scenario_args(parser: argparse.ArgumentParser, what: str = "scenario") -> None:
     """--preset NAME | --scenario FILE, the way every command names its scenario."""
     group = parser.add_mutually_exclusive_group()

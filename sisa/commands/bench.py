@@ -19,7 +19,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
-from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_force_arg,
+    add_scenario_args,
+    scenario_from_args,
+)
 from sisa.commands.emulate import HELD_LINE, check_span
 from sisa.core.errors import InputError, SisaError
 from sisa.core.outdir import staged_output_dir
@@ -41,6 +47,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa bench --preset bench --out runs/bench-rt --duration 120")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
+    add_force_arg(parser)
     parser.add_argument("--speed", type=float, default=1.0, help="times real time")
     parser.add_argument("--start", type=float, default=0.0,
                         help="start this many seconds into the scenario")
@@ -93,7 +100,7 @@ def _run(args: argparse.Namespace) -> int:
                          f"a second to start, so at least {MIN_REAL_S:g} s (a longer --duration, "
                          "or a lower --speed)")
     sisa = [sys.executable, "-m", "sisa.cli"]
-    with staged_output_dir(args.out) as run:
+    with staged_output_dir(args.out, force=args.force) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
         endpoints_file = run / "endpoints.json"
         emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),

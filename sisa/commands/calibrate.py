@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, Final
 from sisa.commands import (
     SubParsers,
     add_command,
+    add_force_arg,
     check_inputs,
     check_seed,
     flight_parts,
@@ -80,6 +81,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                              "numbered parts are found beside it); "
                              "several run folders: flights sharing the sensor, adjusted together")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
                         help="ground points (id, kind, lat_deg, lon_deg, height_m); default "
                              "RUN/terrain/ground_points.csv")
@@ -475,7 +477,7 @@ def _run(args: argparse.Namespace) -> int:
     opt = _options(args)
     _check_simulation(args)
     runs = _several_runs(args)
-    with staged_output_dir(args.out) as out:
+    with staged_output_dir(args.out, force=args.force) as out:
         inp, info = build_input(args) if runs is None else build_joint_input(args, runs)
         res = calibrate(inp, opt)
         for note in res.notes:  # in calibration.json alone, a dropped row went unnoticed

@@ -32,6 +32,7 @@ from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
+    add_force_arg,
     check_inputs,
     flight_parts,
     say_warning,
@@ -57,6 +58,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the scanner's recording folder (segment_NNN.bil/.hdr/.lines.csv)")
     parser.add_argument("--dem", type=Path, required=True, help="DEM GeoTIFF (projected CRS)")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     add_georef_args(parser)
     parser.set_defaults(handler=_run)
 
@@ -160,7 +162,7 @@ def _run(args: argparse.Namespace) -> int:
                  ("--dem", args.dem, "file"), ("--sensor", args.sensor, "file"),
                  ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     options = options_from_args(args)
-    with staged_output_dir(args.out) as out:
+    with staged_output_dir(args.out, force=args.force) as out:
         result = run_georef(flight_parts(args.flight), args.scanner, out, options)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
     return 0

@@ -16,7 +16,14 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sisa.commands import SubParsers, add_command, check_inputs, flight_parts, say_warning
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_force_arg,
+    check_inputs,
+    flight_parts,
+    say_warning,
+)
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken, staged_output_dir
@@ -35,6 +42,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="a run folder of `sisa simulate` or `sisa bench`")
     parser.add_argument("--out", type=Path, default=None,
                         help="new output folder (default: RUN/process)")
+    add_force_arg(parser)
     parser.add_argument("--nominal", action="store_true",
                         help="georeference with the nominal sensor (no boresight or "
                              "self-calibration), as an uncalibrated system would")
@@ -112,7 +120,7 @@ def _run(args: argparse.Namespace) -> int:
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
                                   leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
-    with staged_output_dir(out) as tmp:
+    with staged_output_dir(out, force=args.force) as tmp:
         result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
                             command="process")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 from sisa.commands import (
     SubParsers,
     add_command,
+    add_force_arg,
     add_scenario_args,
     check_seed,
     scenario_from_args,
@@ -28,6 +29,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa simulate --preset bench --out runs/bench --seed 7")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
+    add_force_arg(parser)
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--no-images", action="store_true",
                         help="skip rendering the scanner's image lines (timing only)")
@@ -58,7 +60,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.error_free:
         scn = error_free(scn)
     started = time.perf_counter()
-    with staged_output_dir(args.out) as run:
+    with staged_output_dir(args.out, force=args.force) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
         wiring = simulate(scn, run, images=not args.no_images)
     acq = wiring.acq

@@ -13,7 +13,14 @@ import argparse
 import time
 from pathlib import Path
 
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, flight_parts, say_warning
+from sisa.commands import (
+    FLIGHT_HELP,
+    SubParsers,
+    add_command,
+    add_force_arg,
+    flight_parts,
+    say_warning,
+)
 from sisa.core.outdir import staged_output_dir
 
 
@@ -28,6 +35,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the scanner's recording folder (segment_NNN.lines.csv); without "
                              "it, lines are the frame headers in the log")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     parser.set_defaults(handler=_run)
 
 
@@ -50,7 +58,7 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.reader import read_topics
 
     started = time.perf_counter()
-    with staged_output_dir(args.out) as out:
+    with staged_output_dir(args.out, force=args.force) as out:
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
         flight = flight_parts(args.flight)
         cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import add_command, add_scenario_args, scenario_from_args
+from sisa.commands import add_command, add_force_arg, add_scenario_args, scenario_from_args
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                          "and ground points", "sisa truth --preset bench --out runs/bench-truth")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new folder to create")
+    add_force_arg(parser)
     parser.set_defaults(handler=_run)
 
 
@@ -53,7 +54,7 @@ def _run(args: argparse.Namespace) -> int:
 
     scn = scenario_from_args(args)
     started = time.perf_counter()
-    with staged_output_dir(args.out) as run:
+    with staged_output_dir(args.out, force=args.force) as run:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
         truth, terrain_dir = run / "truth", run / "terrain"
         truth.mkdir()

@@ -162,6 +162,36 @@ def test_truth_writes_a_whole_run_and_never_overwrites(tmp_path, capsys):
     assert "already exists" in capsys.readouterr().err
     assert sorted(p.name for p in out.rglob("*")) == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no scratch left
+    (out / "mine.txt").write_text("not the command's")
+    assert main(["truth", "--preset", "bench", "--out", str(out), "--force"]) == 0
+    assert sorted(p.name for p in out.rglob("*")) == before  # replaced whole
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+# Written as they happen, crash-safe: created exclusively, never replaced (not even --force)
+NEVER_REPLACED = {("record",), ("emulate",), ("log", "recover")}
+
+
+def _options(parser):
+    return {s for a in parser._actions for s in a.option_strings}
+
+
+def _parser_at(path):
+    parser = build_parser()
+    for name in path:
+        sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+        parser = sub.choices[name]
+    return parser
+
+
+@pytest.mark.parametrize("path", [p for p in _subcommand_paths(build_parser())
+                                  if "--out" in _options(_parser_at(p))
+                                  or p == ("log", "recover")])
+def test_every_command_that_writes_refuses_an_existing_output_or_takes_force(path):
+    """One policy (issue 33, item 5): `sisa ortho` replaced its GeoTIFF silently while the
+    others refused. Every output is refused if it exists; --force replaces it, whole."""
+    options = _options(_parser_at(path))
+    assert ("--force" in options) == (path not in NEVER_REPLACED), path
 
 
 def test_truth_with_a_bad_scenario_writes_nothing(tmp_path):

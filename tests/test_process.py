@@ -264,3 +264,31 @@ def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, t
     assert "have no frame counter: not georeferenced" in proc.stderr
     summary = json.loads((cut / "process" / "georef_summary.json").read_text())
     assert any("lists 100 of its" in w for w in summary["warnings"])
+
+
+def test_a_piped_process_shows_progress_while_it_works(processed, tmp_path):
+    """Piped (CI, logs, `| tee`), `sisa process` printed only at the end (issue 33, item 1):
+    plain timestamped lines on stderr every few seconds, during the work."""
+    import os
+    import re
+    import signal
+
+    from tests.sisa.piped import PROGRESS_LINE, start, stderr_lines_until
+
+    run, _, _ = processed
+    proc = start("process", run, "--out", tmp_path / "again")
+    try:
+        lines = stderr_lines_until(proc, "sisa process: georeferencing ", 120)
+        assert proc.poll() is None  # while it works
+        progress = [x for x in lines if re.match(PROGRESS_LINE.format(command="process"), x)]
+        assert progress == lines, lines  # stderr holds progress lines only, so far
+        assert re.search(r"georeferencing \d+/\d+ lines \(\d+%\)", lines[-1]), lines[-1]
+        os.killpg(proc.pid, signal.SIGINT)  # enough seen: Ctrl-C
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130
+    assert err.endswith("sisa process: interrupted\n"), err
+    assert not (tmp_path / "again").exists()
+    assert not list(tmp_path.iterdir())

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,27 +16,6 @@ if TYPE_CHECKING:
     from emulators.scenario import Scenario
 
 SubParsers = argparse._SubParsersAction  # the type argparse gives subcommand registries
-Count = Callable[[int], None]
-
-
-@contextmanager
-def terminal_progress(label: str, *, show_count: bool = False
-                      ) -> Iterator[tuple[Count | None, Count | None]]:
-    """(advance by n, set the total) of a bar on stderr when stderr is a terminal, else
-    (None, None): stdout keeps only the command's own lines, and a scripted run does not
-    import rich for it."""
-    if not sys.stderr.isatty():
-        yield None, None
-        return
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-    columns = [BarColumn(), *([MofNCompleteColumn()] if show_count else []),
-               TimeRemainingColumn()]
-    with Progress("[progress.description]{task.description}", *columns, transient=True,
-                  console=Console(stderr=True)) as bar:
-        task = bar.add_task(label, total=None)
-        yield (lambda n: bar.advance(task, n)), (lambda n: bar.update(task, total=n))
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter):

@@ -27,6 +27,7 @@ from sisa.commands import (
     scenario_from_args,
 )
 from sisa.commands.emulate import HELD_LINE, check_span
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError, SisaError
 from sisa.core.outdir import staged_output_dir
 
@@ -110,12 +111,18 @@ def _run(args: argparse.Namespace) -> int:
             emu_cmd += ["--duration", str(args.duration)]
         if args.no_images:
             emu_cmd.append("--no-images")
+        # progress: on a terminal the recorder's live status shows the run (the emulator's bar
+        # would fight it); piped, the emulator's plain lines, named as the bench's
+        emu_cmd += ["--quiet"] if sys.stderr.isatty() else ["--progress-as", "bench"]
         emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
         rec: subprocess.Popen[str] | None = None
         try:
-            # the DEM and ground points, as `sisa simulate` writes them, while the emulator starts
-            write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
-            ep = wait_for_endpoints(endpoints_file, emu)
+            with progress("bench", "starting: DEM, ground points, emulator") as bar:
+                # the DEM and ground points, as `sisa simulate` writes them, while the
+                # emulator starts
+                write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
+                bar.step("starting: waiting for the emulator's ports")
+                ep = wait_for_endpoints(endpoints_file, emu)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],

@@ -40,6 +40,7 @@ from sisa.commands import (
     flight_parts,
     say_warning,
 )
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
@@ -477,12 +478,15 @@ def _run(args: argparse.Namespace) -> int:
     opt = _options(args)
     _check_simulation(args)
     runs = _several_runs(args)
-    with staged_output_dir(args.out, force=args.force) as out:
+    with staged_output_dir(args.out, force=args.force) as out, progress("calibrate") as bar:
+        bar.step("sync, navigation and measurements")
         inp, info = build_input(args) if runs is None else build_joint_input(args, runs)
+        bar.step("adjustment")
         res = calibrate(inp, opt)
         for note in res.notes:  # in calibration.json alone, a dropped row went unnoticed
             say_warning(args.command, note)
         if args.sweep_delay_ms is not None:
+            bar.step("delay sweep")
             span = abs(args.sweep_delay_ms)
             info["delay_sweep"] = sweep_delay(inp, opt, np.arange(-span, span + 1e-9, 5.0))
         text = sensor_toml(res)

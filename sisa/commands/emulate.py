@@ -8,6 +8,7 @@ import shutil
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
@@ -21,10 +22,12 @@ from sisa.commands import (
     scenario_from_args,
     write_endpoints,
 )
+from sisa.commands.progress import Progress, progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
+    from emulators.runtime import Runner
     from emulators.scenario import Scenario
     from emulators.trajectory import TruthTrajectory
 
@@ -56,6 +59,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="do not render the scanner's image lines")
     parser.add_argument("--endpoints", type=Path, default=None,
                         help="also write the endpoints as JSON to this file")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    # sisa bench runs this with its own name on the progress lines
+    parser.add_argument("--progress-as", default="emulate", help=argparse.SUPPRESS)
     parser.add_argument("--hold", action="store_true",
                         help="at the end of the scenario (or --duration), keep every port "
                              "open and silent until Ctrl-C, so that a recorder on them can be "
@@ -126,7 +132,10 @@ def _run(args: argparse.Namespace) -> int:
         until = start + int(args.duration * 1e9)
     started = time.monotonic()
     try:
-        runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
+        with progress(args.progress_as, quiet=args.quiet, refresh_hz=2) as bar:
+            bar.follow(_follow(bar, runner, system.traj.t_start_ns, start,
+                               until or system.traj.t_end_ns))
+            runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
         if args.hold and not stop.is_set():
             print(HELD_LINE, flush=True)
             while not stop.wait(0.5):  # a bare wait() would defer the signal handler
@@ -138,6 +147,30 @@ def _run(args: argparse.Namespace) -> int:
           f"latest emission {runner.late_ns_max / 1e6:.2f} ms behind schedule; "
           f"truth in {args.out / 'truth'}", flush=True)
     return 0
+
+
+FAST_FORWARD = "fast-forward to --start"
+
+
+def _follow(bar: Progress, runner: Runner, t0_ns: int, start_ns: int, end_ns: int
+            ) -> Callable[[], None]:
+    """The progress of the runner (polled: the real-time loop is not slowed): the run through
+    to --start, as fast as it goes, then the flight in real time."""
+
+    def poll() -> None:
+        t_ns = runner.t_ns
+        if t_ns is None:
+            return
+        if t_ns < start_ns:
+            if bar.label != FAST_FORWARD:
+                bar.step(FAST_FORWARD, (start_ns - t0_ns) / 1e9, "s")
+            bar.update(completed=(t_ns - t0_ns) / 1e9)
+            return
+        if bar.label != "flight":
+            bar.step("flight", (end_ns - start_ns) / 1e9, "s")
+        bar.update(completed=(t_ns - start_ns) / 1e9)
+
+    return poll
 
 
 def _announce(endpoints: dict[str, str], name: str, args: argparse.Namespace) -> None:

@@ -36,8 +36,8 @@ from sisa.commands import (
     check_inputs,
     flight_parts,
     say_warning,
-    terminal_progress,
 )
+from sisa.commands.progress import Progress, progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
@@ -129,14 +129,23 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
 
 
 def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions,
-               command: str = "georef") -> GeorefResult:
-    """The job with a progress bar over scan lines (on a terminal); its warnings (segments or
-    lines skipped, and why) one line each on stderr."""
+               bar: Progress, command: str = "georef") -> GeorefResult:
+    """The job, its steps shown on `bar` (reading and sync, then the scan lines, then the
+    products); its warnings (segments or lines skipped, and why) one line each on stderr."""
     from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
-    with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):
-        result = job.run(progress=progress, on_total=on_total)
+    bar.step("reading the flight log and synchronising")
+
+    def on_total(lines: int) -> None:
+        bar.step("georeferencing", lines, "lines")
+
+    def advance(lines: int) -> None:
+        bar.advance(lines)
+        if bar.total is not None and bar.completed >= bar.total:
+            bar.step("ortho, mosaic, footprints" if options.products else "footprints")
+
+    result = job.run(progress=advance, on_total=on_total)
     for warning in result.warnings:
         say_warning(command, warning)
     return result
@@ -162,7 +171,7 @@ def _run(args: argparse.Namespace) -> int:
                  ("--dem", args.dem, "file"), ("--sensor", args.sensor, "file"),
                  ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     options = options_from_args(args)
-    with staged_output_dir(args.out, force=args.force) as out:
-        result = run_georef(flight_parts(args.flight), args.scanner, out, options)
+    with staged_output_dir(args.out, force=args.force) as out, progress("georef") as bar:
+        result = run_georef(flight_parts(args.flight), args.scanner, out, options, bar)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
     return 0

@@ -17,7 +17,8 @@ import math
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command, add_force_arg, terminal_progress
+from sisa.commands import SubParsers, add_command, add_force_arg
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import refuse_existing
 
@@ -99,9 +100,9 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.igm}: {index.far.text}: a damaged IGM? give --bounds to map "
                          "it anyway")
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
-    with terminal_progress("ortho") as (progress, on_total):
+    with progress("ortho", "ortho", unit="cells") as bar:
         res = orthorectify(index, image, grid, out, glt, compress=args.compress,
-                           progress=progress, on_total=on_total, empty_ok=False)
+                           progress=bar.advance, on_total=bar.set_total, empty_ok=False)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

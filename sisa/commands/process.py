@@ -25,6 +25,7 @@ from sisa.commands import (
     say_warning,
 )
 from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken, staged_output_dir
 
@@ -120,15 +121,17 @@ def _run(args: argparse.Namespace) -> int:
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
                                   leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
-    with staged_output_dir(out, force=args.force) as tmp:
+    with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
         result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
-                            command="process")
+                            bar, command="process")
+        bar.step("accuracy against truth")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         _say_what_is_not_judged(run, acc)
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
             write_json(tmp / "accuracy.json", public)
         rows = _headline(result, acc)
+        bar.step("report")
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,
                      headline=rows)

@@ -17,6 +17,7 @@ from sisa.commands import (
     check_seed,
     scenario_from_args,
 )
+from sisa.commands.progress import progress
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -60,9 +61,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.error_free:
         scn = error_free(scn)
     started = time.perf_counter()
-    with staged_output_dir(args.out, force=args.force) as run:
+    with staged_output_dir(args.out, force=args.force) as run, progress("simulate") as bar:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-        wiring = simulate(scn, run, images=not args.no_images)
+        wiring = simulate(scn, run, images=not args.no_images, steps=bar)
     acq = wiring.acq
     flight_s = (wiring.system.traj.t_end_ns - wiring.system.traj.t_start_ns) / 1e9
     wall_s = time.perf_counter() - started

@@ -21,6 +21,7 @@ from sisa.commands import (
     flight_parts,
     say_warning,
 )
+from sisa.commands.progress import progress
 from sisa.core.outdir import staged_output_dir
 
 
@@ -58,12 +59,15 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.reader import read_topics
 
     started = time.perf_counter()
-    with staged_output_dir(args.out, force=args.force) as out:
+    with staged_output_dir(args.out, force=args.force) as out, progress("sync") as bar:
+        bar.step("reading the scanner's lines and the flight log")
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
         flight = flight_parts(args.flight)
         cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})
         recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
+        bar.step("synchronising")
         result = synchronise(sync_input_from_columns(cols), lines)
+        bar.step("writing the tables")
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}
         ins, ln = result.ins, result.lines

@@ -276,27 +276,57 @@ def _read_all(master: int) -> bytes:
 
 def test_progress_bar_draws_on_a_terminal_stderr_and_never_on_stdout(monkeypatch, capsys):
     """`sisa georef` once drew its bar on stdout: a stray blank line before its summary when
-    stdout was a file, and no bar at all."""
+    stdout was a file, and no bar at all. On a terminal: a bar with the count, rate and time
+    left."""
     import os
     import pty
 
-    from sisa.commands import terminal_progress
+    from sisa.commands.progress import progress
 
-    with terminal_progress("lines") as (advance, set_total):  # stderr captured: no terminal
-        assert advance is None
-        assert set_total is None
     master, slave = pty.openpty()
     with os.fdopen(slave, "w") as tty:
         monkeypatch.setattr(sys, "stderr", tty)
-        with terminal_progress("lines", show_count=True) as (advance, set_total):
-            set_total(10)
-            advance(4)
-            advance(6)
+        with progress("georef", "lines", unit="lines") as bar:
+            bar.set_total(10)
+            bar.advance(4)
+            bar.advance(6)
     drawn = _read_all(master)
     os.close(master)
     assert b"lines" in drawn
-    assert b"10/10" in drawn
+    assert b"10/10 lines" in drawn
     assert capsys.readouterr().out == ""
+
+
+def test_progress_when_piped_is_plain_timestamped_lines_every_few_seconds(monkeypatch):
+    """Not a terminal (CI, logs, `| tee`): a line on stderr FIRST_LINE_S in, then every
+    SISA_PROGRESS_S seconds, with the count, share, rate and time left (issue 33, item 1)."""
+    import io
+    import time
+
+    from sisa.commands import progress as module
+
+    monkeypatch.setenv(module.PERIOD_ENV, "0.2")
+    monkeypatch.setattr(module, "FIRST_LINE_S", 0.1)
+    monkeypatch.setattr(module, "MIN_RATE_S", 0.0)
+    said = io.StringIO()
+    bar = module.Progress("simulate", terminal=False, stream=said)
+    bar.step("flight", 100.0, "s")
+    for _ in range(10):
+        bar.advance(5)
+        time.sleep(0.06)
+    bar.close()
+    lines = said.getvalue().splitlines()
+    assert len(lines) >= 2, lines
+    for line in lines:
+        assert re.fullmatch(r"\d\d:\d\d:\d\d sisa simulate: flight [\d.]+/100 s \(\d+%\), "
+                            r"[\d.]+ s/s, \d+:\d\d left", line), line
+    assert module.Progress("x", terminal=False, stream=said).line() == "sisa x: working (0:00)"
+    monkeypatch.setenv(module.PERIOD_ENV, "off")
+    quiet = io.StringIO()
+    bar = module.Progress("simulate", terminal=False, stream=quiet)
+    time.sleep(0.3)
+    bar.close()
+    assert quiet.getvalue() == ""
 
 
 def test_record_status_names_the_file_as_shown_and_counts_disk_where_it_is(monkeypatch, tmp_path):
@@ -405,3 +435,29 @@ def test_a_warning_during_a_command_is_named_by_the_command(monkeypatch, capsys)
         assert capsys.readouterr().err == "sisa scenario: warning: dem.tif: 3 cells hold -9999\n"
         cli._one_line_warning(DemVoidWarning("x"), DemVoidWarning, "/x/dem.py", 1)
         assert capsys.readouterr().err == "sisa: warning: x\n"
+
+
+def test_a_piped_simulate_shows_progress_while_it_flies(tmp_path):
+    """`sisa simulate` printed nothing for its 49-62 s (issue 33, item 1). Piped: timestamped
+    lines with the flight time flown, rate and time left, while it works."""
+    import os
+    import signal
+
+    from tests.sisa.piped import PROGRESS_LINE, start, stderr_lines_until
+
+    proc = start("simulate", "--preset", "bench", "--no-images", "--out", tmp_path / "run")
+    try:
+        lines = stderr_lines_until(proc, "sisa simulate: flight ", 120)
+        lines += stderr_lines_until(proc, " s/s, ", 60)  # a rate once a second is flown
+        assert proc.poll() is None
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    for line in lines:
+        assert re.match(PROGRESS_LINE.format(command="simulate"), line), line
+    assert re.search(r"flight [\d.]+/549 s \(\d+%\), [\d.]+ s/s, \d+:\d\d left$", lines[-1])
+    assert proc.returncode == 130
+    assert err.endswith("sisa simulate: interrupted\n")
+    assert not list(tmp_path.iterdir())  # nothing left, not even a scratch folder

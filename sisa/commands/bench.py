@@ -24,9 +24,16 @@ from sisa.commands import (
     add_command,
     add_force_arg,
     add_scenario_args,
+    say_warning,
     scenario_from_args,
 )
-from sisa.commands.emulate import HELD_LINE, check_span
+from sisa.commands.emulate import (
+    HELD_LINE,
+    add_span_args,
+    check_span,
+    imaging_warning,
+    timeline,
+)
 from sisa.commands.progress import progress
 from sisa.core.errors import InputError, SisaError
 from sisa.core.outdir import staged_output_dir
@@ -45,15 +52,14 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "bench", "desk test: sisa emulate and sisa record as separate "
                          "processes on virtual ports, in real time (Ctrl-C ends it early and "
                          "keeps the run)",
-                         "sisa bench --preset bench --out runs/bench-rt --duration 120")
+                         "sisa bench --preset bench --out runs/bench-rt --strip 0   "
+                         "(then: sisa process runs/bench-rt)")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
     add_force_arg(parser)
     parser.add_argument("--speed", type=float, default=1.0, help="times real time")
-    parser.add_argument("--start", type=float, default=0.0,
-                        help="start this many seconds into the scenario")
-    parser.add_argument("--duration", type=float, default=None,
-                        help="seconds of flight to run (default: the whole scenario)")
+    add_span_args(parser, "seconds of flight to run (default: the whole scenario, or strip "
+                          "N with --strip)")
     parser.add_argument("--no-images", action="store_true", help="do not render image lines")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
@@ -95,6 +101,10 @@ def _run(args: argparse.Namespace) -> int:
     scn = scenario_from_args(args)
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)  # before anything starts
+    print("\n".join(timeline(scn, traj, args.start, args.duration)), flush=True)
+    warning = imaging_warning(traj, args.start, args.duration)
+    if warning is not None:
+        say_warning("bench", warning)
     real_s = _real_seconds(traj, args)
     if real_s < MIN_REAL_S:
         raise InputError(f"this run plays {real_s:.2g} s of real time: sisa record takes about "
@@ -113,7 +123,7 @@ def _run(args: argparse.Namespace) -> int:
             emu_cmd.append("--no-images")
         # progress: on a terminal the recorder's live status shows the run (the emulator's bar
         # would fight it); piped, the emulator's plain lines, named as the bench's
-        emu_cmd += ["--quiet"] if sys.stderr.isatty() else ["--progress-as", "bench"]
+        emu_cmd += ["--progress-as", "bench", *(["--quiet"] if sys.stderr.isatty() else [])]
         emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
         rec: subprocess.Popen[str] | None = None
         try:

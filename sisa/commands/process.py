@@ -111,6 +111,10 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{run}: no scanner/ folder, so no image to georeference (a run of "
                          "`sisa simulate --no-images`? `sisa sync` times its lines without "
                          "images)")
+    if not any((run / "scanner").glob("segment_*.lines.csv")):
+        raise InputError(f"{run}: the scanner recorded no image (no segment in "
+                         f"{run / 'scanner'}): the run held no strip (`sisa bench --strip N` "
+                         "records one; `sisa sync` times a run without images)")
     from emulators.scenario import load_scenario
     from postproc.georef import write_report
     from sisa.core.jsonio import write_json

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,6 +17,11 @@ if TYPE_CHECKING:
     from emulators.scenario import Scenario
 
 SubParsers = argparse._SubParsersAction  # the type argparse gives subcommand registries
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
+    command was writing is removed, not left half-written (sisa.cli raises it)."""
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter):
@@ -132,11 +138,32 @@ def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
+# The one rule for Ctrl-C (and SIGTERM), in every command's --help and the README: a command
+# stops at once and never leaves anything half-written. What it computes is removed (outputs
+# appear whole or not at all), exit 130 (143 for SIGTERM); what it records is kept, a shorter
+# but complete recording. `record`, `emulate` and `replay` run until stopped: Ctrl-C is how they
+# end (exit 0).
+STOP_RULE = ("Ctrl-C (or SIGTERM) stops it at once; nothing of its output is left behind (an "
+             "output appears whole or not at all); exit 130 (143 for SIGTERM).")
+STOP_RULES = {
+    "bench": "Ctrl-C (or SIGTERM) stops the recorder, then the emulator, at any moment: the run "
+             "recorded so far is kept, whole and readable, once the recorder has begun its "
+             "flight log (before that, nothing is left); exit 130 (143 for SIGTERM).",
+    "record": "Ctrl-C (or SIGTERM) is how a recording ends: the file is closed, whole and "
+              "readable; exit 0.",
+    "emulate": "Ctrl-C (or SIGTERM) is how an emulation ends: the devices stop, the scanner's "
+               "recording and the truth so far are kept; exit 0.",
+    "replay": "Ctrl-C (or SIGTERM), or q, is how a replay ends: the ports close; exit 0.",
+}
+
+
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,
                 example: str) -> argparse.ArgumentParser:
-    """A subcommand parser whose --help ends with a worked example."""
+    """A subcommand parser whose --help ends with a worked example and what Ctrl-C does."""
     return sub.add_parser(name, help=help_text, description=help_text,
-                          epilog=f"example:\n  {example}", formatter_class=Formatter)
+                          epilog=f"example:\n  {example}\n\n"
+                                 + textwrap.fill(STOP_RULES.get(name, STOP_RULE), 79),
+                          formatter_class=Formatter)
 
 
 def add_force_arg(parser: argparse.ArgumentParser, what: str = "output folder") -> None:

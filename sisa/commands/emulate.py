@@ -170,10 +170,12 @@ def imaging_warning(traj: TruthTrajectory, start_s: float, duration_s: float | N
                 "scanner records no image, and `sisa process` will have nothing to "
                 f"georeference; strip {nxt[0]} is at {nxt[1]:.0f}-{nxt[2]:.0f} s "
                 f"(--strip {nxt[0]})")
-    k, a, _ = held[0]
+    k, a, b = held[0]
     if a - start_s < MODE1_BEFORE_S:
-        return (f"this run starts {max(a - start_s, 0.0):.0f} s before strip {k} (at {a:.0f} "
-                f"s): `sisa sync` needs about {MODE1_BEFORE_S:g} s of scanner-off pulses first "
+        where = (f"inside strip {k} ({a:.0f}-{b:.0f} s)" if a <= start_s else
+                 f"{a - start_s:.0f} s before strip {k} (at {a:.0f} s)")
+        return (f"this run starts {where}: `sisa sync` needs about {MODE1_BEFORE_S:g} s of "
+                "scanner-off pulses first "
                 f"to time the INS records, and may leave them untimed (--strip {k} starts "
                 f"{STRIP_LEAD_S:g} s before it)")
     return None

@@ -461,3 +461,41 @@ def test_a_piped_simulate_shows_progress_while_it_flies(tmp_path):
     assert proc.returncode == 130
     assert err.endswith("sisa simulate: interrupted\n")
     assert not list(tmp_path.iterdir())  # nothing left, not even a scratch folder
+
+
+@pytest.mark.parametrize("moment", ["importing", "terrain, DEM and ground points", "flight"])
+def test_ctrl_c_stops_a_batch_command_at_any_moment_and_leaves_nothing(tmp_path, moment):
+    """The one rule (issue 33, item 4), here for a command that computes its output: at any
+    moment, exit 130, `interrupted` in one line, no traceback, nothing left (no output, no
+    scratch folder). The moments are told by its progress lines."""
+    import os
+    import signal
+    import time
+
+    from tests.sisa.piped import start, stderr_lines_until
+
+    proc = start("simulate", "--preset", "bench", "--no-images", "--out", tmp_path / "run",
+                 period_s=0.05)
+    try:
+        if moment == "importing":
+            time.sleep(0.15)
+        else:
+            stderr_lines_until(proc, f"sisa simulate: {moment}", 120)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130
+    assert err.splitlines()[-1] == "sisa simulate: interrupted", err
+    assert "Traceback" not in err, err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("path", list(_subcommand_paths(build_parser())))
+def test_every_help_says_what_ctrl_c_does(path, capsys):
+    with pytest.raises(SystemExit):
+        main([*path, "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "Ctrl-C (or SIGTERM)" in out
+    assert "exit 0" in out if path[0] in ("record", "emulate", "replay") else "exit 130" in out

@@ -100,7 +100,7 @@ def _example(command: str) -> str:
     parser = build_parser()
     sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
     epilog = sub.choices[command].epilog or ""
-    return epilog.split("example:\n", 1)[1].strip().split("   (")[0]
+    return epilog.split("example:\n", 1)[1].splitlines()[0].strip().split("   (")[0]
 
 
 @pytest.mark.parametrize("command", ["bench", "emulate"])

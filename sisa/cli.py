@@ -47,6 +47,10 @@ EPILOG = """examples:
        --cell 2 --out seg0_2m.tif    one segment mapped again, here at 2 m cells
   sisa process runs/bench            sync + georeference + report with accuracy vs truth
   sisa <command> --help              every command shows an example
+
+exit codes: 0 complete; 3 finished, but short of what the inputs promised (the headline
+says how much, and a last line on stderr); 2 bad input or usage (one line on stderr);
+1 failed; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 """
 
 

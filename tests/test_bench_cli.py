@@ -64,7 +64,7 @@ def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
 
     done = subprocess.run([sys.executable, "-m", "sisa.cli", "sync", str(flight), "--out",
                            str(tmp_path / "sync")], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 3, done.stderr  # finished, with losses: no INS record timed
     assert "INS records 0/" in done.stdout
     hint = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, mode-2 "
             "trains alone do not: record a register period (15 s with 4 bits) with the scanner "

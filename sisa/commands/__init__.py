@@ -70,6 +70,20 @@ def check_inputs(*given: tuple[str, Path | Sequence[Path] | None, str]) -> None:
                 raise InputError(f"{name}: is a file, not a folder")
 
 
+# Exit codes (README, "How every command behaves"): 0 complete; 3 finished, but short of what
+# its inputs promised (the headline says how much); 2 bad input or usage (sisa.cli); 1 failed
+# (an unexpected error); 130 interrupted, 143 terminated.
+EXIT_INCOMPLETE = 3
+
+
+def finished_with_losses(command: str, what: str) -> int:
+    """Say on stderr that the command finished short of what its inputs promised, and return
+    the exit code that tells a script so."""
+    print(f"sisa {command}: finished with losses: {what} (exit code {EXIT_INCOMPLETE})",
+          file=sys.stderr, flush=True)
+    return EXIT_INCOMPLETE
+
+
 MAX_SEED = 2**32 - 1  # numpy's seeds, and the scenario's
 
 

@@ -34,6 +34,7 @@ from sisa.commands import (
     add_command,
     add_force_arg,
     check_inputs,
+    finished_with_losses,
     flight_parts,
     say_warning,
 )
@@ -151,10 +152,35 @@ def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOpti
     return result
 
 
+def lines_promised(result: GeorefResult) -> int:
+    """The scan lines the inputs promised: per segment, the lines its image holds or its lines
+    file lists, whichever are more (an image cut short holds fewer; a lines file cut short
+    lists fewer)."""
+    import numpy as np
+
+    segs, counts = np.unique(result.sync.lines.segment, return_counts=True)
+    per = {int(s): int(n) for s, n in zip(segs, counts, strict=True)}
+    made = [(d.segment, d.lines) for d in result.segments]
+    skipped = [(s.segment, s.lines) for s in result.skipped if s.whole_segment]
+    for segment, lines in made + skipped:
+        per[segment] = max(per.get(segment, 0), lines)
+    return sum(per.values())
+
+
+def lines_georeferenced(result: GeorefResult) -> tuple[int, int]:
+    """(lines georeferenced, lines promised)."""
+    return sum(s.lines_georeferenced for s in result.segments), lines_promised(result)
+
+
+def losses(result: GeorefResult) -> str | None:
+    """What the headline lacks against the inputs' promise, said as the exit 3 line."""
+    geo, lines = lines_georeferenced(result)
+    return None if geo >= lines else f"{lines - geo} of {lines} scan lines not georeferenced"
+
+
 def headline(result: GeorefResult) -> str:
     whole = [s for s in result.skipped if s.whole_segment]
-    lines = sum(s.lines for s in result.segments) + sum(s.lines for s in whole)
-    geo = sum(s.lines_georeferenced for s in result.segments)
+    geo, lines = lines_georeferenced(result)
     rays = sum(s.rays for s in result.segments)
     hit = sum(s.rays_hit for s in result.segments)
     segments = (f"{len(result.segments)} segments" if not whole else
@@ -174,4 +200,5 @@ def _run(args: argparse.Namespace) -> int:
     with staged_output_dir(args.out, force=args.force) as out, progress("georef") as bar:
         result = run_georef(flight_parts(args.flight), args.scanner, out, options, bar)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
-    return 0
+    lost = losses(result)
+    return 0 if lost is None else finished_with_losses("georef", lost)

@@ -21,10 +21,17 @@ from sisa.commands import (
     add_command,
     add_force_arg,
     check_inputs,
+    finished_with_losses,
     flight_parts,
     say_warning,
 )
-from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
+from sisa.commands.georef import (
+    add_georef_args,
+    headline,
+    losses,
+    options_from_args,
+    run_georef,
+)
 from sisa.commands.progress import progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken, staged_output_dir
@@ -143,4 +150,5 @@ def _run(args: argparse.Namespace) -> int:
     for name, value in rows:
         print(f"  {name}: {value}")
     print(f"  ({time.perf_counter() - started:.1f} s)")
-    return 0
+    lost = losses(result)
+    return 0 if lost is None else finished_with_losses("process", lost)

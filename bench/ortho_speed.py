@@ -201,11 +201,12 @@ SUMMARY = re.compile(r"(?P<filled>\d+) of (?P<cells>\d+) cells filled.*; ortho "
 
 def ours_cmd(folder: Path, grid: OrthoGrid, tag: str, compress: str, glt: bool = True
              ) -> list[str]:
-    """`sisa ortho` as a user runs it, on gdalwarp's grid (its -te and -tr)."""
+    """`sisa ortho` as a user runs it, on gdalwarp's grid (its -te and -tr); each repeat
+    replaces the last one's products (--force), as gdalwarp's -overwrite."""
     return [sys.executable, "-m", "sisa.cli", "ortho", str(folder / "seg_igm.bil"),
             str(folder / "seg.bil"), "--out", str(folder / f"ours_{tag}.tif"),
             "--cell", repr(grid.cell_m), "--bounds", *(repr(v) for v in grid.bounds_m),
-            "--compress", compress, *([] if glt else ["--no-glt"])]
+            "--compress", compress, "--force", *([] if glt else ["--no-glt"])]
 
 
 def ours_summary(run: Run) -> tuple[int, float]:

@@ -107,6 +107,7 @@ class Runner:
         self._entries = 0
         self.outputs = 0
         self.late_ns_max = 0
+        self.t_ns: int | None = None  # the time reached (of the last emission, skipped or not)
         # edges from another process (real time): drained before every emission
         self.inbox: queue.SimpleQueue[Edge] = queue.SimpleQueue()
 
@@ -132,6 +133,7 @@ class Runner:
                 del self._due[i]
                 if until_ns is not None and t_ns > until_ns:
                     break
+                self.t_ns = t_ns
                 if should_stop is not None and should_stop():
                     break
                 dev = self.devices[i]

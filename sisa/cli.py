@@ -18,7 +18,7 @@ from types import FrameType
 from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
-from sisa.commands import warning_line
+from sisa.commands import Terminated, warning_line
 from sisa.core.errors import InputError, SisaError
 
 Handler = Callable[[argparse.Namespace], int]
@@ -47,6 +47,10 @@ EPILOG = """examples:
        --cell 2 --out seg0_2m.tif    one segment mapped again, here at 2 m cells
   sisa process runs/bench            sync + georeference + report with accuracy vs truth
   sisa <command> --help              every command shows an example
+
+exit codes: 0 complete; 3 finished, but short of what the inputs promised (the headline
+says how much, and a last line on stderr); 2 bad input or usage (one line on stderr);
+1 failed; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM).
 """
 
 
@@ -104,8 +108,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     """Run one command; `batch_gc`: a batch command runs with BATCH_GC_THRESHOLDS (the
     console script; not for tests, which call this in their own process)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:  # the commands' imports: Ctrl-C there is an interruption like any other
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        named = next((a for a in (sys.argv[1:] if argv is None else argv)
+                      if not a.startswith("-")), None)
+        print(f"sisa{'' if named is None else ' ' + named}: interrupted", file=sys.stderr)
+        return 130
     handler: Handler | None = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()
@@ -133,11 +143,6 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         _command[0] = None
         if on_term is not None:
             signal.signal(signal.SIGTERM, on_term)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
-    command was writing is removed, not left half-written."""
 
 
 def _raise_terminated(_sig: int, _frame: FrameType | None) -> None:

@@ -3,12 +3,18 @@
 import fcntl
 import hashlib
 import json
+import os
 import shutil
 import subprocess
 import tempfile
 from pathlib import Path
 
 import pytest
+
+# Commands run by the tests have their stderr piped: their plain progress lines (every few
+# seconds, sisa.commands.progress) would mix with the one-line errors and warnings the tests
+# read. Off for every test and the commands they start, unless a test asks for them.
+os.environ.setdefault("SISA_PROGRESS_S", "off")
 
 JS_DIR = Path(__file__).resolve().parent / "recorder" / "js"
 

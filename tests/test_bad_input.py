@@ -108,7 +108,7 @@ IN_PROCESS = [
     _case("log recover {d}/flight.mcap {d}/taken", "{d}/taken", "already exists"),
     _case("log recover {d}/flight.mcap {d}/nowhere/out.mcap", "{d}/nowhere", "not a folder"),
     _case("process {d}/folder", "{d}/folder", "not a run folder"),
-    _case("process {d}/missing", "{d}/missing", "not a run folder"),
+    _case("process {d}/missing", "{d}/missing: no such folder"),
     _case("process {d}/notes.txt", "{d}/notes.txt", "not a run folder"),
     # a run of `simulate --no-images` (here: a folder with a log only) said "no such scanner
     # folder" (found by a bad-input sweep)
@@ -444,3 +444,33 @@ def test_no_package_code_unpickles_or_evaluates_input() -> None:
            for path in files for line, what in forbidden_uses(path.read_text("utf-8"))
            if (str(path.relative_to(ROOT)), line) not in ALLOWED]
     assert not bad, "\n".join(bad)
+
+
+HEAVY_MODULES = ("numpy", "scipy", "rasterio", "pyproj", "numba", "matplotlib", "mcap")
+SLOW_TO_FAIL = [  # a missing input said only after ~1.5 s of imports (issue 33, item 8)
+    ("process {d}/missing", "{d}/missing: no such folder"),
+    ("georef {d}/missing.mcap --scanner {d}/folder --dem {d}/dem.tif --out {d}/geo",
+     "{d}/missing.mcap: no such file"),
+    ("georef {d}/flight.mcap --scanner {d}/noscanner --dem {d}/dem.tif --out {d}/geo",
+     "--scanner {d}/noscanner: no such folder"),
+    ("georef {d}/flight.mcap --scanner {d}/folder --dem {d}/nodem.tif --out {d}/geo",
+     "--dem {d}/nodem.tif: no such file"),
+    ("calibrate {d}/missing --out {d}/cal", "{d}/missing: no such file or folder"),
+    ("calibrate {d}/folder --gcp {d}/missing.csv --out {d}/cal", "--gcp {d}/missing.csv"),
+    ("process {d}/folder --sensor {d}/missing.toml", "--sensor {d}/missing.toml: no such file"),
+]
+
+
+@pytest.mark.parametrize(("argv", "says"), SLOW_TO_FAIL, ids=[a for a, _ in SLOW_TO_FAIL])
+def test_a_missing_input_is_said_before_any_heavy_import(argv: str, says: str,
+                                                         inputs: Path) -> None:
+    """Arguments are checked first: the command fails in the time Python takes to start,
+    without importing numpy, GDAL, PROJ, numba or the georeferencing."""
+    words = [a.replace("{d}", str(inputs)) for a in argv.split()]
+    code = ("import sys\nfrom sisa.cli import main\ncode = main(sys.argv[1:])\n"
+            f"print(sorted(m for m in {HEAVY_MODULES!r} if m in sys.modules))\n"
+            "sys.exit(code)")
+    proc = subprocess.run([sys.executable, "-c", code, *words], capture_output=True, text=True,
+                          timeout=60, check=False, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    _check(proc.returncode, "", proc.stderr, words[0], [says.replace("{d}", str(inputs))])
+    assert proc.stdout.strip() == "[]", f"imported before failing: {proc.stdout}"

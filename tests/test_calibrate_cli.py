@@ -208,8 +208,8 @@ def test_several_runs_refuse_per_run_files(run: Path, second: Path,
                                            capsys: pytest.CaptureFixture[str]) -> None:
     out = run.parent / "bad-joint"
     for opt, value in (("--gcp", run / "terrain" / "ground_points.csv"),
-                       ("--obs", run.parent / "cal" / "observations.csv"),
-                       ("--scanner", run / "scanner"), ("--dem", run / "terrain" / "dem.tif")):
+                       ("--obs", run / "terrain" / "ground_points.csv"),  # any file there
+                       ("--scanner", run / "terrain"), ("--dem", run / "terrain" / "dem.tif")):
         assert main(["calibrate", str(run), str(second), "--out", str(out), opt,
                      str(value)]) == 2
         err = capsys.readouterr().err.strip()

@@ -3,6 +3,7 @@ With no navigation errors, every pixel must land where the emulator's own forwar
 different ray caster in a different frame) says it looked."""
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -112,7 +113,18 @@ def test_an_image_cut_short_is_processed_over_the_lines_it_holds(processed, tmp_
     with open(image, "r+b") as f:
         f.truncate(whole // 2 + 777)  # mid-line
     proc = _sisa("process", cut, check=False)
-    assert proc.returncode == 0, proc.stderr
+    # the headline counts against what the inputs promised (the header's and lines file's
+    # lines), not what the cut file holds ("4345/4345 lines georeferenced" while 1905 were
+    # lost), and the exit code says so (issue 33, item 6)
+    assert proc.returncode == 3, proc.stderr
+    listed = sum(len([r for r in (run / "scanner" / f"segment_{s:03d}.lines.csv").read_text()
+                      .splitlines() if r[:1].isdigit()]) for s in (0, 1))
+    held = json.loads((cut / "process" / "georef_summary.json").read_text())["segments"]
+    geo = sum(s["lines_georeferenced"] for s in held)
+    assert geo < listed
+    assert f", {geo}/{listed} lines georeferenced, " in proc.stdout, proc.stdout
+    assert proc.stderr.endswith(f"sisa process: finished with losses: {listed - geo} of "
+                                f"{listed} scan lines not georeferenced (exit code 3)\n")
     said = [line for line in proc.stderr.splitlines() if "cut short" in line]
     # once, by the georeferencing (the ortho said it again, naming the hidden staging folder)
     assert len(said) == 1, proc.stderr
@@ -201,6 +213,30 @@ def test_a_damaged_table_of_the_run_is_one_line_naming_it(processed, tmp_path, n
     assert not (bad / "process").exists()
 
 
+def test_sync_of_a_log_cut_short_counts_against_the_scanners_lines_and_exits_3(processed,
+                                                                               tmp_path):
+    """`sisa sync` of a truncated log exited 0 with `scan lines 0/6250 timed` (issue 33, item
+    6): complete is 0, finished with losses 3 (said on stderr), failed 1 or 2."""
+    run, _, _ = processed
+    whole = run / "flight.mcap"
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[:whole.stat().st_size // 3])
+    listed = sum(len([r for r in (run / "scanner" / f"segment_{s:03d}.lines.csv").read_text()
+                      .splitlines() if r[:1].isdigit()]) for s in (0, 1))
+    proc = _sisa("sync", cut, "--scanner", run / "scanner", "--out", tmp_path / "s", check=False)
+    assert proc.returncode == 3, proc.stderr
+    got = re.search(r"scan lines (\d+)/(\d+) timed", proc.stdout)
+    assert got is not None, proc.stdout
+    timed = int(got[1])
+    assert int(got[2]) == listed
+    assert timed < listed
+    assert proc.stderr.splitlines()[-1].startswith("sisa sync: finished with losses: ")
+    assert f"{listed - timed} of {listed} scan lines" in proc.stderr.splitlines()[-1]
+    assert proc.stderr.endswith(" not timed (exit code 3)\n")
+    complete = _sisa("sync", whole, "--scanner", run / "scanner", "--out", tmp_path / "w")
+    assert f"scan lines {listed}/{listed} timed" in complete.stdout  # and exit 0 (checked)
+
+
 def test_sync_says_the_lines_its_lines_files_leave_out(processed, tmp_path):
     """`sisa sync --scanner` read only the lines files: one holding its header alone, or cut
     short, left a segment or lines untimed without a word, where georef warned (found by a
@@ -212,7 +248,10 @@ def test_sync_says_the_lines_its_lines_files_leave_out(processed, tmp_path):
         rows = lines_csv.read_text().splitlines(keepends=True)
         data_at = next(i for i, r in enumerate(rows) if r.startswith("line_index"))
         lines_csv.write_text("".join(rows[:data_at + 1 + keep]))
-    proc = _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "s")
+    proc = _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "s",
+                 check=False)
+    assert proc.returncode == 3, proc.stderr  # lines the log's frame headers promised: untimed
+    assert "  scan lines not in the scanner's files: " in proc.stdout
     said = [line for line in proc.stderr.splitlines() if line.startswith("sisa sync: warning:")]
     assert said[0] == (f"sisa sync: warning: {scanner / 'segment_000.bil'}: its lines file "
                        "lists no line: not timed")
@@ -236,7 +275,8 @@ def test_two_lines_claiming_one_frame_are_neither_timed(processed, tmp_path):
     rows[at + 11] = f"11,{counter_10}"
     lines_csv.write_text("".join(rows))
     _sisa("sync", run / "flight.mcap", "--scanner", run / "scanner", "--out", tmp_path / "a")
-    _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "b")
+    assert _sisa("sync", run / "flight.mcap", "--scanner", scanner, "--out", tmp_path / "b",
+                 check=False).returncode == 3  # two lines not timed
 
     def table(folder):
         text = (folder / "line_times.csv").read_text().splitlines()
@@ -259,8 +299,35 @@ def test_lines_the_lines_file_does_not_list_are_said_to_be_left_out(processed, t
     data_at = next(i for i, r in enumerate(rows) if r.startswith("line_index"))
     lines_csv.write_text("".join(rows[:data_at + 101]))
     proc = _sisa("process", cut, check=False)
-    assert proc.returncode == 0, proc.stderr
+    assert proc.returncode == 3, proc.stderr  # the image's lines, promised, not all made
     assert "segment_000.bil: its lines file lists 100 of its" in proc.stderr
     assert "have no frame counter: not georeferenced" in proc.stderr
     summary = json.loads((cut / "process" / "georef_summary.json").read_text())
     assert any("lists 100 of its" in w for w in summary["warnings"])
+
+
+def test_a_piped_process_shows_progress_while_it_works(processed, tmp_path):
+    """Piped (CI, logs, `| tee`), `sisa process` printed only at the end (issue 33, item 1):
+    plain timestamped lines on stderr every few seconds, during the work."""
+    import os
+    import signal
+
+    from tests.sisa.piped import PROGRESS_LINE, start, stderr_lines_until
+
+    run, _, _ = processed
+    proc = start("process", run, "--out", tmp_path / "again")
+    try:
+        lines = stderr_lines_until(proc, "sisa process: georeferencing ", 120)
+        assert proc.poll() is None  # while it works
+        progress = [x for x in lines if re.match(PROGRESS_LINE.format(command="process"), x)]
+        assert progress == lines, lines  # stderr holds progress lines only, so far
+        assert re.search(r"georeferencing \d+/\d+ lines \(\d+%\)", lines[-1]), lines[-1]
+        os.killpg(proc.pid, signal.SIGINT)  # enough seen: Ctrl-C
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130
+    assert err.endswith("sisa process: interrupted\n"), err
+    assert not (tmp_path / "again").exists()
+    assert not list(tmp_path.iterdir())

@@ -36,7 +36,7 @@ import pytest
 
 from emulators.scenario import scenario_from_table
 from postproc.sync import sync_log
-from recorder.messages import FrameHeaderLog, RawBytes, StreamHealth, Topic
+from recorder.messages import FrameHeaderLog, PulseEdgeLog, RawBytes, StreamHealth, Topic
 from recorder.reader import read_log, read_messages
 from recorder.replay import Wire, iter_schedule
 from recorder.writer import FlightRecorder
@@ -299,3 +299,53 @@ def test_once_and_loop_exclude_each_other(tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["replay", str(tmp_path / "x.mcap"), "--once", "--loop"])
     assert exc.value.code == 2
+
+
+# --- when piped -----------------------------------------------------------------------------------
+
+def _stderr_line(proc: subprocess.Popen[str], wanted: str, timeout_s: float) -> str:
+    """The first line of the child's stderr holding `wanted`, read as the child writes it."""
+    assert proc.stderr is not None
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if select.select([proc.stderr], [], [], 0.1)[0]:
+            line = proc.stderr.readline()
+            assert line, f"stderr closed before {wanted!r}"
+            if wanted in line:
+                return line
+    raise AssertionError(f"no {wanted!r} on stderr in {timeout_s} s")
+
+
+def test_a_piped_replay_says_it_waits_and_shows_progress_while_it_plays(tmp_path):
+    """`sisa replay … | cat` waited for a client without a word (the "waiting for clients" line
+    was on a terminal only) and showed no progress (issue 33, item 1)."""
+    import socket
+
+    flight = tmp_path / "piped.mcap"
+    t0 = 1_700_000_000 * NS_PER_S
+    with FlightRecorder(flight) as rec:
+        for k in range(40):
+            rec.write(RawBytes(t0 + k * NS_PER_S // 10, "gps", b"%02d\n" % k), Topic.GPS_RAW)
+        rec.write(PulseEdgeLog(t0 + NS_PER_S, "PPS", NS_PER_S, 0), Topic.PULSE_IN)
+    proc = subprocess.Popen([*SISA, "replay", str(flight), "--once", "--endpoints",
+                             str(tmp_path / "ep.json")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "SISA_PROGRESS_S": "0.3"})
+    try:
+        ep = _wait_for(tmp_path / "ep.json", proc)  # type: ignore[arg-type]
+        said = _stderr_line(proc, "waiting for a client", 20)
+        assert said == (f"sisa replay: waiting for a client on the pulse link {ep['pulses']} "
+                        "before playing (--no-wait starts at once)\n")
+        assert proc.poll() is None
+        host, port = ep["pulses"].removeprefix("tcp://").rsplit(":", 1)
+        with socket.create_connection((host, int(port))):
+            line = _stderr_line(proc, "sisa replay: playing", 20)
+            assert proc.poll() is None  # said while it plays, not at the end
+            assert re.fullmatch(r"\d\d:\d\d:\d\d sisa replay: playing [\d.]+/3\.9 s \(\d+%\).*\n",
+                                line), line
+            out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0
+    assert out.strip().splitlines()[-1].startswith("replay done:")

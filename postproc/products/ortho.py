@@ -698,6 +698,7 @@ class TiffWriter:
                              f"{', '.join(TIFF_COMPRESSIONS)}")
         self.path = Path(path)
         self._tmp = partial_path(self.path)
+        os.close(exclusive_fd(self._tmp))  # ours: GDAL then opens it by name, no link between
         kind = np.dtype(raw.dtype.name).kind
         packing: dict[str, Any] = {"compress": compress}
         if compress != "none":
@@ -774,6 +775,13 @@ class TiffWriter:
             self._tmp.unlink(missing_ok=True)
 
 
+def exclusive_fd(tmp: Path) -> int:
+    """A new file at the scratch name `tmp`, created exclusively and never through a link: a
+    leftover of a dead process (or a link planted there) is removed, not written through."""
+    tmp.unlink(missing_ok=True)
+    return os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
+
+
 class GltWriter:
     """The GLT as ENVI BIL int32 (band 1 sample, band 2 line, 1-based), written tile by tile
     into a zero-filled file (0 = no input pixel) and renamed into place by `close()`."""
@@ -782,7 +790,7 @@ class GltWriter:
         self.path, self.grid = Path(f"{stem}.bil"), grid
         self.image_name, self.ortho_name = image_name, ortho_name
         self._tmp = partial_path(self.path)
-        self._fd: int | None = os.open(self._tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
+        self._fd: int | None = exclusive_fd(self._tmp)
         try:
             os.ftruncate(self._fd, grid.height * 2 * grid.width * 4)
         except OSError as exc:  # EFBIG: a grid beyond what the file system holds

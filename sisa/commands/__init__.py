@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+import textwrap
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,27 +17,11 @@ if TYPE_CHECKING:
     from emulators.scenario import Scenario
 
 SubParsers = argparse._SubParsersAction  # the type argparse gives subcommand registries
-Count = Callable[[int], None]
 
 
-@contextmanager
-def terminal_progress(label: str, *, show_count: bool = False
-                      ) -> Iterator[tuple[Count | None, Count | None]]:
-    """(advance by n, set the total) of a bar on stderr when stderr is a terminal, else
-    (None, None): stdout keeps only the command's own lines, and a scripted run does not
-    import rich for it."""
-    if not sys.stderr.isatty():
-        yield None, None
-        return
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
-
-    columns = [BarColumn(), *([MofNCompleteColumn()] if show_count else []),
-               TimeRemainingColumn()]
-    with Progress("[progress.description]{task.description}", *columns, transient=True,
-                  console=Console(stderr=True)) as bar:
-        task = bar.add_task(label, total=None)
-        yield (lambda n: bar.advance(task, n)), (lambda n: bar.update(task, total=n))
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
+    command was writing is removed, not left half-written (sisa.cli raises it)."""
 
 
 class Formatter(argparse.RawDescriptionHelpFormatter):
@@ -57,6 +41,47 @@ def warning_line(command: str | None, text: object) -> str:
 def say_warning(command: str, text: str) -> None:
     """A warning to the user: one line on stderr, named by the command, like its errors."""
     print(warning_line(command, text), end="", file=sys.stderr, flush=True)
+
+
+def flight_parts(files: Sequence[Path]) -> list[Path]:
+    """`recorder.parts.flight_parts`, imported when a command uses it: building the parser
+    (every command's first step, and all an argument error needs) imports no numpy."""
+    from recorder.parts import flight_parts as parts
+
+    return parts(files)
+
+
+def check_inputs(*given: tuple[str, Path | Sequence[Path] | None, str]) -> None:
+    """Every input named on the command line exists, as the kind of thing it must be, before
+    a command imports its heavy machinery: `sisa process /nonexistent` spent ~1.5 s of CPU
+    importing the georeferencing before it said so. Each is (option or '' for a positional,
+    the path(s) or None, "file" | "folder" | "any")."""
+    for option, paths, kind in given:
+        if paths is None:
+            continue
+        for path in [paths] if isinstance(paths, Path) else paths:
+            name = f"{option} {path}" if option else str(path)
+            if not name_taken(path, option) or not path.exists():
+                what = {"file": "file", "folder": "folder"}.get(kind, "file or folder")
+                raise InputError(f"{name}: no such {what}")
+            if kind == "file" and path.is_dir():
+                raise InputError(f"{name}: is a folder, not a file")
+            if kind == "folder" and not path.is_dir():
+                raise InputError(f"{name}: is a file, not a folder")
+
+
+# Exit codes (README, "How every command behaves"): 0 complete; 3 finished, but short of what
+# its inputs promised (the headline says how much); 2 bad input or usage (sisa.cli); 1 failed
+# (an unexpected error); 130 interrupted, 143 terminated.
+EXIT_INCOMPLETE = 3
+
+
+def finished_with_losses(command: str, what: str) -> int:
+    """Say on stderr that the command finished short of what its inputs promised, and return
+    the exit code that tells a script so."""
+    print(f"sisa {command}: finished with losses: {what} (exit code {EXIT_INCOMPLETE})",
+          file=sys.stderr, flush=True)
+    return EXIT_INCOMPLETE
 
 
 MAX_SEED = 2**32 - 1  # numpy's seeds, and the scenario's
@@ -127,11 +152,40 @@ def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
         raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
+# The one rule for Ctrl-C (and SIGTERM), in every command's --help and the README: a command
+# stops at once and never leaves anything half-written. What it computes is removed (outputs
+# appear whole or not at all), exit 130 (143 for SIGTERM); what it records is kept, a shorter
+# but complete recording. `record`, `emulate` and `replay` run until stopped: Ctrl-C is how they
+# end (exit 0).
+STOP_RULE = ("Ctrl-C (or SIGTERM) stops it at once; nothing of its output is left behind (an "
+             "output appears whole or not at all); exit 130 (143 for SIGTERM).")
+STOP_RULES = {
+    "bench": "Ctrl-C (or SIGTERM) stops the recorder, then the emulator, at any moment: the run "
+             "recorded so far is kept, whole and readable, once the recorder has begun its "
+             "flight log (before that, nothing is left); exit 130 (143 for SIGTERM).",
+    "record": "Ctrl-C (or SIGTERM) is how a recording ends: the file is closed, whole and "
+              "readable; exit 0.",
+    "emulate": "Ctrl-C (or SIGTERM) is how an emulation ends: the devices stop, the scanner's "
+               "recording and the truth so far are kept; exit 0.",
+    "replay": "Ctrl-C (or SIGTERM), or q, is how a replay ends: the ports close; exit 0.",
+}
+
+
 def add_command(sub: SubParsers[argparse.ArgumentParser], name: str, help_text: str,
                 example: str) -> argparse.ArgumentParser:
-    """A subcommand parser whose --help ends with a worked example."""
+    """A subcommand parser whose --help ends with a worked example and what Ctrl-C does."""
     return sub.add_parser(name, help=help_text, description=help_text,
-                          epilog=f"example:\n  {example}", formatter_class=Formatter)
+                          epilog=f"example:\n  {example}\n\n"
+                                 + textwrap.fill(STOP_RULES.get(name, STOP_RULE), 79),
+                          formatter_class=Formatter)
+
+
+def add_force_arg(parser: argparse.ArgumentParser, what: str = "output folder") -> None:
+    """--force, the one way any command replaces an existing output."""
+    parser.add_argument("--force", action="store_true",
+                        help=f"replace an existing {what} (without it, an existing one is "
+                             "refused); the new one is made beside it and takes its place "
+                             "only once complete")
 
 
 def add_scenario_args(parser: argparse.ArgumentParser, what: str = "scenario") -> None:

@@ -1,7 +1,8 @@
 """`sisa bench`: the desk test. `sisa emulate` and `sisa record` run as separate processes on
 virtual ports (ptys), CAN (SLCAN on a pty) and the pulse link, in real time; both are stopped
-cleanly at the end, or at Ctrl-C, which keeps the run so far. The run folder has the same layout
-as `sisa simulate`'s."""
+cleanly at the end, or at Ctrl-C (or SIGTERM), at any moment: the run so far is kept once the
+recorder has begun its flight log, and nothing before (exit 130 either way). The run folder has
+the same layout as `sisa simulate`'s."""
 
 from __future__ import annotations
 
@@ -16,11 +17,27 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
-from sisa.commands import SubParsers, add_command, add_scenario_args, scenario_from_args
-from sisa.commands.emulate import HELD_LINE, check_span
+from sisa.commands import (
+    SubParsers,
+    Terminated,
+    add_command,
+    add_force_arg,
+    add_scenario_args,
+    say_warning,
+    scenario_from_args,
+)
+from sisa.commands.emulate import (
+    HELD_LINE,
+    add_span_args,
+    check_span,
+    imaging_warning,
+    timeline,
+)
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError, SisaError
 from sisa.core.outdir import staged_output_dir
 
@@ -36,16 +53,15 @@ RECORDER_LATE = re.compile(r"(?P<n>\d+) late edges")
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "bench", "desk test: sisa emulate and sisa record as separate "
-                         "processes on virtual ports, in real time (Ctrl-C ends it early and "
-                         "keeps the run)",
-                         "sisa bench --preset bench --out runs/bench-rt --duration 120")
+                         "processes on virtual ports, in real time",
+                         "sisa bench --preset bench --out runs/bench-rt --strip 0   "
+                         "(then: sisa process runs/bench-rt)")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
+    add_force_arg(parser)
     parser.add_argument("--speed", type=float, default=1.0, help="times real time")
-    parser.add_argument("--start", type=float, default=0.0,
-                        help="start this many seconds into the scenario")
-    parser.add_argument("--duration", type=float, default=None,
-                        help="seconds of flight to run (default: the whole scenario)")
+    add_span_args(parser, "seconds of flight to run (default: the whole scenario, or strip "
+                          "N with --strip)")
     parser.add_argument("--no-images", action="store_true", help="do not render image lines")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
@@ -87,14 +103,18 @@ def _run(args: argparse.Namespace) -> int:
     scn = scenario_from_args(args)
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)  # before anything starts
+    print("\n".join(timeline(scn, traj, args.start, args.duration)), flush=True)
+    warning = imaging_warning(traj, args.start, args.duration)
+    if warning is not None:
+        say_warning("bench", warning)
     real_s = _real_seconds(traj, args)
     if real_s < MIN_REAL_S:
         raise InputError(f"this run plays {real_s:.2g} s of real time: sisa record takes about "
                          f"a second to start, so at least {MIN_REAL_S:g} s (a longer --duration, "
                          "or a lower --speed)")
     sisa = [sys.executable, "-m", "sisa.cli"]
-    with staged_output_dir(args.out) as run:
-        (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
+    stopped: KeyboardInterrupt | None = None  # Ctrl-C or SIGTERM, at whatever moment
+    with staged_output_dir(args.out, force=args.force) as run:
         endpoints_file = run / "endpoints.json"
         emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),
                    "--speed", str(args.speed), "--start", str(args.start),
@@ -103,35 +123,56 @@ def _run(args: argparse.Namespace) -> int:
             emu_cmd += ["--duration", str(args.duration)]
         if args.no_images:
             emu_cmd.append("--no-images")
-        emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
+        # progress: on a terminal the recorder's live status shows the run (the emulator's bar
+        # would fight it); piped, the emulator's plain lines, named as the bench's
+        emu_cmd += ["--progress-as", "bench", *(["--quiet"] if sys.stderr.isatty() else [])]
+        emu: subprocess.Popen[str] | None = None
         rec: subprocess.Popen[str] | None = None
+        rec_end = emu_end = None
         try:
-            # the DEM and ground points, as `sisa simulate` writes them, while the emulator starts
-            write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
-            ep = wait_for_endpoints(endpoints_file, emu)
+            (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
+            emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
+            with progress("bench", "starting: DEM, ground points, emulator") as bar:
+                # the DEM and ground points, as `sisa simulate` writes them, while the
+                # emulator starts
+                write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
+                bar.step("starting: waiting for the emulator's ports")
+                ep = wait_for_endpoints(endpoints_file, emu)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
                                     "--out", str(run / "flight.mcap"),
                                     "--shown-as", str(args.out / "flight.mcap")],
                                    stdout=subprocess.PIPE, text=True)
-            try:
-                rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
-                early = ""
-            except KeyboardInterrupt:  # Ctrl-C (to both, from the terminal): a shorter run
-                rec_end, emu_end = _stop(rec, ask=True), _stop(emu, ask=True)
-                early = ", stopped early (Ctrl-C)"
+            rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
+        except KeyboardInterrupt as exc:
+            stopped = exc
+            restore = _ignore_stops()  # a second Ctrl-C must not cut the stopping short
+            try:  # the recorder first, its devices still there; then the emulator
+                rec_end = _stop(rec, ask=True) if rec is not None else None
+                emu_end = _stop(emu, ask=True) if emu is not None else None
+            finally:
+                restore()
         finally:  # both have ended by now, unless something went wrong: then ask them
             if rec is not None:
                 _stop(rec, ask=True)
-            _stop(emu, ask=True)
-        failed = failure(emu_end, rec_end, real_s, stopped_early=bool(early))
+            if emu is not None:
+                _stop(emu, ask=True)
+        if stopped is not None and not (run / "flight.mcap").exists():
+            print("sisa bench: stopped before the recorder had begun its flight log: nothing "
+                  "recorded, nothing kept", file=sys.stderr)
+            raise stopped  # the run folder goes (sisa.cli says `interrupted`, exit 130)
+        assert rec_end is not None
+        assert emu_end is not None
+        failed = None if stopped is not None else failure(emu_end, rec_end, real_s,
+                                                          stopped_early=False)
         if failed and not (run / "flight.mcap").exists():
             raise SisaError(failed)  # nothing recorded: nothing to keep
         for part in ("scanner", "truth"):
             if (run / "emulator" / part).exists():
                 os.replace(run / "emulator" / part, run / part)
         shutil.rmtree(run / "emulator", ignore_errors=True)
+        endpoints_file.unlink(missing_ok=True)
     # its summary, told once the run is in place, names the file where it now is
     print(rec_end.stdout.replace(str(run), str(args.out)), end="")
     lag = EMULATOR_LAG.search(emu_end.stdout)
@@ -145,13 +186,30 @@ def _run(args: argparse.Namespace) -> int:
         raise SisaError(f"{failed}; the run so far is in {args.out}")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
              for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
-    print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{early}")
+    how = "" if stopped is None else ", stopped early (Ctrl-C)"
+    print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{how}",
+          flush=True)
+    if stopped is not None:
+        print(f"sisa bench: {'terminated' if isinstance(stopped, Terminated) else 'interrupted'}"
+              f": the run so far is kept in {args.out}", file=sys.stderr)
+        return 143 if isinstance(stopped, Terminated) else 130
     return 0
 
 
 # sisa record's exit when asked to stop (SIGINT) before its own handler is in place: Python's
 # KeyboardInterrupt in `sisa.cli.main`, or death by the signal while it was still starting up
 STOPPED_STARTING = (130, -signal.SIGINT)
+
+
+def _ignore_stops() -> Callable[[], None]:
+    """Ignore SIGINT and SIGTERM until the returned function puts their handlers back."""
+    saved = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore() -> None:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+    return restore
 
 
 def failure(emu_end: Ended, rec_end: Ended, real_s: float, *, stopped_early: bool

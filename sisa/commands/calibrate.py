@@ -31,8 +31,16 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from recorder.parts import flight_parts
-from sisa.commands import SubParsers, add_command, check_seed, say_warning
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_force_arg,
+    check_inputs,
+    check_seed,
+    flight_parts,
+    say_warning,
+)
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
@@ -74,6 +82,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                              "numbered parts are found beside it); "
                              "several run folders: flights sharing the sensor, adjusted together")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
                         help="ground points (id, kind, lat_deg, lon_deg, height_m); default "
                              "RUN/terrain/ground_points.csv")
@@ -449,6 +458,9 @@ def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    check_inputs(("", args.flight, "any"), ("--gcp", args.gcp, "file"),
+                 ("--obs", args.obs, "file"), ("--scanner", args.scanner, "folder"),
+                 ("--sensor", args.sensor, "file"), ("--dem", args.dem, "file"))
     import numpy as np
 
     from postproc.calibration import (
@@ -466,12 +478,15 @@ def _run(args: argparse.Namespace) -> int:
     opt = _options(args)
     _check_simulation(args)
     runs = _several_runs(args)
-    with staged_output_dir(args.out) as out:
+    with staged_output_dir(args.out, force=args.force) as out, progress("calibrate") as bar:
+        bar.step("sync, navigation and measurements")
         inp, info = build_input(args) if runs is None else build_joint_input(args, runs)
+        bar.step("adjustment")
         res = calibrate(inp, opt)
         for note in res.notes:  # in calibration.json alone, a dropped row went unnoticed
             say_warning(args.command, note)
         if args.sweep_delay_ms is not None:
+            bar.step("delay sweep")
             span = abs(args.sweep_delay_ms)
             info["delay_sweep"] = sweep_delay(inp, opt, np.arange(-span, span + 1e-9, 5.0))
         text = sensor_toml(res)

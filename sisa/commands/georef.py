@@ -28,14 +28,17 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from recorder.parts import flight_parts
 from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
+    add_force_arg,
+    check_inputs,
+    finished_with_losses,
+    flight_parts,
     say_warning,
-    terminal_progress,
 )
+from sisa.commands.progress import Progress, progress
 from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
@@ -56,6 +59,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the scanner's recording folder (segment_NNN.bil/.hdr/.lines.csv)")
     parser.add_argument("--dem", type=Path, required=True, help="DEM GeoTIFF (projected CRS)")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     add_georef_args(parser)
     parser.set_defaults(handler=_run)
 
@@ -126,23 +130,57 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
 
 
 def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions,
-               command: str = "georef") -> GeorefResult:
-    """The job with a progress bar over scan lines (on a terminal); its warnings (segments or
-    lines skipped, and why) one line each on stderr."""
+               bar: Progress, command: str = "georef") -> GeorefResult:
+    """The job, its steps shown on `bar` (reading and sync, then the scan lines, then the
+    products); its warnings (segments or lines skipped, and why) one line each on stderr."""
     from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
-    with terminal_progress("sync + georeference", show_count=True) as (progress, on_total):
-        result = job.run(progress=progress, on_total=on_total)
+    bar.step("reading the flight log and synchronising")
+
+    def on_total(lines: int) -> None:
+        bar.step("georeferencing", lines, "lines")
+
+    def advance(lines: int) -> None:
+        bar.advance(lines)
+        if bar.total is not None and bar.completed >= bar.total:
+            bar.step("ortho, mosaic, footprints" if options.products else "footprints")
+
+    result = job.run(progress=advance, on_total=on_total)
     for warning in result.warnings:
         say_warning(command, warning)
     return result
 
 
+def lines_promised(result: GeorefResult) -> int:
+    """The scan lines the inputs promised: per segment, the lines its image holds or its lines
+    file lists, whichever are more (an image cut short holds fewer; a lines file cut short
+    lists fewer)."""
+    import numpy as np
+
+    segs, counts = np.unique(result.sync.lines.segment, return_counts=True)
+    per = {int(s): int(n) for s, n in zip(segs, counts, strict=True)}
+    made = [(d.segment, d.lines) for d in result.segments]
+    skipped = [(s.segment, s.lines) for s in result.skipped if s.whole_segment]
+    for segment, lines in made + skipped:
+        per[segment] = max(per.get(segment, 0), lines)
+    return sum(per.values())
+
+
+def lines_georeferenced(result: GeorefResult) -> tuple[int, int]:
+    """(lines georeferenced, lines promised)."""
+    return sum(s.lines_georeferenced for s in result.segments), lines_promised(result)
+
+
+def losses(result: GeorefResult) -> str | None:
+    """What the headline lacks against the inputs' promise, said as the exit 3 line."""
+    geo, lines = lines_georeferenced(result)
+    return None if geo >= lines else f"{lines - geo} of {lines} scan lines not georeferenced"
+
+
 def headline(result: GeorefResult) -> str:
     whole = [s for s in result.skipped if s.whole_segment]
-    lines = sum(s.lines for s in result.segments) + sum(s.lines for s in whole)
-    geo = sum(s.lines_georeferenced for s in result.segments)
+    geo, lines = lines_georeferenced(result)
     rays = sum(s.rays for s in result.segments)
     hit = sum(s.rays_hit for s in result.segments)
     segments = (f"{len(result.segments)} segments" if not whole else
@@ -155,8 +193,12 @@ def headline(result: GeorefResult) -> str:
 
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
+    check_inputs(("", args.flight, "file"), ("--scanner", args.scanner, "folder"),
+                 ("--dem", args.dem, "file"), ("--sensor", args.sensor, "file"),
+                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     options = options_from_args(args)
-    with staged_output_dir(args.out) as out:
-        result = run_georef(flight_parts(args.flight), args.scanner, out, options)
+    with staged_output_dir(args.out, force=args.force) as out, progress("georef") as bar:
+        result = run_georef(flight_parts(args.flight), args.scanner, out, options, bar)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
-    return 0
+    lost = losses(result)
+    return 0 if lost is None else finished_with_losses("georef", lost)

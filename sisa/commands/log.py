@@ -13,8 +13,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from recorder.parts import flight_parts
-from sisa.commands import FLIGHT_HELP, add_command, new_file_arg, say_warning
+from sisa.commands import FLIGHT_HELP, add_command, flight_parts, new_file_arg, say_warning
 from sisa.core.errors import InputError, shown_text
 
 if TYPE_CHECKING:

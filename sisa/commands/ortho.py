@@ -6,7 +6,8 @@ OUT_glt.bil/.hdr   ENVI GLT: for every cell the 1-based input sample and line (0
 
 The ortho step of `sisa georef` on its own, for an IGM it wrote (or any ENVI BIL IGM of
 pixel-centre easting, northing, height): to map a segment again at another cell size, over
-set bounds, or uncompressed. Both files appear only when complete; existing ones are replaced.
+set bounds, or uncompressed. Both files appear only when complete. An existing one is refused;
+with --force it is replaced by the new one once that is complete.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ import math
 import time
 from pathlib import Path
 
-from sisa.commands import SubParsers, add_command, terminal_progress
+from sisa.commands import SubParsers, add_command, add_force_arg
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
+from sisa.core.outdir import refuse_existing
 
 # postproc.products.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL
 # (a test checks)
@@ -49,6 +52,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--no-glt", action="store_true",
                         help="the GeoTIFF alone, without the GLT (a sparse file of 8 bytes a "
                              "cell: 0.7 GB for a 20 000-line strip at 1 m)")
+    add_force_arg(parser, "GeoTIFF or GLT")
     parser.set_defaults(handler=_run)
 
 
@@ -70,6 +74,10 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out}: name the GeoTIFF (.tif)")
     if not out.parent.is_dir():
         raise InputError(f"--out {out}: folder {out.parent} does not exist")
+    glt = None if args.no_glt else out.with_name(f"{out.stem}_glt")
+    refuse_existing(out, "--out", force=args.force)
+    for path in [] if glt is None else [glt.with_suffix(".bil"), glt.with_suffix(".hdr")]:
+        refuse_existing(path, force=args.force)  # another output's GLT, perhaps
     epsg = igm_epsg(args.igm)
     if epsg is None:
         if args.crs is None:
@@ -92,10 +100,9 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.igm}: {index.far.text}: a damaged IGM? give --bounds to map "
                          "it anyway")
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
-    glt = None if args.no_glt else out.with_name(f"{out.stem}_glt")
-    with terminal_progress("ortho") as (progress, on_total):
+    with progress("ortho", "ortho", unit="cells") as bar:
         res = orthorectify(index, image, grid, out, glt, compress=args.compress,
-                           progress=progress, on_total=on_total, empty_ok=False)
+                           progress=bar.advance, on_total=bar.set_total, empty_ok=False)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

@@ -16,11 +16,25 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from recorder.parts import flight_parts
-from sisa.commands import SubParsers, add_command, say_warning
-from sisa.commands.georef import add_georef_args, headline, options_from_args, run_georef
+from sisa.commands import (
+    SubParsers,
+    add_command,
+    add_force_arg,
+    check_inputs,
+    finished_with_losses,
+    flight_parts,
+    say_warning,
+)
+from sisa.commands.georef import (
+    add_georef_args,
+    headline,
+    losses,
+    options_from_args,
+    run_georef,
+)
+from sisa.commands.progress import progress
 from sisa.core.errors import InputError
-from sisa.core.outdir import staged_output_dir
+from sisa.core.outdir import name_taken, staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
@@ -36,6 +50,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="a run folder of `sisa simulate` or `sisa bench`")
     parser.add_argument("--out", type=Path, default=None,
                         help="new output folder (default: RUN/process)")
+    add_force_arg(parser)
     parser.add_argument("--nominal", action="store_true",
                         help="georeference with the nominal sensor (no boresight or "
                              "self-calibration), as an uncalibrated system would")
@@ -90,13 +105,12 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from emulators.scenario import load_scenario
-    from postproc.georef import write_report
-    from sisa.core.jsonio import write_json
-    from sisa.wiring.accuracy import run_accuracy
-
     started = time.perf_counter()
     run: Path = args.run
+    if not name_taken(run) or not run.exists():
+        raise InputError(f"{run}: no such folder")
+    check_inputs(("--sensor", args.sensor, "file"),
+                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     if not (run / "flight.mcap").is_file():
         raise InputError(f"{run}: not a run folder of `sisa simulate` or `sisa bench` (no "
                          "flight.mcap)")
@@ -104,20 +118,31 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(f"{run}: no scanner/ folder, so no image to georeference (a run of "
                          "`sisa simulate --no-images`? `sisa sync` times its lines without "
                          "images)")
+    if not any((run / "scanner").glob("segment_*.lines.csv")):
+        raise InputError(f"{run}: the scanner recorded no image (no segment in "
+                         f"{run / 'scanner'}): the run held no strip (`sisa bench --strip N` "
+                         "records one; `sisa sync` times a run without images)")
+    from emulators.scenario import load_scenario
+    from postproc.georef import write_report
+    from sisa.core.jsonio import write_json
+    from sisa.wiring.accuracy import run_accuracy
+
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
                                   leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
-    with staged_output_dir(out) as tmp:
+    with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
         result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
-                            command="process")
+                            bar, command="process")
+        bar.step("accuracy against truth")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         _say_what_is_not_judged(run, acc)
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
             write_json(tmp / "accuracy.json", public)
         rows = _headline(result, acc)
+        bar.step("report")
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,
                      headline=rows)
@@ -125,4 +150,5 @@ def _run(args: argparse.Namespace) -> int:
     for name, value in rows:
         print(f"  {name}: {value}")
     print(f"  ({time.perf_counter() - started:.1f} s)")
-    return 0
+    lost = losses(result)
+    return 0 if lost is None else finished_with_losses("process", lost)

@@ -22,13 +22,13 @@ from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, Protocol
 
-from recorder.parts import flight_parts
 from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
     check_endpoints_path,
     check_port,
+    flight_parts,
     write_endpoints,
 )
 from sisa.core.errors import ConfigError, InputError
@@ -334,17 +334,26 @@ class _Keyboard:
 # --- progress -------------------------------------------------------------------------------------
 
 class _Display:
-    """A rich progress bar (stderr, when it is a terminal): the GPS time being played."""
+    """The GPS time being played: a rich bar on stderr when it is a terminal (drawn by the
+    pacer when it has slack, never by a thread of its own); otherwise the plain timestamped
+    lines of `sisa.commands.progress` every few seconds."""
 
     def __init__(self, span: _Span, gps: GpsClock, quiet: bool) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        from sisa.commands.progress import Progress as Plain
 
         self.span = span
         self.gps = gps
         console = Console(stderr=True)
         self.progress: Progress | None = None
         self.task: TaskID | None = None
+        self.plain: Plain | None = None
+        if not quiet and not console.is_terminal:
+            self.plain = Plain("replay", terminal=False)
+            self.plain.step("waiting for clients", span.seconds, "s", rate=False)
+        self._plain_state = "waiting"
         if not quiet and console.is_terminal:
             self.progress = Progress(TextColumn("{task.description}"), BarColumn(),
                                      TextColumn("{task.completed:.1f}/{task.total:.1f} s"),
@@ -353,6 +362,8 @@ class _Display:
             self.task = self.progress.add_task("waiting for clients", total=span.seconds)
 
     def show(self, t_log_ns: int, state: str) -> None:
+        if self.plain is not None:
+            self._show_plain(t_log_ns, state)
         if self.progress is None or self.task is None:
             return
         from sisa.core.timescale import datetime_from_gps_ns, gps_week_and_tow_ns
@@ -367,9 +378,27 @@ class _Display:
         self.progress.update(self.task, completed=done, description=f"{state:<8} {when}")
         self.progress.refresh()
 
+    def _show_plain(self, t_log_ns: int, state: str) -> None:
+        plain = self.plain
+        assert plain is not None
+        if state != self._plain_state:  # playing (a rate and time left), waiting, paused, ended
+            self._plain_state = state
+            plain.step({"waiting": "waiting for clients"}.get(state, state), self.span.seconds,
+                       "s", rate=state.startswith("playing"))
+        done = min(max((t_log_ns - self.span.from_ns) / 1e9, 0.0), self.span.seconds)
+        t_gps = self.gps.gps_ns(t_log_ns)
+        if t_gps is None:
+            plain.update(completed=done, note="GPS time unknown")
+        else:
+            from sisa.core.timescale import gps_time_label
+
+            plain.update(completed=done, note=gps_time_label(t_gps))
+
     def close(self) -> None:
         if self.progress is not None:
             self.progress.stop()
+        if self.plain is not None:
+            self.plain.close()
 
 
 class _Lookahead:
@@ -474,6 +503,12 @@ class _Player:
     def _wait_for_clients(self) -> None:
         if self.args.no_wait:
             return
+        if not self.ports.clients_ready(self.wires):  # said at once, on a terminal or not
+            waiting = [f"{name} {address}" for name, address, wire in (
+                ("the pulse link", self.ports.endpoints()["pulses"], "pulses"),
+                ("the CAN channel", self.ports.endpoints()["ins"], "ins")) if wire in self.wires]
+            print(f"sisa replay: waiting for a client on {' and '.join(waiting)} before "
+                  "playing (--no-wait starts at once)", file=sys.stderr, flush=True)
         while not self.ports.clients_ready(self.wires):
             self._poll()
             if self.clock.paused:  # space while waiting: start now

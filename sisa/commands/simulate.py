@@ -12,10 +12,12 @@ from typing import TYPE_CHECKING
 from sisa.commands import (
     SubParsers,
     add_command,
+    add_force_arg,
     add_scenario_args,
     check_seed,
     scenario_from_args,
 )
+from sisa.commands.progress import progress
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -28,6 +30,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa simulate --preset bench --out runs/bench --seed 7")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new run folder")
+    add_force_arg(parser)
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--no-images", action="store_true",
                         help="skip rendering the scanner's image lines (timing only)")
@@ -58,9 +61,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.error_free:
         scn = error_free(scn)
     started = time.perf_counter()
-    with staged_output_dir(args.out) as run:
+    with staged_output_dir(args.out, force=args.force) as run, progress("simulate") as bar:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-        wiring = simulate(scn, run, images=not args.no_images)
+        wiring = simulate(scn, run, images=not args.no_images, steps=bar)
     acq = wiring.acq
     flight_s = (wiring.system.traj.t_end_ns - wiring.system.traj.t_start_ns) / 1e9
     wall_s = time.perf_counter() - started

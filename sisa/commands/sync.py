@@ -12,10 +12,22 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from recorder.parts import flight_parts
-from sisa.commands import FLIGHT_HELP, SubParsers, add_command, say_warning
+from sisa.commands import (
+    FLIGHT_HELP,
+    SubParsers,
+    add_command,
+    add_force_arg,
+    finished_with_losses,
+    flight_parts,
+    say_warning,
+)
+from sisa.commands.progress import progress
 from sisa.core.outdir import staged_output_dir
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -29,6 +41,7 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the scanner's recording folder (segment_NNN.lines.csv); without "
                              "it, lines are the frame headers in the log")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
+    add_force_arg(parser)
     parser.set_defaults(handler=_run)
 
 
@@ -51,12 +64,15 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.messages import Topic
 
     started = time.perf_counter()
-    with staged_output_dir(args.out) as out:
+    with staged_output_dir(args.out, force=args.force) as out, progress("sync") as bar:
+        bar.step("reading the scanner's lines and the flight log")
         lines = read_scanner_lines(args.scanner) if args.scanner is not None else None
         flight = flight_parts(args.flight)
         cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})
         recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
+        bar.step("synchronising")
         result = synchronise(sync_input_from_columns(cols), lines)
+        bar.step("writing the tables")
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}
         ins, ln = result.ins, result.lines
@@ -78,9 +94,13 @@ def _run(args: argparse.Namespace) -> int:
         say_warning("sync", note)
     ok_ins = int((ins.status == TimeStatus.OK).sum())
     ok_lines = int((ln.status == TimeStatus.OK).sum())
+    # what the inputs promised: every INS record in the log; per segment, the lines of the
+    # scanner's files or the log's frame headers, whichever says more (a log cut short holds
+    # fewer headers; a lines file cut short, fewer lines)
+    promised, unlisted = promised_lines(ln.segment, cols[Topic.SCANNER_HEADER]["segment"])
     pulses = result.report["pulses"]
     print(f"{args.out}: INS records {ok_ins}/{ins.status.size} timed, scan lines "
-          f"{ok_lines}/{ln.status.size} timed; latches matched "
+          f"{ok_lines}/{promised} timed; latches matched "
           f"{pulses['ins_latches_matched']}/{pulses['ins_latches']}, pulses forwarded "
           f"{pulses['forwarded']} (rejected {pulses['rejected']}); "
           f"{time.perf_counter() - started:.1f} s")
@@ -89,4 +109,26 @@ def _run(args: argparse.Namespace) -> int:
                    if s is not TimeStatus.OK and (status == s).any()}
         if flagged:
             print(f"  {kind} flagged: " + ", ".join(f"{k} {v}" for k, v in flagged.items()))
+    if unlisted:
+        print(f"  scan lines not in the scanner's files: {unlisted} (frame headers in the log)")
+    lost = [f"{n - ok} of {n} {what}" for what, ok, n in (
+        ("INS records", ok_ins, ins.status.size), ("scan lines", ok_lines, promised)) if ok < n]
+    if lost:
+        return finished_with_losses("sync", f"{' and '.join(lost)} not timed")
     return 0
+
+
+def promised_lines(listed_segments: npt.ArrayLike, header_segments: npt.ArrayLike
+                   ) -> tuple[int, int]:
+    """(lines the inputs promised, how many of them only the log's frame headers promised):
+    per segment, the lines listed (by the scanner's files, or the headers themselves) or the
+    headers in the log, whichever are more."""
+    import numpy as np
+
+    listed = dict(zip(*np.unique(np.asarray(listed_segments), return_counts=True),
+                      strict=True))
+    headers = dict(zip(*np.unique(np.asarray(header_segments), return_counts=True),
+                       strict=True))
+    more = {s: max(int(headers.get(s, 0)) - int(listed.get(s, 0)), 0) for s in headers}
+    unlisted = sum(more.values())
+    return int(sum(listed.values())) + unlisted, unlisted

@@ -18,7 +18,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sisa.commands import add_command, add_scenario_args, scenario_from_args
+from sisa.commands import add_command, add_force_arg, add_scenario_args, scenario_from_args
+from sisa.commands.progress import progress
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -30,6 +31,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                          "and ground points", "sisa truth --preset bench --out runs/bench-truth")
     add_scenario_args(parser)
     parser.add_argument("--out", type=Path, required=True, help="new folder to create")
+    add_force_arg(parser)
     parser.set_defaults(handler=_run)
 
 
@@ -53,18 +55,21 @@ def _run(args: argparse.Namespace) -> int:
 
     scn = scenario_from_args(args)
     started = time.perf_counter()
-    with staged_output_dir(args.out) as run:
+    with staged_output_dir(args.out, force=args.force) as run, progress("truth") as bar:
         (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
         truth, terrain_dir = run / "truth", run / "terrain"
         truth.mkdir()
         terrain_dir.mkdir()
+        bar.step("trajectory")
         traj = TruthTrajectory.from_scenario(scn)
         traj.write_csv(truth / "trajectory.csv")
         write_timeline_csvs(traj, truth)
+        bar.step("terrain and DEM")
         terrain = Terrain.from_scenario(scn)
         terrain.write_dem(terrain_dir / "dem.tif")
         points = ground_points(scn, terrain)
         write_ground_points_csv(terrain_dir / "ground_points.csv", points, utm_epsg=terrain.epsg)
+        bar.step("scene")
         scene = Scene.from_scenario(scn, terrain, points)
         scene.write_scene_geotiff(terrain_dir / "scene.tif")
         scene.write_scene_quicklook(terrain_dir / "scene.png")

@@ -34,13 +34,30 @@ def name_taken(path: Path, what: str = "") -> bool:
                          f"{exc.strerror}") from None
 
 
+REFUSED = "outputs are never overwritten; --force replaces it"
+
+
+def refuse_existing(path: Path, what: str = "", *, force: bool = False) -> None:
+    """The policy of every command: an existing output is refused, unless --force (then it is
+    replaced whole, once the new one is complete). `what`: the option that named it."""
+    if name_taken(path, what) and not force:
+        named = f"{what} {path}" if what else str(path)
+        raise InputError(f"{named} already exists: choose a new name ({REFUSED})")
+
+
 @contextmanager
-def staged_output_dir(out: Path) -> Iterator[Path]:
-    """Yield a scratch folder beside `out`; rename it to `out` only if the block succeeds."""
+def staged_output_dir(out: Path, *, force: bool = False) -> Iterator[Path]:
+    """Yield a scratch folder beside `out`; rename it to `out` only if the block succeeds.
+    An existing `out` is refused, or with `force` (a folder only) replaced by the new one
+    once it is complete: until then the old one is untouched."""
     out = Path(out)
     if name_taken(out):
-        raise InputError(f"{out} already exists: choose a new output folder (runs are never "
-                         "overwritten)")
+        if not force:
+            raise InputError(f"{out} already exists: choose a new output folder (runs are "
+                             f"never overwritten; --force replaces it)")
+        if out.is_symlink() or not out.is_dir():
+            raise InputError(f"{out} exists and is not a folder: --force replaces only an "
+                             "output folder")
     parent = out.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -65,10 +82,28 @@ def staged_output_dir(out: Path) -> Iterator[Path]:
     # Something may have taken the name while the run was made (another run to the same
     # folder): keep the result where it is rather than lose it or replace the other one.
     kept = f"the result is kept in {scratch}"
-    if out.exists() or out.is_symlink():
+    if (out.exists() or out.is_symlink()) and not force:
         raise InputError(f"{out} appeared while this run was made: {kept}")
     try:
-        os.replace(scratch, out)
+        if force and out.is_dir() and not out.is_symlink():
+            replace_dir(scratch, out)
+        else:
+            os.replace(scratch, out)
     except OSError as exc:
         raise InputError(f"cannot move the result to {out} ({exc.strerror}): {kept}") from None
+
+
+def replace_dir(new: Path, old: Path) -> None:
+    """Put the finished folder `new` in the place of the folder `old`: `old` is renamed aside,
+    `new` renamed into place (put back if that fails), then `old` removed. At every moment the
+    name holds a complete folder, but for the instant between the two renames."""
+    aside = partial_path(old, ".old")
+    shutil.rmtree(aside, ignore_errors=True)
+    os.rename(old, aside)
+    try:
+        os.rename(new, old)
+    except BaseException:
+        os.rename(aside, old)
+        raise
+    shutil.rmtree(aside, ignore_errors=True)
 

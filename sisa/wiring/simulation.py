@@ -7,8 +7,9 @@ own drift. The flight log gets exactly what a real flight would record; the trut
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Protocol
 
 import can
 import numpy as np
@@ -32,12 +33,23 @@ CAN_LATENCY_NS = (100_000, 400_000)
 TICK_NS = 100_000_000
 
 
+class Steps(Protocol):
+    """What a long run tells whoever shows its progress (sisa.commands.progress.Progress)."""
+
+    def step(self, label: str, total: float | None = None, unit: str = "") -> None: ...
+
+    def update(self, *, completed: float | None = None, note: str | None = None) -> None: ...
+
+
 class VirtualWiring:
     """The sink of a virtual-time run: delivers device outputs to the acquisition as the host
     would receive them, and the acquisition's output pulses back to the devices."""
 
-    def __init__(self, system: EmulatedSystem, acq_log: FlightRecorder, seed: int) -> None:
+    def __init__(self, system: EmulatedSystem, acq_log: FlightRecorder, seed: int,
+                 on_time: Callable[[int], None] | None = None) -> None:
+        """`on_time`: told the flight time reached (ns since the start), every tick."""
         scn = system.scn
+        self._on_time = on_time
         self.system = system
         self.rng = np.random.default_rng([seed, 99])
         self.host = SimulatedHostClock(scn.block.leap_seconds, t_ref_ns=system.traj.t_start_ns)
@@ -85,6 +97,8 @@ class VirtualWiring:
         while self._next_tick_ns <= t_ns:
             self.acq.tick(self._host(self._next_tick_ns), self._next_tick_ns)
             self._next_tick_ns += TICK_NS
+            if self._on_time is not None:
+                self._on_time(self._next_tick_ns - self.system.traj.t_start_ns)
 
     def _maybe_crash(self, t_ns: int) -> None:
         while self._restarts and self._restarts[0][0] <= t_ns:
@@ -110,16 +124,32 @@ def write_survey_data(scn: Scenario, terrain: Terrain, folder: Path) -> None:
     write_ground_points_csv(folder / "ground_points.csv", points, utm_epsg=terrain.epsg)
 
 
-def simulate(scn: Scenario, run: Path, *, images: bool = True) -> VirtualWiring:
+def simulate(scn: Scenario, run: Path, *, images: bool = True, steps: Steps | None = None
+             ) -> VirtualWiring:
     """Run the scenario's whole flight into `run` (a fresh folder): flight.mcap, scanner/,
-    terrain/ (the DEM and surveyed ground points a survey would have), truth/."""
+    terrain/ (the DEM and surveyed ground points a survey would have), truth/. `steps` is
+    told each step and the flight time reached."""
+    if steps is not None:
+        steps.step("terrain, DEM and ground points")
     terrain = Terrain.from_scenario(scn)
     write_survey_data(scn, terrain, run / "terrain")
+    if steps is not None:
+        steps.step("trajectory and scene" if images else "trajectory")
     system = EmulatedSystem(scn, run / "scanner" if images else None, terrain=terrain)
     meta = {"scenario": scn.block.name, **recording_settings(acquisition_config(scn))}
+    on_time = None
+    if steps is not None:
+        steps.step("flight", (system.traj.t_end_ns - system.traj.t_start_ns) / NS_PER_S, "s")
+        flight_steps = steps
+
+        def on_time(t_ns: int) -> None:
+            flight_steps.update(completed=t_ns / NS_PER_S)
+
     with FlightRecorder(run / "flight.mcap", metadata=meta) as rec:
-        wiring = VirtualWiring(system, rec, scn.seed)
+        wiring = VirtualWiring(system, rec, scn.seed, on_time)
         Runner(system.devices, system.faulty(wiring)).run()
         wiring.finish()
+    if steps is not None:
+        steps.step("truth tables")
     system.write_truth(run / "truth")
     return wiring

@@ -15,7 +15,9 @@ from sisa.commands.calibrate import TIE_POINTS_MAX
 @pytest.mark.parametrize("n", [10**9, 10**12, TIE_POINTS_MAX + 1])
 def test_too_many_tie_points_is_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                  n: int) -> None:
-    """The check comes before the run is read: a run folder is not needed to see it."""
+    """The check comes before the run is read: an empty folder is enough to see it (a missing
+    one is said first, before any import)."""
+    (tmp_path / "run").mkdir()
     out = tmp_path / "cal"
     assert main(["calibrate", str(tmp_path / "run"), "--out", str(out),
                  "--tie-points", str(n)]) == 2

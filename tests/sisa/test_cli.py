@@ -162,6 +162,36 @@ def test_truth_writes_a_whole_run_and_never_overwrites(tmp_path, capsys):
     assert "already exists" in capsys.readouterr().err
     assert sorted(p.name for p in out.rglob("*")) == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no scratch left
+    (out / "mine.txt").write_text("not the command's")
+    assert main(["truth", "--preset", "bench", "--out", str(out), "--force"]) == 0
+    assert sorted(p.name for p in out.rglob("*")) == before  # replaced whole
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+# Written as they happen, crash-safe: created exclusively, never replaced (not even --force)
+NEVER_REPLACED = {("record",), ("emulate",), ("log", "recover")}
+
+
+def _options(parser):
+    return {s for a in parser._actions for s in a.option_strings}
+
+
+def _parser_at(path):
+    parser = build_parser()
+    for name in path:
+        sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+        parser = sub.choices[name]
+    return parser
+
+
+@pytest.mark.parametrize("path", [p for p in _subcommand_paths(build_parser())
+                                  if "--out" in _options(_parser_at(p))
+                                  or p == ("log", "recover")])
+def test_every_command_that_writes_refuses_an_existing_output_or_takes_force(path):
+    """One policy (issue 33, item 5): `sisa ortho` replaced its GeoTIFF silently while the
+    others refused. Every output is refused if it exists; --force replaces it, whole."""
+    options = _options(_parser_at(path))
+    assert ("--force" in options) == (path not in NEVER_REPLACED), path
 
 
 def test_truth_with_a_bad_scenario_writes_nothing(tmp_path):
@@ -246,27 +276,57 @@ def _read_all(master: int) -> bytes:
 
 def test_progress_bar_draws_on_a_terminal_stderr_and_never_on_stdout(monkeypatch, capsys):
     """`sisa georef` once drew its bar on stdout: a stray blank line before its summary when
-    stdout was a file, and no bar at all."""
+    stdout was a file, and no bar at all. On a terminal: a bar with the count, rate and time
+    left."""
     import os
     import pty
 
-    from sisa.commands import terminal_progress
+    from sisa.commands.progress import progress
 
-    with terminal_progress("lines") as (advance, set_total):  # stderr captured: no terminal
-        assert advance is None
-        assert set_total is None
     master, slave = pty.openpty()
     with os.fdopen(slave, "w") as tty:
         monkeypatch.setattr(sys, "stderr", tty)
-        with terminal_progress("lines", show_count=True) as (advance, set_total):
-            set_total(10)
-            advance(4)
-            advance(6)
+        with progress("georef", "lines", unit="lines") as bar:
+            bar.set_total(10)
+            bar.advance(4)
+            bar.advance(6)
     drawn = _read_all(master)
     os.close(master)
     assert b"lines" in drawn
-    assert b"10/10" in drawn
+    assert b"10/10 lines" in drawn
     assert capsys.readouterr().out == ""
+
+
+def test_progress_when_piped_is_plain_timestamped_lines_every_few_seconds(monkeypatch):
+    """Not a terminal (CI, logs, `| tee`): a line on stderr FIRST_LINE_S in, then every
+    SISA_PROGRESS_S seconds, with the count, share, rate and time left (issue 33, item 1)."""
+    import io
+    import time
+
+    from sisa.commands import progress as module
+
+    monkeypatch.setenv(module.PERIOD_ENV, "0.2")
+    monkeypatch.setattr(module, "FIRST_LINE_S", 0.1)
+    monkeypatch.setattr(module, "MIN_RATE_S", 0.0)
+    said = io.StringIO()
+    bar = module.Progress("simulate", terminal=False, stream=said)
+    bar.step("flight", 100.0, "s")
+    for _ in range(10):
+        bar.advance(5)
+        time.sleep(0.06)
+    bar.close()
+    lines = said.getvalue().splitlines()
+    assert len(lines) >= 2, lines
+    for line in lines:
+        assert re.fullmatch(r"\d\d:\d\d:\d\d sisa simulate: flight [\d.]+/100 s \(\d+%\), "
+                            r"[\d.]+ s/s, \d+:\d\d left", line), line
+    assert module.Progress("x", terminal=False, stream=said).line() == "sisa x: working (0:00)"
+    monkeypatch.setenv(module.PERIOD_ENV, "off")
+    quiet = io.StringIO()
+    bar = module.Progress("simulate", terminal=False, stream=quiet)
+    time.sleep(0.3)
+    bar.close()
+    assert quiet.getvalue() == ""
 
 
 def test_record_status_names_the_file_as_shown_and_counts_disk_where_it_is(monkeypatch, tmp_path):
@@ -375,3 +435,67 @@ def test_a_warning_during_a_command_is_named_by_the_command(monkeypatch, capsys)
         assert capsys.readouterr().err == "sisa scenario: warning: dem.tif: 3 cells hold -9999\n"
         cli._one_line_warning(DemVoidWarning("x"), DemVoidWarning, "/x/dem.py", 1)
         assert capsys.readouterr().err == "sisa: warning: x\n"
+
+
+def test_a_piped_simulate_shows_progress_while_it_flies(tmp_path):
+    """`sisa simulate` printed nothing for its 49-62 s (issue 33, item 1). Piped: timestamped
+    lines with the flight time flown, rate and time left, while it works."""
+    import os
+    import signal
+
+    from tests.sisa.piped import PROGRESS_LINE, start, stderr_lines_until
+
+    proc = start("simulate", "--preset", "bench", "--no-images", "--out", tmp_path / "run")
+    try:
+        lines = stderr_lines_until(proc, "sisa simulate: flight ", 120)
+        lines += stderr_lines_until(proc, " s/s, ", 60)  # a rate once a second is flown
+        assert proc.poll() is None
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    for line in lines:
+        assert re.match(PROGRESS_LINE.format(command="simulate"), line), line
+    assert re.search(r"flight [\d.]+/549 s \(\d+%\), [\d.]+ s/s, \d+:\d\d left$", lines[-1])
+    assert proc.returncode == 130
+    assert err.endswith("sisa simulate: interrupted\n")
+    assert not list(tmp_path.iterdir())  # nothing left, not even a scratch folder
+
+
+@pytest.mark.parametrize("moment", ["importing", "terrain, DEM and ground points", "flight"])
+def test_ctrl_c_stops_a_batch_command_at_any_moment_and_leaves_nothing(tmp_path, moment):
+    """The one rule (issue 33, item 4), here for a command that computes its output: at any
+    moment, exit 130, `interrupted` in one line, no traceback, nothing left (no output, no
+    scratch folder). The moments are told by its progress lines."""
+    import os
+    import signal
+    import time
+
+    from tests.sisa.piped import start, stderr_lines_until
+
+    proc = start("simulate", "--preset", "bench", "--no-images", "--out", tmp_path / "run",
+                 period_s=0.05)
+    try:
+        if moment == "importing":
+            time.sleep(0.15)
+        else:
+            stderr_lines_until(proc, f"sisa simulate: {moment}", 120)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130
+    assert err.splitlines()[-1] == "sisa simulate: interrupted", err
+    assert "Traceback" not in err, err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("path", list(_subcommand_paths(build_parser())))
+def test_every_help_says_what_ctrl_c_does(path, capsys):
+    with pytest.raises(SystemExit):
+        main([*path, "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "Ctrl-C (or SIGTERM)" in out
+    assert "exit 0" in out if path[0] in ("record", "emulate", "replay") else "exit 130" in out

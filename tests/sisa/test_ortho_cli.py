@@ -75,13 +75,29 @@ def test_no_glt_writes_the_same_geotiff_alone(made: Made, tmp_path: Path) -> Non
         np.testing.assert_array_equal(a.read(), b.read())
     assert [p.name for p in tmp_path.iterdir()] == ["alone.tif"]
 
-def test_run_again_replaces_the_products_and_leaves_nothing_beside(made: Made,
-                                                                   tmp_path: Path) -> None:
+@pytest.mark.parametrize("existing", ["seg.tif", "seg_glt.bil", "seg_glt.hdr"])
+def test_an_existing_output_is_refused_and_left_alone(made: Made, tmp_path: Path,
+                                                      existing: str) -> None:
+    """`sisa ortho --out EXISTING.tif` replaced it silently (exit 0) while every other command
+    refused (issue 33, item 5): one policy, refuse unless --force."""
+    (tmp_path / existing).write_bytes(b"an older product")
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out",
+                      tmp_path / "seg.tif", "--compress", "none")
+    assert proc.returncode == 2
+    assert proc.stderr == (f"sisa ortho: error: {'--out ' if existing == 'seg.tif' else ''}"
+                           f"{tmp_path / existing} already exists: choose a new name (outputs "
+                           "are never overwritten; --force replaces it)\n")
+    assert [p.name for p in tmp_path.iterdir()] == [existing]
+    assert (tmp_path / existing).read_bytes() == b"an older product"
+
+
+def test_force_replaces_the_products_and_leaves_nothing_beside(made: Made,
+                                                               tmp_path: Path) -> None:
     out = tmp_path / "seg.tif"
     for name in ("seg.tif", "seg_glt.bil", "seg_glt.hdr"):
         (tmp_path / name).write_bytes(b"an older product")
     proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
-                      "--compress", "none")
+                      "--compress", "none", "--force")
     assert proc.returncode == 0, proc.stderr
     with rasterio.open(out) as o, rasterio.open(made.tif) as ref:
         assert o.count == ref.count
@@ -203,8 +219,11 @@ def test_bad_input_is_one_line_and_writes_nothing(made: Made, tmp_path: Path) ->
         # numpy's RuntimeWarnings on stderr before the error (found by a bad-input sweep)
         ((inf_igm, image, "--out", tmp_path / "o.tif"), "no two neighbouring pixels"),
         # a traceback after the GeoTIFF was in place, the GLT's parts left beside it
-        ((igm, image, "--out", tmp_path / "taken.tif"), "taken_glt.hdr is a folder"),
-        ((igm, image, "--out", tmp_path / "dir.tif"), "dir.tif is a folder"),
+        ((igm, image, "--out", tmp_path / "taken.tif"), "taken_glt.hdr already exists"),
+        ((igm, image, "--out", tmp_path / "dir.tif"), "dir.tif already exists"),
+        # with --force, a folder in the way is still one line, nothing written
+        ((igm, image, "--out", tmp_path / "taken.tif", "--force"), "taken_glt.hdr is a folder"),
+        ((igm, image, "--out", tmp_path / "dir.tif", "--force"), "dir.tif is a folder"),
     ]
     before = sorted(p.name for p in tmp_path.iterdir())
     for args, says in cases:

@@ -64,3 +64,39 @@ def test_a_log_that_failed_in_a_run_is_said_gone(tmp_path):
     with pytest.raises(RecorderError, match=said), staged_output_dir(out) as scratch:
         raise RecorderError(f"cannot write {scratch / 'flight.mcap'}: No space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_force_replaces_an_output_folder_only_once_the_new_one_is_complete(tmp_path):
+    """One policy for every command (issue 33, item 5): an existing output is refused, and
+    --force replaces it whole; a run that fails leaves the old one as it was."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    with pytest.raises(InputError, match="--force replaces it"), staged_output_dir(out):
+        pass
+    def fails() -> None:
+        with staged_output_dir(out, force=True) as scratch:
+            (scratch / "new.txt").write_text("new")
+            assert (out / "old.txt").read_text() == "old"  # untouched while it is made
+            raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        fails()
+    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    with staged_output_dir(out, force=True) as scratch:
+        (scratch / "new.txt").write_text("new")
+        assert (out / "old.txt").exists()
+    assert sorted(p.name for p in out.iterdir()) == ["new.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # nothing left beside
+
+
+def test_force_never_replaces_a_file_or_a_link_with_a_folder(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "elsewhere")
+    for name in ("notes.txt", "link"):
+        with pytest.raises(InputError, match="is not a folder: --force replaces only"), \
+                staged_output_dir(tmp_path / name, force=True):
+            pass
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+    assert (tmp_path / "link").is_symlink()

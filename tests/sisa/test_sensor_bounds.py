@@ -83,6 +83,11 @@ def test_the_cli_says_it_in_one_line_with_exit_2(tmp_path: Path,
                                                  command: str, name: str) -> None:
     text, field = BAD[name]
     path = _write(tmp_path, text)
+    # inputs that exist (a missing one is said first); their contents are never read
+    (tmp_path / "flight.mcap").write_bytes(b"")
+    (tmp_path / "dem.tif").write_bytes(b"")
+    (tmp_path / "scanner").mkdir()
+    (tmp_path / "flight").mkdir()
     argv = (["georef", str(tmp_path / "flight.mcap"), "--scanner", str(tmp_path / "scanner"),
              "--dem", str(tmp_path / "dem.tif")] if command == "georef"
             else ["calibrate", str(tmp_path / "flight")])

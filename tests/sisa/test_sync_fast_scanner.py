@@ -48,10 +48,12 @@ def fast_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _sync(flight: Path, out: Path, capsys: pytest.CaptureFixture[str]
           ) -> tuple[str, dict[str, Any]]:
-    assert main(["sync", str(flight), "--out", str(out)]) == 0
+    assert main(["sync", str(flight), "--out", str(out)]) == 3  # finished, no line timed
     captured = capsys.readouterr()
     assert "scan lines flagged: no_pulses" in captured.out
-    return captured.err, json.loads((out / "sync_report.json").read_text())
+    err, losses = captured.err.rsplit("sisa sync: finished with losses: ", 1)
+    assert losses.endswith(" scan lines not timed (exit code 3)\n")
+    return err, json.loads((out / "sync_report.json").read_text())
 
 
 def test_sync_says_the_header_window_is_wider_than_a_line_period(

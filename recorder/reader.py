@@ -73,9 +73,9 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from recorder.health import HealthTotals
 from recorder.messages import LoggedMessage, Topic
 from recorder.writer import (
+    KNOWN_SCHEMA_BYTES,
     MESSAGE_ENCODING,
     METADATA_NAME,
-    SCHEMA_BYTES,
     SCHEMA_ENCODING,
     SCHEMAS,
     TOPIC_SCHEMAS,
@@ -1079,7 +1079,8 @@ def _chunk_framing(buf: bytes, i: int, room: int, limit: int) -> bool:
 
 def _is_ours(schema: Schema) -> bool:
     """A schema exactly as SISA's recorder writes it."""
-    return schema.encoding == SCHEMA_ENCODING and SCHEMA_BYTES.get(schema.name) == schema.data
+    return schema.encoding == SCHEMA_ENCODING and schema.data in KNOWN_SCHEMA_BYTES.get(
+        schema.name, frozenset())
 
 
 def _uncompressed(chunk: Chunk, limit: int) -> Chunk:

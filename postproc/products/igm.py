@@ -388,7 +388,16 @@ class IgmWriter:
         return envi_header_text(
             description=desc, samples=self.pixels, lines=self.lines, bands=3, dtype=np.float64,
             fields=[("band names", envi_list(IGM_BAND_NAMES)), ("data ignore value", "NaN"),
+                    ("map info", IGM_MAP_INFO),
                     ("coordinate system string", coordinate_system_string(self.crs))])
+
+
+# An IGM's raster is the image's grid (samples across, lines along the flight), not a map grid:
+# ENVI's "Arbitrary" map info says so. GDAL reads an ENVI header's `coordinate system string`
+# only with a `map info`, so without one it showed no CRS for the coordinates in the bands; with
+# this one it shows the bands' CRS, its geotransform being pixel units (x = sample, y = −line)
+# that mean nothing on the ground (every pixel's position is in the bands).
+IGM_MAP_INFO: Final = "{Arbitrary, 1, 1, 0, 0, 1, 1, 0, North}"
 
 
 def igm_raster(path: Path) -> EnviRaster:

@@ -154,6 +154,22 @@ def test_igm_round_trip_through_gdal(tmp_path: Path) -> None:
     np.testing.assert_array_equal(mm[:, 1], strip.northing_m)
 
 
+@pytest.mark.parametrize("epsg", [EPSG, 25831, 2154])
+def test_gdal_reads_the_crs_of_the_igm(tmp_path: Path, epsg: int) -> None:
+    """Issue 33, item 10: the IGM header had no `map info`, and GDAL reads an ENVI header's
+    `coordinate system string` only with one: gdalinfo showed no CRS. An "Arbitrary" map info
+    (the raster is the image's grid) gives GDAL the CRS of the coordinates in the bands."""
+    strip = synthetic_strip(20, 8)
+    path = write_igm(strip, tmp_path / "seg_igm", epsg=epsg)
+    assert "map info = {Arbitrary, " in path.with_suffix(".hdr").read_text()
+    with rasterio.open(path) as ds:
+        assert ds.crs is not None
+        assert ds.crs.to_epsg() == epsg
+    proc = subprocess.run([GDALINFO, str(path)], capture_output=True, text=True, check=True)
+    assert "Coordinate System is:\n" in proc.stdout
+    assert f'ID["EPSG",{epsg}]]' in proc.stdout
+
+
 def test_pixel_with_any_bad_coordinate_is_all_nan(tmp_path: Path) -> None:
     e = np.full((2, 3), 450_000.0)
     n = np.full((2, 3), 4_650_000.0)

@@ -512,13 +512,29 @@ def write_geolocation_vrt(vrt_path: Path, image_path: Path, igm_path: Path, epsg
     os.replace(tmp, vrt_path)
 
 
+def band_labels(raw: EnviRaster) -> list[str]:
+    """Each band's name in the ENVI header (not GDAL's description, which appends the
+    wavelength to it: 'band 1 (495.0 nm) (495.00 Nanometers)' for a name that had it), with
+    its wavelength in nm if the name does not already say it."""
+    labels = []
+    for b in range(raw.bands):
+        name = _envi_band_name(raw, b) or f"band {b + 1}"
+        wl = raw.wavelengths_nm[b]
+        labels.append(name if wl is None or "nm" in name else f"{name} ({wl:.1f} nm)")
+    return labels
+
+
+def _envi_band_name(raw: EnviRaster, b: int) -> str:
+    names = raw.envi.get("band_names", "").strip().strip("{}").split(",")
+    return names[b].strip() if len(names) == raw.bands else raw.band_names[b]
+
+
 def _vrt_band(root: ET.Element, image: EnviRaster, b: int, source: str) -> None:
     gdal_type = GDAL_TYPE_NAMES.get(image.dtype.name)
     if gdal_type is None:
         raise InputError(f"{image.path}: data type {image.dtype.name} not supported")
     band = ET.SubElement(root, "VRTRasterBand", dataType=gdal_type, band=str(b + 1))
-    if image.band_names[b]:
-        ET.SubElement(band, "Description").text = image.band_names[b]
+    ET.SubElement(band, "Description").text = band_labels(image)[b]
     wl = image.wavelengths_nm[b]
     if wl is not None:
         md = ET.SubElement(band, "Metadata")

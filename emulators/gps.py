@@ -106,7 +106,8 @@ class GpsReceiver(Device):
                           detail=f"{f.duration_s:g} s, until {b}")
         self._armed_at_ns = traj.t_start_ns
         self._epoch_ns = round(NS_PER_S / scn.gps.nmea_rate_hz)
-        self._fixes: dict[int, tuple[float, float, float, float, float]] = {}
+        # epoch → (lat, lon, h, speed, course, error n, e, d): computed a minute ahead
+        self._fixes: dict[int, tuple[float, ...]] = {}
         self._gm_state: np.ndarray | None = None
         self._schedule = _Schedule()
         self.pps = TruthTable("pps", {
@@ -124,7 +125,7 @@ class GpsReceiver(Device):
             "t_gps_ns": "NMEA epoch", "error_n_m": "position error north",
             "error_e_m": "position error east", "error_d_m": "position error down",
             "quality": "GGA quality",
-        }, "errors added to the true antenna position in each NMEA fix")
+        }, "errors added to the true antenna position in each NMEA fix the receiver sent")
         first_second = -(-traj.t_start_ns // NS_PER_S) * NS_PER_S
         self._schedule.at(first_second, self._pps_edge)
         first_epoch = -(-traj.t_start_ns // self._epoch_ns) * self._epoch_ns
@@ -195,10 +196,14 @@ class GpsReceiver(Device):
         nxt = epoch + self._epoch_ns
         if nxt <= self.traj.t_end_ns:
             self._schedule.at(nxt + self._latency_ns, self._nmea_epoch)
-        lat, lon, h, speed, course = self._fix(epoch)
+        lat, lon, h, speed, course, err_n, err_e, err_d = self._fix(epoch)
         leap = self.scn.block.leap_seconds
         lost = self.in_outage(epoch)
         quality = FixQuality.INVALID if lost else self._quality
+        # the truth of the fix sent, when it is sent: rows for the minute computed ahead were
+        # written past the flight's end, stamped with its end time (the epochs were clipped)
+        self.fixes.append(t_gps_ns=epoch, error_n_m=err_n, error_e_m=err_e, error_d_m=err_d,
+                          quality=int(quality))
         mode = ModeIndicator.NOT_VALID if lost else self._mode
         gps = self.scn.gps
         messages: list[NmeaMessage] = [
@@ -223,13 +228,15 @@ class GpsReceiver(Device):
             return ModeIndicator.RTK_FIXED
         return ModeIndicator.DIFFERENTIAL
 
-    def _fix(self, epoch_ns: int) -> tuple[float, float, float, float, float]:
+    def _fix(self, epoch_ns: int) -> tuple[float, ...]:
         if epoch_ns not in self._fixes:
             self._fixes = self._fix_chunk(epoch_ns)
         return self._fixes.pop(epoch_ns)
 
-    def _fix_chunk(self, first_ns: int) -> dict[int, tuple[float, float, float, float, float]]:
-        """Antenna fixes for the next minute of epochs, computed in one vectorised pass."""
+    def _fix_chunk(self, first_ns: int) -> dict[int, tuple[float, ...]]:
+        """Antenna fixes (and their errors) for the next minute of epochs, computed in one
+        vectorised pass; the errors are drawn for the whole minute even past the flight's end,
+        so that the random stream, hence every later draw, stays as it was."""
         n = max(1, math.floor(self.chunk_s * NS_PER_S / self._epoch_ns))
         t = first_ns + self._epoch_ns * np.arange(n, dtype=np.int64)
         t = np.clip(t, self.traj.t_start_ns, self.traj.t_end_ns)
@@ -240,11 +247,9 @@ class GpsReceiver(Device):
         vn, ve = st.vel_ned_mps[:, 0], st.vel_ned_mps[:, 1]
         speed = np.hypot(vn, ve)
         course = np.mod(np.degrees(np.arctan2(ve, vn)), 360.0)
-        self.fixes.extend(t_gps_ns=t.tolist(), error_n_m=err_ned[:, 0].tolist(),
-                          error_e_m=err_ned[:, 1].tolist(), error_d_m=err_ned[:, 2].tolist(),
-                          quality=[int(self._quality)] * n)
-        return {int(ti): (float(a), float(b), float(c), float(d), float(e))
-                for ti, a, b, c, d, e in zip(t, lat, lon, h, speed, course, strict=True)}
+        return {int(ti): (float(a), float(b), float(c), float(d), float(e), *map(float, err))
+                for ti, a, b, c, d, e, err in zip(t, lat, lon, h, speed, course, err_ned,
+                                                  strict=True)}
 
     def _position_errors(self, n: int) -> np.ndarray:
         """First-order Gauss–Markov errors (N, E, D) with the scenario's σ and τ."""

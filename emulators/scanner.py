@@ -187,8 +187,8 @@ def envi_header(pixels: int, lines: int, bands: int, segment: int, lines_csv: st
         "wavelength units": "Nanometers",
         "wavelength": "{" + ", ".join(f"{c:.2f}" for c in centres) + "}",
         "fwhm": "{" + ", ".join(f"{fwhm:.2f}" for _ in centres) + "}",
-        "band names": "{" + ", ".join(f"band {i + 1} ({c:.1f} nm)"
-                                      for i, c in enumerate(centres)) + "}",
+        # names without the wavelength: GDAL appends it ("band 1 (495.00 Nanometers)")
+        "band names": "{" + ", ".join(f"band {i + 1}" for i in range(len(centres))) + "}",
     }
     return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
 

@@ -32,8 +32,8 @@ from mcap.records import (
 from mcap.stream_reader import StreamReader
 
 from recorder.writer import (
+    KNOWN_SCHEMA_BYTES,
     METADATA_NAME,
-    SCHEMA_BYTES,
     SCHEMA_ENCODING,
 )
 from sisa.core.errors import InputError
@@ -278,7 +278,8 @@ def _chunk_framing(buf: bytes, i: int, room: int, limit: int) -> bool:
 
 def is_ours(schema: Schema) -> bool:
     """A schema exactly as SISA's recorder writes it."""
-    return schema.encoding == SCHEMA_ENCODING and SCHEMA_BYTES.get(schema.name) == schema.data
+    return schema.encoding == SCHEMA_ENCODING and schema.data in KNOWN_SCHEMA_BYTES.get(
+        schema.name, frozenset())
 
 
 def uncompressed_chunk(chunk: Chunk, limit: int) -> Chunk:

@@ -113,7 +113,8 @@ LOCATION_FIX_SCHEMA: Final[dict[str, Any]] = {
         "timestamp": {"type": "object", "title": "time",
                       "properties": {"sec": {"type": "integer", "minimum": 0},
                                      "nsec": {"type": "integer", "minimum": 0,
-                                              "maximum": 999_999_999}}},
+                                              "maximum": 999_999_999}},
+                      "required": ["sec", "nsec"]},
         "frame_id": {"type": "string"},
         "latitude": {"type": "number"},
         "longitude": {"type": "number"},
@@ -126,6 +127,8 @@ LOCATION_FIX_SCHEMA: Final[dict[str, Any]] = {
                                                {"title": "DIAGONAL_KNOWN", "const": 2},
                                                {"title": "KNOWN", "const": 3}]},
     },
+    "required": ["timestamp", "frame_id", "latitude", "longitude", "altitude",
+                 "position_covariance", "position_covariance_type"],  # every message has all
 }
 
 
@@ -135,6 +138,18 @@ SCHEMAS: Final[Mapping[str, dict[str, Any]]] = {
 }
 SCHEMA_BYTES: Final[Mapping[str, bytes]] = {
     name: json.dumps(schema).encode() for name, schema in SCHEMAS.items()}  # as written
+
+def _without_required(schema: dict[str, Any]) -> dict[str, Any]:
+    return {k: _without_required(v) if isinstance(v, dict) else v
+            for k, v in schema.items() if k != "required"}
+
+
+# Every schema SISA's recorder has written, for the reader's salvage of damaged data: the
+# current ones, and foxglove.LocationFix as written before it listed its required fields.
+KNOWN_SCHEMA_BYTES: Final[Mapping[str, frozenset[bytes]]] = {
+    name: frozenset({data} | ({json.dumps(_without_required(LOCATION_FIX_SCHEMA)).encode()}
+                              if name == LOCATION_FIX_SCHEMA_NAME else set()))
+    for name, data in SCHEMA_BYTES.items()}
 TOPIC_SCHEMAS: Final[Mapping[str, str]] = {  # topic → the schema its channel is declared with
     **{str(topic): cls.schema_name for topic, cls in TOPIC_TYPES.items()},
     str(Topic.GPS_LOCATION): LOCATION_FIX_SCHEMA_NAME,
@@ -334,6 +349,7 @@ class _Part:
     mcap: Writer
     add_message: AddMessage
     channels: dict[tuple[Topic, str], int] = field(default_factory=dict)
+    schemas: dict[str, int] = field(default_factory=dict)  # name → id, each written once
     first_log_ns: int | None = None
     dirty: bool = False
 
@@ -369,8 +385,11 @@ class _Part:
         key = (topic, schema_name)
         channel_id = self.channels.get(key)
         if channel_id is None:
-            schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
-                                                  SCHEMA_BYTES[schema_name])
+            schema_id = self.schemas.get(schema_name)
+            if schema_id is None:  # a schema shared by several topics is written once
+                schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
+                                                      SCHEMA_BYTES[schema_name])
+                self.schemas[schema_name] = schema_id
             channel_id = self.mcap.register_channel(str(topic), MESSAGE_ENCODING, schema_id)
             self.channels[key] = channel_id
         return channel_id

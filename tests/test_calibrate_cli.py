@@ -32,6 +32,13 @@ delta_principal_point_um = [0.0, 30.0]
 """
 
 
+# Two strips and 16 control points cannot separate ω from δy0 to a pixel (σω ~500–800″, IFOV
+# 318″; correlation −0.9998): `sisa calibrate` then writes no sensor file unless forced. The tests
+# of the adjustment's mechanics force it; test_an_ill_conditioned_adjustment_writes_no_sensor
+# checks the refusal itself.
+WEAK_BLOCK = ["--force"]
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("calcli")
@@ -64,7 +71,8 @@ def second(run: Path) -> Path:
 def cal(run: Path) -> Path:
     out = run.parent / "cal"
     assert main(["calibrate", str(run), "--out", str(out), "--tie-points", "40",
-                 "--blunders", "2", "--seed", "3", "--gcp-sigma-m", "0.05,0.05"]) == 0
+                 "--blunders", "2", "--seed", "3", "--gcp-sigma-m", "0.05,0.05",
+                 *WEAK_BLOCK]) == 0
     return out
 
 
@@ -114,7 +122,7 @@ def test_written_measurements_reproduce_the_adjustment(cal: Path, run: Path) -> 
     out = run.parent / "again"
     assert main(["calibrate", str(run), "--out", str(out), "--obs",
                  str(cal / "observations.csv"), "--gcp", str(cal / "points.csv"),
-                 "--gcp-sigma-m", "0.05,0.05"]) == 0
+                 "--gcp-sigma-m", "0.05,0.05", *WEAK_BLOCK]) == 0
     a = json.loads((cal / "calibration.json").read_text())
     b = json.loads((out / "calibration.json").read_text())
     assert _param(b, "delta_focal")[0] == pytest.approx(_param(a, "delta_focal")[0], abs=1e-3)
@@ -161,7 +169,7 @@ def test_border_control_points_can_be_measured_in_one_image(run: Path) -> None:
     out = run.parent / "one-view"
     assert main(["calibrate", str(run), "--out", str(out), "--single-view-control",
                  str(int(ctl.sum())), "--tie-points", "20", "--seed", "3",
-                 "--gcp-sigma-m", "0.05,0.05"]) == 0
+                 "--gcp-sigma-m", "0.05,0.05", *WEAK_BLOCK]) == 0
     obs = read_observations(out / "observations.csv")
     ids, counts = np.unique(obs.point_id, return_counts=True)
     per = dict(zip(ids.tolist(), counts.tolist(), strict=True))
@@ -169,7 +177,7 @@ def test_border_control_points_can_be_measured_in_one_image(run: Path) -> None:
 
 
 DELAY = ["--estimate", "boresight,selfcal,delay", "--sim-delay-ms", "40", "--tie-points", "40",
-         "--seed", "3", "--gcp-sigma-m", "0.05,0.05"]
+         "--seed", "3", "--gcp-sigma-m", "0.05,0.05", *WEAK_BLOCK]
 
 
 def test_two_flights_calibrate_together(run: Path, second: Path) -> None:
@@ -259,7 +267,8 @@ def test_a_dem_beside_the_flight_leaves_no_check_point_and_valid_json(
     with rasterio.open(far, "w", **profile) as dst:
         dst.write(heights, 1)
     out = run.parent / "cal-far-dem"
-    assert main(["calibrate", str(run), "--out", str(out), "--dem", str(far)]) == 0
+    assert main(["calibrate", str(run), "--out", str(out), "--dem", str(far),
+                 *WEAK_BLOCK]) == 0
     assert "check points: none could be measured" in capsys.readouterr().out
     text = (out / "calibration.json").read_text()
     assert "NaN" not in text
@@ -284,7 +293,7 @@ def test_left_out_measurements_are_warnings_on_stderr(cal: Path, run: Path,
                     + f"{i1},{s1},99999,100,0.3\n{i2},{s2},-5,100,0.3\n{ctl[0]},7,10,100,0.3\n")
     out = run.parent / "cal-off"
     assert main(["calibrate", str(run), "--out", str(out), "--obs", str(path), "--gcp",
-                 str(cal / "points.csv"), "--gcp-sigma-m", "0.05,0.05"]) == 0
+                 str(cal / "points.csv"), "--gcp-sigma-m", "0.05,0.05", *WEAK_BLOCK]) == 0
     err = capsys.readouterr().err.splitlines()
     assert (f"sisa calibrate: warning: 2 observations on an untimed line or off the image: "
             f"left out ({i1} in segment {s1} at line 99999, {i2} in segment {s2} at line -5)"
@@ -341,3 +350,45 @@ def test_bad_ground_points_are_one_line_errors(run: Path, capsys: pytest.Capture
     assert err.startswith(f"sisa calibrate: error: {run.parent / expected}"), err
     assert "\n" not in err
     assert not out.exists()
+
+
+def test_an_ill_conditioned_adjustment_writes_no_sensor(
+        run: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 33, item 3: with the defaults, a short flight with control seen once gave ω ± σ
+    hundreds of arcsec beyond the IFOV at correlation −1.000 with δy0, wrote it into sensor.toml
+    and said nothing. Now: exit 3, no sensor.toml, the pair named with what would separate them,
+    in calibration.json too; the boresight's truth labelled as what it is; --force writes it with
+    the warning in the file; a prior on δy0 (the advice) makes a sensor file."""
+    root = run.parent
+    out = root / "cal-ill"
+    assert main(["calibrate", str(run), "--out", str(out)]) == 3
+    said = capsys.readouterr()
+    assert not (out / "sensor.toml").exists()
+    report = json.loads((out / "calibration.json").read_text())
+    cond = report["conditioning"]
+    assert cond["ill_conditioned"]
+    labels = {u["label"] for u in cond["unresolved"]}
+    assert "omega" in labels
+    omega = next(u for u in cond["unresolved"] if u["label"] == "omega")
+    assert omega["sigma"] > cond["pixel_worth"]["omega"]
+    assert any(q["label"] == "delta_y0" and q["r"] < -0.99 for q in omega["partners"])
+    note, = [n for n in report["notes"] if "cannot separate" in n]
+    assert "omega, delta_y0" in note
+    assert "--prior-y0-um" in note
+    err = said.err.splitlines()
+    assert f"sisa calibrate: warning: {note}" in err
+    assert err[-1].startswith("sisa calibrate: warning: ill-conditioned adjustment: no ")
+    assert "--force" in err[-1]
+    assert "(truth* " in said.out
+    assert "* truth of the boresight: the scenario's (900, -300, 200) arcsec composed with the " \
+           "run's INS attitude bias" in said.out
+    forced = root / "cal-ill-forced"
+    assert main(["calibrate", str(run), "--out", str(forced), "--force"]) == 0
+    assert "# WARNING, ill-conditioned: the observations cannot separate omega, delta_y0" in (
+        forced / "sensor.toml").read_text()
+    capsys.readouterr()
+    prior = root / "cal-prior"
+    assert main(["calibrate", str(run), "--out", str(prior), "--prior-y0-um", "20"]) == 0
+    assert not json.loads((prior / "calibration.json").read_text())["conditioning"][
+        "ill_conditioned"]
+    SensorModel.load(prior / "sensor.toml")

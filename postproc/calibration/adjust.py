@@ -126,6 +126,7 @@ class CalibrationResult:
     check_list: list[dict[str, Any]]
     counts: dict[str, int]
     notes: list[str]
+    conditioning: dict[str, Any] = field(default_factory=dict)  # conditioning.assess
 
 
 def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:

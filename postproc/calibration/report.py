@@ -18,6 +18,7 @@ from postproc.calibration.adjust import (
     calibrated_sensor,
     check_points,
 )
+from postproc.calibration.conditioning import Scales, assess
 from postproc.calibration.solve import Solution, covariance
 from postproc.georef import SensorModel
 from sisa.core.sensor import ARCSEC_RAD
@@ -91,10 +92,27 @@ def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, so
               "dem_rows": int(pb.dem_in().sum()), "check_observations": len(adj.check_ids),
               "strips": len(pb.layout.segments), "parameters": int(sol.theta.size),
               "rows": int(sol.lin.r.size)}
+    sensor = calibrated_sensor(inp.sensor, st)
+    scales = Scales.of(sensor, _line_period_ms(inp), _ground_pixel_m(resid))
+    conditioning = assess(pb.layout, sig, corr, scales)
     return CalibrationResult(pb.layout, sol.theta, st, sig, corr, cov, sigma0, dof,
-                             sol.iterations, calibrated_sensor(inp.sensor, st), resid, blunders,
+                             sol.iterations, sensor, resid, blunders,
                              _point_table(adj, sol, sigma0 if math.isfinite(sigma0) else 1.0),
-                             check, check_list, counts, adj.notes.lines)
+                             check, check_list, counts,
+                             adj.notes.lines + conditioning["messages"], conditioning)
+
+
+def _line_period_ms(inp: CalibrationInput) -> float:
+    """The median line period over the segments (nan without two timed lines)."""
+    periods = [inp.clock.line_period_ns(s) for s in inp.clock.t_by_segment]
+    periods = [p for p in periods if math.isfinite(p)]
+    return float(np.median(periods)) / 1e6 if periods else math.nan
+
+
+def _ground_pixel_m(resid: list[dict[str, Any]]) -> float:
+    """The median ground size of a pixel across track at the measurements (nan if none)."""
+    ratio = [abs(r["across_m"] / r["across_px"]) for r in resid if abs(r["across_px"]) > 1e-6]
+    return float(np.median(ratio)) if ratio else math.nan
 
 
 def parameter_rows(res: CalibrationResult) -> list[dict[str, Any]]:
@@ -155,6 +173,7 @@ def report_json(res: CalibrationResult, extra: dict[str, Any] | None = None) -> 
                          for k in ("along_px", "across_px", "along_m", "across_m")},
         "residuals": res.residuals, "blunders": res.blunders, "points": res.points,
         "check_points": res.check, "check_list": res.check_list, "notes": res.notes,
+        "conditioning": res.conditioning,
         "sensor": res.sensor.model_dump(mode="json"), **(extra or {}),
     }
 
@@ -163,6 +182,8 @@ def sensor_toml(res: CalibrationResult) -> str:
     """The calibration file: a SensorModel TOML, estimates ± σ in the leading comments."""
     lines = ["# SISA calibration (sisa calibrate; docs/calibration.md): a sensor file for "
              "`sisa georef --sensor`.",
+             *(f"# WARNING, ill-conditioned: {m}"
+               for m in res.conditioning.get("messages", [])),
              f"# sigma0 = {res.sigma0:.3f}, {res.dof} degrees of freedom; estimates ± σ (a "
              "posteriori); fixed values are the starting sensor file's."]
     for p in parameter_rows(res):

@@ -388,7 +388,16 @@ class IgmWriter:
         return envi_header_text(
             description=desc, samples=self.pixels, lines=self.lines, bands=3, dtype=np.float64,
             fields=[("band names", envi_list(IGM_BAND_NAMES)), ("data ignore value", "NaN"),
+                    ("map info", IGM_MAP_INFO),
                     ("coordinate system string", coordinate_system_string(self.crs))])
+
+
+# An IGM's raster is the image's grid (samples across, lines along the flight), not a map grid:
+# ENVI's "Arbitrary" map info says so. GDAL reads an ENVI header's `coordinate system string`
+# only with a `map info`, so without one it showed no CRS for the coordinates in the bands; with
+# this one it shows the bands' CRS, its geotransform being pixel units (x = sample, y = −line)
+# that mean nothing on the ground (every pixel's position is in the bands).
+IGM_MAP_INFO: Final = "{Arbitrary, 1, 1, 0, 0, 1, 1, 0, North}"
 
 
 def igm_raster(path: Path) -> EnviRaster:
@@ -503,13 +512,29 @@ def write_geolocation_vrt(vrt_path: Path, image_path: Path, igm_path: Path, epsg
     os.replace(tmp, vrt_path)
 
 
+def band_labels(raw: EnviRaster) -> list[str]:
+    """Each band's name in the ENVI header (not GDAL's description, which appends the
+    wavelength to it: 'band 1 (495.0 nm) (495.00 Nanometers)' for a name that had it), with
+    its wavelength in nm if the name does not already say it."""
+    labels = []
+    for b in range(raw.bands):
+        name = _envi_band_name(raw, b) or f"band {b + 1}"
+        wl = raw.wavelengths_nm[b]
+        labels.append(name if wl is None or "nm" in name else f"{name} ({wl:.1f} nm)")
+    return labels
+
+
+def _envi_band_name(raw: EnviRaster, b: int) -> str:
+    names = raw.envi.get("band_names", "").strip().strip("{}").split(",")
+    return names[b].strip() if len(names) == raw.bands else raw.band_names[b]
+
+
 def _vrt_band(root: ET.Element, image: EnviRaster, b: int, source: str) -> None:
     gdal_type = GDAL_TYPE_NAMES.get(image.dtype.name)
     if gdal_type is None:
         raise InputError(f"{image.path}: data type {image.dtype.name} not supported")
     band = ET.SubElement(root, "VRTRasterBand", dataType=gdal_type, band=str(b + 1))
-    if image.band_names[b]:
-        ET.SubElement(band, "Description").text = image.band_names[b]
+    ET.SubElement(band, "Description").text = band_labels(image)[b]
     wl = image.wavelengths_nm[b]
     if wl is not None:
         md = ET.SubElement(band, "Metadata")

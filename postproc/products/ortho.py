@@ -41,6 +41,7 @@ from rasterio.windows import Window
 from postproc.products.igm import (
     CutShortWarning,
     EnviRaster,
+    band_labels,
     commit_envi,
     coordinate_system_string,
     crs_name,
@@ -659,20 +660,6 @@ def output_nodata(raw: EnviRaster) -> float:
     if raw.nodata is not None:
         return raw.nodata
     return math.nan if raw.dtype.kind == "f" else 0.0
-
-
-def band_labels(raw: EnviRaster) -> list[str]:
-    labels = []
-    for b in range(raw.bands):
-        name = _envi_band_name(raw, b) or f"band {b + 1}"
-        wl = raw.wavelengths_nm[b]
-        labels.append(name if wl is None or "nm" in name else f"{name} ({wl:.1f} nm)")
-    return labels
-
-
-def _envi_band_name(raw: EnviRaster, b: int) -> str:
-    names = raw.envi.get("band_names", "").strip().strip("{}").split(",")
-    return names[b].strip() if len(names) == raw.bands else raw.band_names[b]
 
 
 # -- the output files ------------------------------------------------------------------------

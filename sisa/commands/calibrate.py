@@ -13,6 +13,12 @@ of the joined input: segment s of flight k is k·1000 + s, point ids are "k:id" 
 the order given), and calibration.json gives each residual, point and blunder its "flight".
 Options naming one run's files (--gcp, --obs, --scanner, --dem) are refused with several runs.
 
+An ill-conditioned adjustment (a parameter of the sensor file that the data do not determine to
+a pixel, coupled to another they cannot separate it from: postproc.calibration.conditioning)
+writes no sensor.toml unless --force: everything else is written, the parameters and what would
+separate them are said on stderr and in calibration.json ("conditioning", "notes"), and the exit
+code is 3 (finished, but not everything asked for was produced).
+
 OUT/
   sensor.toml         the calibrated sensor file (`sisa georef --sensor OUT/sensor.toml`), with
                       the estimates ± σ and the strongest correlations as comments
@@ -34,7 +40,6 @@ from typing import TYPE_CHECKING, Any, Final
 from sisa.commands import (
     SubParsers,
     add_command,
-    add_force_arg,
     check_inputs,
     check_seed,
     flight_parts,
@@ -68,6 +73,7 @@ SIM_GCP_NOISE_M_MAX: Final = 100.0  # a survey error beyond 100 m makes the poin
 # the adjustment then refused φ and δx0 as inseparable); 10^9 was numpy's MemoryError traceback
 # (6·N candidates drawn at once), and 10^6 would exhaust the memory.
 TIE_POINTS_MAX: Final = 10_000
+EXIT_INCOMPLETE: Final = 3  # finished, but not all it promised (DESIGN.md): here no sensor file
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -82,7 +88,11 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                              "numbered parts are found beside it); "
                              "several run folders: flights sharing the sensor, adjusted together")
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
-    add_force_arg(parser)
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing output folder (the new one is made beside it "
+                             "and takes its place only once complete), and write sensor.toml "
+                             "even from an ill-conditioned adjustment (by default it is not "
+                             "written, and the exit code is 3)")
     parser.add_argument("--gcp", type=Path, default=None, metavar="CSV",
                         help="ground points (id, kind, lat_deg, lon_deg, height_m); default "
                              "RUN/terrain/ground_points.csv")
@@ -426,11 +436,19 @@ def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
            f"{res.counts['tie_points']} tie points in {res.counts['strips']} strips, "
            f"{len(res.blunders)} blunders rejected"]
     tv = _truth_values(truth) if truth else {}
+    biased = truth is not None and _boresight_differs(truth)
     for p in parameter_rows(res):
         if p["segment"] is None:
-            t = f"   (truth {tv[p['name']]:.4g})" if p["name"] in tv else ""
+            mark = "*" if biased and p["name"] in BORESIGHT_NAMES else ""
+            t = f"   (truth{mark} {tv[p['name']]:.4g})" if p["name"] in tv else ""
             out.append(f"  {p['name']:<12} {p['estimate']:12.4f} ± {p['sigma']:<10.4f} "
                        f"{p['unit']}{t}")
+    if biased and truth is not None and any(
+            p["name"] in BORESIGHT_NAMES for p in parameter_rows(res)):
+        scn = ", ".join(f"{v:g}" for v in truth["boresight_arcsec"])
+        out.append(f"  * truth of the boresight: the scenario's ({scn}) arcsec composed with "
+                   "the run's INS attitude bias and mean drift, which the images cannot tell "
+                   "from a boresight")
     for h in high_correlations(res)[:4]:
         out.append(f"  correlation {h['a']} ↔ {h['b']} {h['r']:+.3f}")
     look = look_angles(res)
@@ -447,6 +465,15 @@ def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
                    f"{c['rms_across_m']:.2f} m ({c['rms_across_px']:.2f} px); predicted "
                    f"{c['predicted_rms_along_m']:.2f} / {c['predicted_rms_across_m']:.2f} m")
     return out
+
+
+BORESIGHT_NAMES: Final = ("omega", "phi", "kappa")
+
+
+def _boresight_differs(truth: dict[str, Any]) -> bool:
+    """The boresight the images see (with the INS bias) is not the scenario's own."""
+    return any(abs(a - b) >= 0.05 for a, b in zip(
+        truth["boresight_with_ins_bias_arcsec"], truth["boresight_arcsec"], strict=True))
 
 
 def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
@@ -489,9 +516,11 @@ def _run(args: argparse.Namespace) -> int:
             bar.step("delay sweep")
             span = abs(args.sweep_delay_ms)
             info["delay_sweep"] = sweep_delay(inp, opt, np.arange(-span, span + 1e-9, 5.0))
-        text = sensor_toml(res)
-        load_check(text)
-        (out / "sensor.toml").write_text(text, encoding="utf-8")
+        refused = res.conditioning.get("ill_conditioned", False) and not args.force
+        if not refused:
+            text = sensor_toml(res)
+            load_check(text)
+            (out / "sensor.toml").write_text(text, encoding="utf-8")
         report = report_json(res, {"settings": {"estimate": args.estimate,
                                                 "gcp_sigma_m": list(opt.gcp_sigma_m),
                                                 "dem_sigma_m": opt.dem_sigma_m,
@@ -508,4 +537,9 @@ def _run(args: argparse.Namespace) -> int:
     if "delay_sweep" in info:
         print(f"  delay sweep (seed method): minimum RMS at {info['delay_sweep']['best_ms']:.1f} "
               "ms")
+    if refused:
+        say_warning(args.command, f"ill-conditioned adjustment: no {args.out / 'sensor.toml'} "
+                    "written (its values would be noise along what the data cannot separate; "
+                    "--force writes it anyway); exit code 3")
+        return EXIT_INCOMPLETE
     return 0

@@ -21,6 +21,7 @@ from emulators.ports import PtyPort
 from emulators.runtime import Device, Output, Port, Runner
 from emulators.scenario import scenario_from_table
 from emulators.trajectory import TruthTrajectory
+from emulators.truth import read_truth_csv
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.timescale import NS_PER_S, NS_PER_WEEK, utc_datetime_from_gps_ns
 
@@ -111,6 +112,26 @@ def test_positions_are_the_antenna_with_configured_noise():
     np.testing.assert_allclose(heights - h, -gps.fixes.column("error_d_m")[: len(fixes)],
                                atol=0.002)
     assert 0.3 < np.std(recorded) < 2.0  # code solution ~1 m, correlated over 60 s
+
+
+def test_the_truth_has_one_row_per_fix_sent(tmp_path):
+    """Issue 33, item 10: truth/gps_fixes.csv had a row for every epoch of the last minute
+    computed ahead, those past the flight's end all stamped with its end time (600 rows for 549
+    fixes on `bench`), and the quality of a fix in an outage said 4 where the GGA said 0."""
+    scn, traj, gps, stream, _ = _run({"faults": {"pps_outages": [{"at_s": 100,
+                                                                   "duration_s": 20}]}})
+    ggas = [d.message for d in NmeaStreamDecoder(ErrorPolicy.RAISE).feed(stream)
+            if isinstance(d.message, Gga)]
+    table = read_truth_csv(gps.fixes.write_csv(tmp_path))
+    t = table["t_gps_ns"]
+    assert len(t) == len(ggas)
+    assert np.all(np.diff(t) == NS_PER_S // scn.gps.nmea_rate_hz)
+    assert t[-1] <= traj.t_end_ns
+    leap_ns = scn.block.leap_seconds * NS_PER_S
+    assert [(int(ti) - leap_ns) % (86_400 * NS_PER_S) for ti in t] == [
+        g.utc_time_of_day_ns for g in ggas]
+    assert table["quality"].tolist() == [int(g.quality) for g in ggas]
+    assert 0 < int(np.count_nonzero(table["quality"] == 0)) < len(ggas)
 
 
 def test_every_standard_sentence_parses_with_pynmeagps():

@@ -217,6 +217,10 @@ def test_bil_opens_in_gdal_with_the_right_shape_and_wavelengths(recorded: Run) -
         assert (ds.count, ds.height, ds.width) == (sc.bands, lines, sc.pixels)
         assert ds.dtypes == ("uint16",) * sc.bands
         assert ds.nodata == 0
+        # one wavelength per description (issue 33: "band 1 (495.0 nm) (495.00 Nanometers)",
+        # the header's name holding it and GDAL appending it again)
+        assert ds.descriptions == tuple(f"band {b + 1} ({w:.2f} Nanometers)"
+                                        for b, w in enumerate(band_centres_nm(sc.bands)))
         cube = ds.read()
     assert np.array_equal(np.moveaxis(cube, 0, 1), raw)  # band-interleaved by line
     hdr = read_envi_header(bil.with_suffix(".hdr"))

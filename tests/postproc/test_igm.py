@@ -7,6 +7,7 @@ import os
 import re
 import shutil
 import subprocess
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,7 +102,8 @@ WAVELENGTHS_NM = (460.0, 550.0, 640.0, 850.0)
 
 
 def write_raw(path: Path, lines: int, pixels: int, *, marker: int = 7,
-              wavelengths_nm: tuple[float, ...] = WAVELENGTHS_NM) -> np.ndarray:
+              wavelengths_nm: tuple[float, ...] = WAVELENGTHS_NM,
+              names_with_nm: bool = True) -> np.ndarray:
     """An ENVI BIL uint16 image as the scanner writes it; band 1 = line + 1, band 2 =
     pixel + 1 (so any resampler's choice can be decoded), band 3 = `marker`, others texture."""
     bands = len(wavelengths_nm)
@@ -113,7 +115,8 @@ def write_raw(path: Path, lines: int, pixels: int, *, marker: int = 7,
     for b in range(3, bands):
         img[:, b] = 1000 + (37 * i + 11 * j * b) % 900
     img.astype("<u2").tofile(path)
-    names = ", ".join(f"band {b + 1} ({w:.1f} nm)" for b, w in enumerate(wavelengths_nm))
+    names = ", ".join(f"band {b + 1} ({w:.1f} nm)" if names_with_nm else f"band {b + 1}"
+                      for b, w in enumerate(wavelengths_nm))
     path.with_suffix(".hdr").write_text(
         "ENVI\ndescription = {synthetic segment}\n"
         f"samples = {pixels}\nlines = {lines}\nbands = {bands}\nheader offset = 0\n"
@@ -152,6 +155,22 @@ def test_igm_round_trip_through_gdal(tmp_path: Path) -> None:
     mm = open_igm(path)
     assert mm.shape == (250, 3, 40)
     np.testing.assert_array_equal(mm[:, 1], strip.northing_m)
+
+
+@pytest.mark.parametrize("epsg", [EPSG, 25831, 2154])
+def test_gdal_reads_the_crs_of_the_igm(tmp_path: Path, epsg: int) -> None:
+    """Issue 33, item 10: the IGM header had no `map info`, and GDAL reads an ENVI header's
+    `coordinate system string` only with one: gdalinfo showed no CRS. An "Arbitrary" map info
+    (the raster is the image's grid) gives GDAL the CRS of the coordinates in the bands."""
+    strip = synthetic_strip(20, 8)
+    path = write_igm(strip, tmp_path / "seg_igm", epsg=epsg)
+    assert "map info = {Arbitrary, " in path.with_suffix(".hdr").read_text()
+    with rasterio.open(path) as ds:
+        assert ds.crs is not None
+        assert ds.crs.to_epsg() == epsg
+    proc = subprocess.run([GDALINFO, str(path)], capture_output=True, text=True, check=True)
+    assert "Coordinate System is:\n" in proc.stdout
+    assert f'ID["EPSG",{epsg}]]' in proc.stdout
 
 
 def test_pixel_with_any_bad_coordinate_is_all_nan(tmp_path: Path) -> None:
@@ -269,6 +288,22 @@ def test_gdalwarp_geoloc_lands_on_pixel_centres(tmp_path: Path) -> None:
     corner.write_text(text.replace("PIXEL_CENTER", "TOP_LEFT_CORNER"))
     off_c = _warp_offsets(corner, strip, grid, elsewhere)
     assert np.hypot(*off_c.mean(axis=0)) > 0.4
+
+
+@pytest.mark.parametrize("names_with_nm", [True, False])
+def test_vrt_band_descriptions_say_the_wavelength_once(tmp_path: Path,
+                                                       names_with_nm: bool) -> None:
+    """Issue 33, item 10: the VRT took GDAL's description of an ENVI band, which appends the
+    wavelength to the header's band name: "band 1 (495.0 nm) (495.00 Nanometers)". It now
+    says it once, as the ortho GeoTIFF does, whether the header's names hold it or not."""
+    igm = write_igm(synthetic_strip(30, 8), tmp_path / "igm")
+    write_raw(tmp_path / "img.bil", 30, 8, names_with_nm=names_with_nm)
+    write_geolocation_vrt(tmp_path / "v.vrt", tmp_path / "img.bil", igm, EPSG)
+    want = tuple(f"band {b + 1} ({w:.1f} nm)" for b, w in enumerate(WAVELENGTHS_NM))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(tmp_path / "v.vrt") as ds:
+            assert ds.descriptions == want
 
 
 def test_vrt_refuses_mismatched_igm(tmp_path: Path) -> None:

@@ -96,7 +96,7 @@ def _posterior(sol: Solution) -> tuple[float, F64, F64]:
     scale = 1.0 / np.sqrt(np.diag(m))
     cov = np.linalg.inv(m * scale[:, None] * scale[None, :]) * scale[:, None] * scale[None, :]
     var = np.diag(cov)
-    shares = np.stack([np.einsum("ij,jk,ki->i", cov, n, cov) / var
+    shares = np.stack([np.einsum("ij,ji->i", cov @ n, cov) / var  # diag(C·N·C)
                        for n in (n_obs, n_nav, n_prior)], axis=1)
     return sigma0, np.asarray(cov, np.float64), np.asarray(shares, np.float64)
 

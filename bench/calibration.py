@@ -89,15 +89,16 @@ class Run:
     points: GroundPoints
     dem: Dem
 
-    def input(self, sensor: SensorModel, sim: SimulatedObservations, dem: bool
-              ) -> CalibrationInput:
+    def input(self, sensor: SensorModel, sim: SimulatedObservations, dem: bool,
+              nav_model: bool = True) -> CalibrationInput:
         traj = nav_from_columns(self.cols, self.sync.ins,
                                 antenna_offset_m=sensor.mounting.antenna_offset_m)
         gps = self.scn.gps  # the receiver's stated accuracy: the navigation model
         nav = NavigationAccuracy((gps.horizontal_sigma_m, gps.vertical_sigma_m),
                                  gps.noise_correlation_s)
         return CalibrationInput(traj, SegmentClock.from_line_times(self.sync.lines), sim.points,
-                                sim.obs, sensor, self.dem if dem else None, nav)
+                                sim.obs, sensor, self.dem if dem else None,
+                                nav if nav_model else None)
 
 
 def ensure_run(root: Path, name: str, table: dict[str, Any]) -> Run:
@@ -209,6 +210,10 @@ def seed_configuration(run: Run, seed: int) -> dict[str, Any]:
           f"across {c['rms_across_m']:.2f} m ({c['rms_across_px']:.2f} px); predicted "
           f"{c['predicted_rms_along_m']:.2f} / {c['predicted_rms_across_m']:.2f} m (the "
           "navigation model's GPS error included; seed: 4.7 / 4.4 m)")
+    print("  the same with the trajectory taken as exact (no navigation model: the seed's "
+          "adjustment, and ours before issue 32)")
+    res = calibrate(run.input(start, sim, dem=True, nav_model=False), base)
+    out["seed_exact_trajectory"] = {"params": table(res, truth, CORE, True), **summary(res)}
     print("  the same with an exact survey (control σ 1 cm): what the survey error costs the "
           "ω/δy0 split")
     sim_x = simulate_observations(run.path, run.points, replace(settings, gcp_noise_m=(0.0, 0.0)))

@@ -41,7 +41,7 @@ from acquisition.nmea import (
 from acquisition.pulses import Edge, PulseLine
 from emulators.localplane import LocalPlane
 from emulators.runtime import Device, Output, Port
-from emulators.scenario import GpsSolution, Scenario
+from emulators.scenario import GpsSettings, GpsSolution, Scenario
 from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
@@ -253,16 +253,25 @@ class GpsReceiver(Device):
 
     def _position_errors(self, n: int) -> np.ndarray:
         """First-order Gauss–Markov errors (N, E, D) with the scenario's σ and τ."""
-        gps = self.scn.gps
-        sigma = np.array([gps.horizontal_sigma_m, gps.horizontal_sigma_m, gps.vertical_sigma_m])
-        phi = math.exp(-self._epoch_ns / NS_PER_S / gps.noise_correlation_s)
-        state = self._gm_state
-        if state is None:
-            state = self.rng.normal(0.0, 1.0, 3) * sigma  # start in the stationary distribution
-        out = np.empty((n, 3))
-        drive = self.rng.normal(0.0, 1.0, (n, 3)) * sigma * math.sqrt(1.0 - phi * phi)
-        for k in range(n):
-            state = phi * state + drive[k]
-            out[k] = state
-        self._gm_state = state
+        out, self._gm_state = position_errors(self.scn.gps, n, self._epoch_ns / NS_PER_S,
+                                              self.rng, self._gm_state)
         return out
+
+
+def position_errors(gps: GpsSettings, n: int, step_s: float, rng: np.random.Generator,
+                    state: npt.NDArray[np.float64] | None = None
+                    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """The receiver's position errors at n epochs step_s apart: a first-order Gauss–Markov
+    process per axis (N, E, D) with σ (horizontal, horizontal, vertical) and τ from the
+    settings, continuing from `state` (the last epoch's error), or starting in its stationary
+    distribution. Returns (errors (n, 3), the new state)."""
+    sigma = np.array([gps.horizontal_sigma_m, gps.horizontal_sigma_m, gps.vertical_sigma_m])
+    phi = math.exp(-step_s / gps.noise_correlation_s)
+    if state is None:
+        state = rng.normal(0.0, 1.0, 3) * sigma  # start in the stationary distribution
+    out = np.empty((n, 3))
+    drive = rng.normal(0.0, 1.0, (n, 3)) * sigma * math.sqrt(1.0 - phi * phi)
+    for k in range(n):
+        state = phi * state + drive[k]
+        out[k] = state
+    return out, state

@@ -343,6 +343,30 @@ def _error_table(rate_noise_rps: float, velocity_noise_mps: float) -> TruthTable
        f"velocity noise σ {velocity_noise_mps} m/s")
 
 
+@dataclass(frozen=True)
+class AttitudeErrors:
+    """The INS's attitude error model (roll, pitch, heading; rad): a bias and a linear drift
+    drawn once per run, and white noise on every record."""
+
+    bias_rad: FloatArray
+    drift_rad_per_s: FloatArray  # counted from the scenario start (power-on)
+    noise_rad: FloatArray  # σ
+
+    @classmethod
+    def draw(cls, ins: InsSettings, rng: np.random.Generator) -> AttitudeErrors:
+        bias_sigma = np.asarray(ins.attitude_bias_arcsec) * ARCSEC_RAD
+        drift_sigma = np.asarray(ins.attitude_drift_arcsec_per_h) * ARCSEC_RAD / 3600.0
+        bias = rng.normal(0.0, 1.0, 3) * bias_sigma
+        drift = rng.normal(0.0, 1.0, 3) * drift_sigma
+        return cls(bias, drift, np.asarray(ins.attitude_noise_arcsec) * ARCSEC_RAD)
+
+    def at(self, dt_s: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """(N, 3) errors at dt_s seconds from the start, with fresh white noise."""
+        noise = rng.normal(0.0, 1.0, (dt_s.size, 3)) * self.noise_rad
+        return np.asarray(self.bias_rad + self.drift_rad_per_s * dt_s[:, None] + noise,
+                          np.float64)
+
+
 # --- the device ----------------------------------------------------------------------------
 
 class InsEmulator(Device):
@@ -386,11 +410,10 @@ class InsEmulator(Device):
         return self.truth, self.pulses, self.errors
 
     def _draw_errors(self, ins: InsSettings) -> None:
-        bias_sigma = np.asarray(ins.attitude_bias_arcsec) * ARCSEC_RAD
-        drift_sigma = np.asarray(ins.attitude_drift_arcsec_per_h) * ARCSEC_RAD / 3600.0
-        self.attitude_bias_rad = self._rng.normal(0.0, 1.0, 3) * bias_sigma
-        self.attitude_drift_rad_per_s = self._rng.normal(0.0, 1.0, 3) * drift_sigma
-        self.attitude_noise_rad = np.asarray(ins.attitude_noise_arcsec) * ARCSEC_RAD
+        err = AttitudeErrors.draw(ins, self._rng)
+        self.attitude_bias_rad = err.bias_rad
+        self.attitude_drift_rad_per_s = err.drift_rad_per_s
+        self.attitude_noise_rad = err.noise_rad
         for i, axis in enumerate(_AXES):
             self.errors.append(
                 axis=axis, bias_arcsec=float(self.attitude_bias_rad[i] / ARCSEC_RAD),
@@ -483,9 +506,9 @@ class InsEmulator(Device):
 
     def _attitude(self, st: TrajectoryState, t_meas: IntArray
                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        dt_s = seconds_since(t_meas, self._t0_ns)[:, None]
-        noise = self._rng.normal(0.0, 1.0, (t_meas.size, 3)) * self.attitude_noise_rad
-        err = self.attitude_bias_rad + self.attitude_drift_rad_per_s * dt_s + noise
+        err = AttitudeErrors(self.attitude_bias_rad, self.attitude_drift_rad_per_s,
+                             self.attitude_noise_rad).at(seconds_since(t_meas, self._t0_ns),
+                                                         self._rng)
         return (st.roll_rad + err[:, 0], st.pitch_rad + err[:, 1],
                 _wrap_2pi(st.heading_rad + err[:, 2]))
 

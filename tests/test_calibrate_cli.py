@@ -96,6 +96,18 @@ def test_calibration_recovers_the_injected_sensor(cal: Path) -> None:
     assert abs(look["value"] - want) < 3 * look["sigma"] + 0.5
     assert report["counts"]["tie_points"] >= 20
     assert "sync of the flight log" in report["line_times"]
+    # the run's receiver states a phase solution: the navigation model takes its σ and τ
+    assert report["navigation_accuracy"] == {"gps_sigma_m": [0.03, 0.05],
+                                             "gps_correlation_s": 60.0}
+    assert report["navigation_model"]["prior_sigma_enu_m"] == [[0.03, 0.03, 0.05]]
+
+
+@pytest.mark.parametrize("flag", [["--nav-sigma-m=-1,2"], ["--nav-sigma-m", "1"],
+                                  ["--nav-correlation-s", "0"]])
+def test_a_bad_navigation_accuracy_is_one_line(run: Path, flag: list[str],
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["calibrate", str(run), "--out", str(run.parent / "never"), *flag]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
 def test_injected_blunders_are_rejected(cal: Path) -> None:

@@ -4,7 +4,8 @@ delay from ground control, tie points and the DEM, one flight or several adjuste
 
 Inside: `data` (observations and ground points as files), `flights` (several flights joined),
 `params` (parameter groups and priors), `model` (the collinearity model of a line), `surface`
-(the DEM as a height constraint), `problem` and `setup` (the least-squares problem), `solve`
+(the DEM as a height constraint), `navigation` (the trajectory's stated accuracy as a
+stochastic model), `problem` and `setup` (the least-squares problem), `solve`
 (Gauss–Newton with blunder rejection), `check` (check points), `adjust` (one adjustment),
 `report` (what it found, as JSON and a sensor file) and `pipeline` (inputs to result). The
 commands use only the names below.
@@ -31,6 +32,7 @@ from postproc.calibration.flights import (
     flight_segment,
     join_flights,
 )
+from postproc.calibration.navigation import NavigationAccuracy
 from postproc.calibration.params import Group, PriorSigmas, parse_groups
 from postproc.calibration.pipeline import calibrate
 from postproc.calibration.report import (
@@ -45,7 +47,8 @@ from postproc.calibration.setup import SENSOR_FIT_MARGIN_PX
 
 __all__ = [
     "SEGMENT_STRIDE", "SENSOR_FIT_MARGIN_PX", "CalibrationInput", "CalibrationOptions",
-    "CalibrationResult", "GroundPoints", "Group", "ImageObservations", "PriorSigmas",
+    "CalibrationResult", "GroundPoints", "Group", "ImageObservations", "NavigationAccuracy",
+    "PriorSigmas",
     "SegmentClock", "calibrate", "flight_point_id", "flight_segment", "high_correlations",
     "join_flights", "load_check", "look_angles", "parameter_rows", "parse_groups",
     "read_ground_points", "read_observations", "report_json", "sensor_toml", "sweep_delay",

@@ -35,6 +35,12 @@ from postproc.calibration.check import (
 )
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
 from postproc.calibration.model import CameraModel
+from postproc.calibration.navigation import (
+    Navigation,
+    NavKnots,
+    build_knots,
+    per_segment,
+)
 from postproc.calibration.params import (
     DEFAULT_GROUPS,
     Group,
@@ -90,6 +96,8 @@ class CalibrationInput:
     obs: ImageObservations
     sensor: SensorModel  # the starting values (and everything not estimated)
     dem: Dem | Surface | None = None  # a Surface: several flights' DEMs (calib_flights)
+    # the trajectory's stated accuracy (one, or per segment); None: σ leave navigation out
+    navigation: Navigation = None
 
 
 @dataclass
@@ -126,6 +134,8 @@ class CalibrationResult:
     check_list: list[dict[str, Any]]
     counts: dict[str, int]
     notes: list[str]
+    sigma_share: F64 | None = None  # (G, 3): observations, navigation, priors
+    navigation: dict[str, Any] | None = None  # the navigation model's summary
     conditioning: dict[str, Any] = field(default_factory=dict)  # conditioning.assess
 
 
@@ -141,10 +151,12 @@ def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:
     in_chk = np.isin(obs.point_id, chk_pts.ids)
     a_obs = obs.select(in_adj)
     segments = sorted(set(a_obs.segment.tolist()))
-    layout = build_layout(opt.groups, segments, sensor, opt.priors)
+    c_obs = obs.select(in_chk & np.isin(obs.segment, segments))
+    knots = _knots(inp, segments, a_obs, c_obs, notes)
+    layout = build_layout(opt.groups, segments, sensor, opt.priors, knots)
     origin = np.mean(adj_pts.ecef_m[adj_pts.kind == "control"], axis=0)
     geom = line_geometry(a_obs, inp.clock, adj_pts.index_of(a_obs.point_id, "observations"),
-                         layout.seg_index(a_obs.segment))
+                         layout.seg_index(a_obs.segment), knots)
     model = CameraModel(inp.traj, sensor, geom, origin)
     surface: Surface | None = (None if inp.dem is None else DemSurface(inp.dem)
                                if isinstance(inp.dem, Dem) else inp.dem)
@@ -159,20 +171,38 @@ def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:
         dem_ctl[np.flatnonzero(ps.dem_control)[off]] = False
         ps = replace(ps, dem_control=dem_ctl)
     problem = Problem(model, layout, ps, surface, opt.dem_sigma_m)
-    c_obs = obs.select(in_chk & np.isin(obs.segment, segments))
     unchecked = in_chk & ~np.isin(obs.segment, segments)
     notes.add(int(unchecked.sum()), "check observations in a segment without control: not "
               "checked", observation_names(obs, unchecked))
     check = None
     if len(c_obs):
         cgeom = line_geometry(c_obs, inp.clock, np.zeros(len(c_obs), np.int64),
-                              layout.seg_index(c_obs.segment))
+                              layout.seg_index(c_obs.segment), knots)
         rows = chk_pts.index_of(c_obs.point_id, "observations")
         check = CheckSetup(CameraModel(inp.traj, sensor, cgeom, origin),
                            chk_pts.ecef_m[rows], surface, opt.gcp_sigma_m[0],
                            opt.dem_sigma_m if surface is not None else opt.gcp_sigma_m[1])
     return Adjustment(problem, layout, x0, adj_pts, a_obs, check, c_obs.point_id, surface,
                       notes)
+
+
+def _knots(inp: CalibrationInput, segments: list[int], a_obs: ImageObservations,
+           c_obs: ImageObservations, notes: Notes) -> NavKnots | None:
+    """The navigation model's knots over each segment's observations (adjustment and check),
+    from the trajectory's stated accuracy; None (and a note) without one."""
+    accuracy = per_segment(inp.navigation, segments)
+    if not accuracy:
+        notes.add(1, "trajectory without a stated accuracy: σ leave out the navigation's own "
+                  "error (give --nav-sigma-m)")
+        return None
+    spans: dict[int, tuple[int, int]] = {}
+    for o in (a_obs, c_obs):
+        t = inp.clock.time_of(o.segment, o.line)
+        for s in np.unique(o.segment[t >= 0]).tolist():
+            ts = t[(o.segment == s) & (t >= 0)]
+            lo, hi = spans.get(int(s), (int(ts.min()), int(ts.max())))
+            spans[int(s)] = (min(lo, int(ts.min())), max(hi, int(ts.max())))
+    return build_knots(accuracy, spans)
 
 
 def _standardised(sol: Solution) -> F64:

@@ -6,7 +6,9 @@ without one the point's surveyed height, as seed 000 did) and the ground point i
 the surveyed one along track (the body x axis, horizontal) and across track (to its right). The
 prediction per observation sums: the image noise carried to the ground through the same ray
 (finite differences in line and pixel, so oblique rays and slopes count), the calibrated
-parameters' covariance carried the same way, the survey σ of the check point, and, across
+parameters' covariance carried the same way (with the navigation model's knots, when the
+trajectory's accuracy is stated: the GPS error at the check observation as the adjustment
+knows it, plus the variance between the knots), the survey σ of the check point, and, across
 track, the height σ of the surface times the tangent of the view angle.
 """
 
@@ -19,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.calibration.model import CameraModel
-from postproc.calibration.params import Layout
+from postproc.calibration.params import Layout, State
 from postproc.calibration.surface import GivenHeights, Surface, intersect_rays
 from postproc.georef import ecef_to_geodetic
 
@@ -53,8 +55,11 @@ def _surface(cs: CheckSetup) -> Surface:
 
 def ground_errors(cs: CheckSetup, layout: Layout, theta: F64) -> GroundErrors:
     """Georeferenced − surveyed, along and across track, for every check observation."""
+    return state_ground_errors(cs, layout.unpack(theta))
+
+
+def state_ground_errors(cs: CheckSetup, st: State) -> GroundErrors:
     m = cs.model
-    st = layout.unpack(theta)
     pose = m.pose_at_delay(st.delay_ms)
     centre, d = m.ray(st, pose)
     ground = intersect_rays(_surface(cs), centre + m.origin, d)
@@ -110,7 +115,14 @@ def predicted_variance(cs: CheckSetup, layout: Layout, theta: F64, cov_theta: F6
     if theta.size:
         ja = np.zeros((base.along_m.size, theta.size))
         jc = np.zeros_like(ja)
+        nav_cols = layout.nav_columns
+        if nav_cols.size:
+            bridge_a, bridge_c = _navigation_columns(cs, layout, theta, nav_cols, ja, jc)
+            var_a, var_c = var_a + bridge_a, var_c + bridge_c
+        skip = set(nav_cols.tolist())
         for j, h in enumerate(layout.steps().tolist()):
+            if j in skip:
+                continue
             tp, tm = theta.copy(), theta.copy()
             tp[j] += h
             tm[j] -= h
@@ -120,6 +132,35 @@ def predicted_variance(cs: CheckSetup, layout: Layout, theta: F64, cov_theta: F6
         var_a = var_a + np.einsum("ng,gh,nh->n", ja, cov_theta, ja)
         var_c = var_c + np.einsum("ng,gh,nh->n", jc, cov_theta, jc)
     return np.asarray(var_a, np.float64), np.asarray(var_c, np.float64)
+
+
+def _navigation_columns(cs: CheckSetup, layout: Layout, theta: F64, nav_cols: npt.NDArray[
+        np.int64], ja: F64, jc: F64) -> tuple[F64, F64]:
+    """Fill the navigation knots' columns of the ground errors' Jacobian (a knot moves the
+    perspective centre: the ray cast for a shift of every centre by a metre east, north, up,
+    times the knot's weight) and return the bridge variance carried the same way."""
+    nav = cs.model.obs.nav
+    n = ja.shape[0]
+    if nav is None:
+        return np.zeros(n), np.zeros(n)
+    st = layout.unpack(theta)
+    d_a, d_c = np.zeros((n, 3)), np.zeros((n, 3))
+    h = 0.5
+    for c in range(3):
+        hi, lo = st.copy(), st.copy()
+        hi.gps_block_enu_m[c] += h
+        lo.gps_block_enu_m[c] -= h
+        eh, el = state_ground_errors(cs, hi), state_ground_errors(cs, lo)
+        d_a[:, c] = (eh.along_m - el.along_m) / (2 * h)
+        d_c[:, c] = (eh.across_m - el.across_m) / (2 * h)
+    rows = np.arange(n)
+    for idx, w in ((nav.i0, nav.w0), (nav.i1, nav.w1)):
+        for c in range(3):
+            cols = nav_cols[3 * idx + c]
+            np.add.at(ja, (rows, cols), d_a[:, c] * w)
+            np.add.at(jc, (rows, cols), d_c[:, c] * w)
+    return (np.einsum("nc,nc->n", d_a * d_a, nav.bridge_var_m2),
+            np.einsum("nc,nc->n", d_c * d_c, nav.bridge_var_m2))
 
 
 def _rms(x: F64) -> float:

@@ -13,7 +13,8 @@ trajectory routes every instant to the flight whose span holds it (flights never
 GPS time; overlapping spans are refused), segment s of flight k becomes k·SEGMENT_STRIDE + s
 and point ids become "k:id" (k from 0), so per-strip groups stay per strip and a point belongs
 to one flight. The starting sensor is the first flight's; every flight must start from the same
-one (the adjustment estimates one set of sensor parameters).
+one (the adjustment estimates one set of sensor parameters). Each flight keeps its
+trajectory's stated accuracy (the navigation model, per segment).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
+from postproc.calibration.navigation import NavigationAccuracy, per_segment
 from postproc.calibration.surface import DemSurface, Surface
 from postproc.georef import Dem, Pose, Trajectory
 from sisa.core.errors import InputError
@@ -107,12 +109,15 @@ def join_flights(inputs: Sequence[CalibrationInput]) -> CalibrationInput:
             raise InputError(f"flight {k} starts from another sensor file than flight 0: a "
                              "joint calibration starts every flight from the same one")
     clock: dict[int, I64] = {}
+    navigation: dict[int, NavigationAccuracy] = {}
     ids, kinds, ecef, pid, seg, line, pixel, sig = [], [], [], [], [], [], [], []
     for k, inp in enumerate(inputs):
         for s, t in inp.clock.t_by_segment.items():
             if not 0 <= s < SEGMENT_STRIDE:
                 raise InputError(f"flight {k}: segment {s} outside 0…{SEGMENT_STRIDE - 1}")
             clock[flight_segment(k, s)] = t
+        for s, acc in per_segment(inp.navigation, list(inp.clock.t_by_segment)).items():
+            navigation[flight_segment(k, s)] = acc
         ids.append(np.array([flight_point_id(k, str(i)) for i in inp.points.ids.tolist()]))
         kinds.append(inp.points.kind)
         ecef.append(inp.points.ecef_m)
@@ -130,7 +135,7 @@ def join_flights(inputs: Sequence[CalibrationInput]) -> CalibrationInput:
     dem: Dem | Surface | None = (None if not surfaces else surfaces[0] if len(surfaces) == 1
                                  else FlightsSurface(tuple(surfaces)))
     return CalibrationInput(FlightsTrajectory([i.traj for i in inputs]), SegmentClock(clock),
-                            points, obs, sensor, dem)
+                            points, obs, sensor, dem, navigation or None)
 
 
 def _surface(dem: Dem | Surface) -> Surface:

@@ -3,13 +3,15 @@
 For an observation at fractional line ℓ of segment s:
     t      = t_s(ℓ) + τ                               (line time, interpolated, plus the delay)
     R_b^e' = R_b^e(t)·A_s(t)                          (A: per-strip attitude offset and drift)
-    r_pc   = r_INS(t) + R_b^e'·a^b − R_b^e(t)·Δg^b + Δr_gps   (ECEF)
+    r_pc   = r_INS(t) + R_b^e'·a^b − R_b^e(t)·Δg^b + Δr_gps + e_nav(t)   (ECEF)
     p^c    = (R_b^e'·R_c^b)ᵀ·(X − r_pc)               (the point in the camera frame)
     u = −f'·p_x/p_z,  v = −f'·p_y/p_z                 (focal-plane coordinates, f' = f + δf)
 Across track the predicted pixel is c + (v − y0')/pitch. Along track a pushbroom line sees only
 u = x0' (x0' = x0 + δx0, y0' = y0 + δy0): the misclosure u − x0' at the observed line, divided by
 the focal-plane motion per line du/dℓ (taken from the trajectory at ±1 line), is the equivalent
 line offset. Residuals are observed − modelled, in lines (along) and pixels (across).
+e_nav(t) is the navigation model's GPS error at t, interpolated between its knots
+(postproc.calibration.navigation); zero without one.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from postproc.calibration.navigation import NavWeights
 from postproc.calibration.params import State
 from postproc.georef import SensorModel, Trajectory
 from sisa.core.frames import ned_to_ecef_matrix
@@ -73,6 +76,7 @@ class ObsGeometry:
     line: F64
     pixel: F64
     sigma_px: F64
+    nav: NavWeights | None = None  # the navigation model's knots around each row
 
 
 class Projection(NamedTuple):
@@ -125,7 +129,10 @@ class CameraModel:
         ang = (st.attitude_arcsec[k] + st.drift_arcsec_per_s[k] * self.obs.dt_mid_s[:, None])
         r_be = pose.r_ecef_from_body
         r_be_att = r_be @ rot_xyz(ang * ARCSEC_RAD)
-        shift = self.r_enu @ (st.gps_block_enu_m + st.gps_strip_enu_m[k]).T
+        enu = st.gps_block_enu_m + st.gps_strip_enu_m[k]
+        if self.obs.nav is not None and st.nav_enu_m.shape[0]:
+            enu = enu + self.obs.nav.error(st.nav_enu_m)
+        shift = self.r_enu @ enu.T
         centre = (pose.ins_m + r_be_att @ self.lever - r_be @ st.antenna_delta_m + shift.T)
         r_ce = r_be_att @ boresight_matrix(st.boresight_arcsec)
         p = np.einsum("nji,nj->ni", r_ce, x_m - centre)

@@ -15,6 +15,9 @@ the units a user reads: arcsec, mm, µm, ms, m, arcsec/s.
 - attitude   per-strip INS attitude offsets (arcsec; small rotations about body x, y, z after
              R_b^e), with a prior σ: a common part is the boresight, so they need one.
 - drift      per-strip attitude drift (arcsec/s from the strip's mid time), with a prior σ.
+- navigation not a group one chooses: the GPS error's knots (m; east, north, up) of the
+             navigation model (postproc.calibration.navigation), nuisance parameters with the
+             Gauss–Markov prior of the trajectory's stated accuracy, present when it is given.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from postproc.calibration.navigation import ENU_NAMES, NavKnots
 from postproc.georef import SensorModel
 from sisa.core.errors import ConfigError
 
@@ -41,6 +45,7 @@ class Group(StrEnum):
     GPS_STRIP = "gps_strip"
     ATTITUDE = "attitude"
     DRIFT = "drift"
+    NAVIGATION = "navigation"  # the navigation model's knots: nuisance, never in --estimate
 
 
 PER_STRIP: Final = (Group.GPS_STRIP, Group.ATTITUDE, Group.DRIFT)
@@ -56,6 +61,7 @@ COMPONENTS: Final[dict[Group, tuple[tuple[str, ...], str, float]]] = {
     Group.GPS_STRIP: (("gps_east", "gps_north", "gps_up"), "m", 0.05),
     Group.ATTITUDE: (("att_x", "att_y", "att_z"), "arcsec", 5.0),
     Group.DRIFT: (("drift_x", "drift_y", "drift_z"), "arcsec/s", 0.05),
+    Group.NAVIGATION: (ENU_NAMES, "m", 0.05),
 }
 SELFCAL_UNITS: Final = ("mm", "um", "um")
 SELFCAL_STEPS: Final = (0.005, 1.0, 1.0)
@@ -69,7 +75,11 @@ def parse_groups(text: str) -> tuple[Group, ...]:
             g = Group(word)
         except ValueError:
             raise ConfigError(f"--estimate: unknown group '{word}' (one of "
-                              f"{', '.join(g.value for g in Group)})") from None
+                              f"{', '.join(g.value for g in Group if g is not Group.NAVIGATION)}"
+                              ")") from None
+        if g is Group.NAVIGATION:
+            raise ConfigError("--estimate: the navigation's error is modelled from its stated "
+                              "accuracy (--nav-sigma-m), not estimated as a group")
         if g not in out:
             out.append(g)
     if not out:
@@ -86,9 +96,12 @@ class Param:
     unit: str
     step: float  # central finite-difference half step
     prior_sigma: float | None  # a pseudo-observation θ = start ± σ, or None (free)
+    index: int = -1  # the knot of a navigation parameter
 
     @property
     def label(self) -> str:
+        if self.index >= 0:
+            return f"{self.name}[{self.index}]"
         return self.name if self.segment < 0 else f"{self.name}[{self.segment}]"
 
 
@@ -104,12 +117,13 @@ class State:
     gps_strip_enu_m: F64  # (S, 3)
     attitude_arcsec: F64  # (S, 3)
     drift_arcsec_per_s: F64  # (S, 3)
+    nav_enu_m: F64 = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3) knots
 
     def copy(self) -> State:
         return State(self.boresight_arcsec.copy(), self.selfcal.copy(), self.delay_ms,
                      self.antenna_delta_m.copy(), self.gps_block_enu_m.copy(),
                      self.gps_strip_enu_m.copy(), self.attitude_arcsec.copy(),
-                     self.drift_arcsec_per_s.copy())
+                     self.drift_arcsec_per_s.copy(), self.nav_enu_m.copy())
 
 
 @dataclass(frozen=True)
@@ -152,6 +166,7 @@ class Layout:
     segments: tuple[int, ...]
     base: State
     groups: tuple[Group, ...] = field(default=())
+    knots: NavKnots | None = None  # the navigation model's, when there is one
 
     @property
     def size(self) -> int:
@@ -177,16 +192,34 @@ class Layout:
     def steps(self) -> F64:
         return np.array([p.step for p in self.params], np.float64)
 
+    @property
+    def nav_columns(self) -> npt.NDArray[np.int64]:
+        """Columns of the navigation model's knots (3·knot + axis order)."""
+        return np.array([i for i, p in enumerate(self.params) if p.group is Group.NAVIGATION],
+                        np.int64)
+
+    @property
+    def reported(self) -> npt.NDArray[np.int64]:
+        """Columns of the parameters a report shows: all but the navigation knots."""
+        return np.array([i for i, p in enumerate(self.params)
+                         if p.group is not Group.NAVIGATION], np.int64)
+
+    def only_reported(self) -> Layout:
+        """The layout without the navigation knots (what a result reports)."""
+        return Layout(tuple(self.params[i] for i in self.reported.tolist()), self.segments,
+                      self.base, self.groups, None)
+
 
 def _slot(st: State, p: Param, segments: tuple[int, ...]) -> tuple[F64, int] | None:
-    k = segments.index(p.segment) if p.segment >= 0 else -1
+    k = segments.index(p.segment) if p.segment >= 0 and p.index < 0 else -1
     arrays = {Group.BORESIGHT: (st.boresight_arcsec, p.component),
               Group.SELFCAL: (st.selfcal, p.component),
               Group.ANTENNA: (st.antenna_delta_m, p.component),
               Group.GPS_BLOCK: (st.gps_block_enu_m, p.component),
               Group.GPS_STRIP: (st.gps_strip_enu_m.reshape(-1), 3 * k + p.component),
               Group.ATTITUDE: (st.attitude_arcsec.reshape(-1), 3 * k + p.component),
-              Group.DRIFT: (st.drift_arcsec_per_s.reshape(-1), 3 * k + p.component)}
+              Group.DRIFT: (st.drift_arcsec_per_s.reshape(-1), 3 * k + p.component),
+              Group.NAVIGATION: (st.nav_enu_m.reshape(-1), 3 * p.index + p.component)}
     return arrays.get(p.group)
 
 
@@ -203,18 +236,18 @@ def _set(st: State, p: Param, segments: tuple[int, ...], value: float) -> None:
         slot[0][slot[1]] = value
 
 
-def base_state(sensor: SensorModel, n_segments: int) -> State:
+def base_state(sensor: SensorModel, n_segments: int, n_knots: int = 0) -> State:
     """The sensor file's values; every correction zero."""
     sc = sensor.scanner
     return State(np.array(sensor.mounting.boresight_arcsec, np.float64),
                  np.array([sc.delta_focal_mm, *sc.delta_principal_point_um], np.float64),
                  float(sensor.time_delay_ms), np.zeros(3), np.zeros(3),
                  np.zeros((n_segments, 3)), np.zeros((n_segments, 3)),
-                 np.zeros((n_segments, 3)))
+                 np.zeros((n_segments, 3)), np.zeros((n_knots, 3)))
 
 
 def build_layout(groups: tuple[Group, ...], segments: list[int], sensor: SensorModel,
-                 priors: PriorSigmas | None = None) -> Layout:
+                 priors: PriorSigmas | None = None, knots: NavKnots | None = None) -> Layout:
     pri = priors or PriorSigmas()
     params: list[Param] = []
     for g in groups:
@@ -224,5 +257,11 @@ def build_layout(groups: tuple[Group, ...], segments: list[int], sensor: SensorM
                 u = SELFCAL_UNITS[c] if g is Group.SELFCAL else unit
                 s = SELFCAL_STEPS[c] if g is Group.SELFCAL else step
                 params.append(Param(g, c, seg, name, u, s, pri.of(g, c)))
-    return Layout(tuple(params), tuple(segments), base_state(sensor, len(segments)),
-                  tuple(groups))
+    n_knots = 0 if knots is None else knots.count
+    names, unit, step = COMPONENTS[Group.NAVIGATION]
+    for k in range(n_knots):
+        seg = int(knots.segment[k]) if knots is not None else -1
+        params += [Param(Group.NAVIGATION, c, seg, names[c], unit, step, None, k)
+                   for c in range(3)]
+    return Layout(tuple(params), tuple(segments), base_state(sensor, len(segments), n_knots),
+                  tuple(groups), knots if n_knots else None)

@@ -3,11 +3,15 @@ each divided by its σ, linearised for the Gauss–Newton solver.
 
 Unknowns: the estimated calibration parameters θ (calib_params) and the ground coordinates X of
 every point in the adjustment (control and tie; ECEF − origin, metres). Rows:
-- image: along (lines) and across (pixels) of every active observation, / σ_px;
+- image: along (lines) and across (pixels) of every active observation, / σ (σ_px, and the
+  navigation model's bridge variance carried into the image: `row_sigma`);
 - control: X − X_surveyed in local east, north, up, / σ (horizontal, vertical);
 - DEM: h(X) − DEM(X), / σ_DEM, for tie points when surface control is on;
-- priors: (θ − θ_start) / σ for groups that have a prior.
-Derivatives: analytic for X (image rows), central differences for θ and for the DEM rows.
+- priors: (θ − θ_start) / σ for groups that have a prior;
+- navigation: the whitened Gauss–Markov prior of the navigation model's knots
+  (postproc.calibration.navigation), when the trajectory's accuracy is stated.
+Derivatives: analytic for X and for the navigation knots (image rows: a knot moves the
+perspective centre, which is −X), central differences for the other θ and the DEM rows.
 """
 
 from __future__ import annotations
@@ -47,11 +51,12 @@ class Linear:
     jg: F64  # (M, G)
     jp: F64  # (M, 3)
     pidx: I64  # point of the row, −1 for none
-    row_kind: I64  # 0 image along, 1 image across, 2 control, 3 DEM, 4 prior
+    row_kind: I64  # 0 image along, 1 image across, 2 control, 3 DEM, 4 prior, 5 navigation
     row_item: I64  # observation, point or parameter index of the row
 
 
-IMAGE_ALONG, IMAGE_ACROSS, CONTROL, DEM, PRIOR = range(5)
+IMAGE_ALONG, IMAGE_ACROSS, CONTROL, DEM, PRIOR, NAV_PRIOR = range(6)
+DATA_ROWS = (IMAGE_ALONG, IMAGE_ACROSS, CONTROL, DEM)  # observations; the rest are priors
 
 
 class Problem:
@@ -71,8 +76,13 @@ class Problem:
         self.r_enu = model.r_enu
         self.theta0 = layout.start()
         self.rate: F64 = np.ones(model.obs.line.size)
+        self.row_sigma: F64 = np.repeat(model.obs.sigma_px[:, None], 2, axis=1)
         self._priors = [(i, p.prior_sigma) for i, p in enumerate(layout.params)
                         if p.prior_sigma is not None]
+        self._nav_cols = layout.nav_columns
+        self._fd_cols = np.array([i for i in range(layout.size)
+                                  if i not in set(self._nav_cols.tolist())], np.int64)
+        self._nav_prior = layout.knots.prior_rows() if layout.knots is not None else None
 
     # -- which rows are in --------------------------------------------------------------
 
@@ -93,15 +103,23 @@ class Problem:
         return self.model.pose_at_delay(st.delay_ms)
 
     def update_rates(self, theta: F64, x_m: F64) -> None:
+        """du/dℓ at every observation, and its σ (the image σ plus the navigation model's
+        bridge variance carried into lines and pixels), at the current estimate."""
         st = self.layout.unpack(theta)
-        rate = self.model.rates(st, x_m[self.model.obs.point])
+        xo = x_m[self.model.obs.point]
+        rate = self.model.rates(st, xo)
         self.rate = np.where(np.abs(rate) > 1e-12, rate, 1e-12)
+        nav = self.model.obs.nav
+        if nav is not None and self._nav_cols.size:
+            j = self.model.point_jacobian(st, xo, self.pose_for(st), self.rate) @ self.r_enu
+            extra = np.einsum("nrc,nc->nr", j * j, nav.bridge_var_m2)
+            self.row_sigma = np.sqrt(self.model.obs.sigma_px[:, None] ** 2 + extra)
 
     def image_residuals(self, st: State, x_m: F64) -> F64:
         """(N, 2) weighted along/across of every observation (active or not)."""
         along, across = self.model.residuals(st, x_m[self.model.obs.point], self.pose_for(st),
                                              self.rate)
-        return np.stack([along, across], axis=1) / self.model.obs.sigma_px[:, None]
+        return np.stack([along, across], axis=1) / self.row_sigma
 
     def control_residuals(self, x_m: F64) -> F64:
         """(P, 3) weighted east/north/up of X − surveyed."""
@@ -123,13 +141,21 @@ class Problem:
         img = self.image_residuals(st, x_m)[self.obs_in()].ravel()
         ctl = self.control_residuals(x_m)[self.gcp_in()].ravel()
         pri = np.array([(theta[i] - self.theta0[i]) / s for i, s in self._priors])
-        return np.concatenate([img, ctl, self.dem_residuals(x_m), pri])
+        return np.concatenate([img, ctl, self.dem_residuals(x_m), pri, self._nav_values(theta)])
+
+    def _nav_values(self, theta: F64) -> F64:
+        if self._nav_prior is None:
+            return np.zeros(0)
+        c_self, prev, col, c_prev = self._nav_prior
+        e = theta[self._nav_cols]
+        return np.asarray(c_self * e[col] + np.where(prev >= 0, c_prev * e[prev], 0.0),
+                          np.float64)
 
     # -- linearisation --------------------------------------------------------------------
 
     def linearise(self, theta: F64, x_m: F64) -> Linear:
         parts = [self._image_rows(theta, x_m), self._control_rows(x_m), self._dem_rows(x_m),
-                 self._prior_rows(theta)]
+                 self._prior_rows(theta), self._nav_rows(theta)]
         return Linear(*(np.concatenate([getattr(p, f) for p in parts]) for f in
                         ("r", "jg", "jp", "pidx", "row_kind", "row_item")))
 
@@ -140,7 +166,9 @@ class Problem:
         r = self.image_residuals(st, x_m)[act]
         g = theta.size
         jg = np.zeros((act.size, 2, g))
-        for j, h in enumerate(self.layout.steps().tolist()):
+        steps = self.layout.steps()
+        for j in self._fd_cols.tolist():
+            h = float(steps[j])
             tp, tm = theta.copy(), theta.copy()
             tp[j] += h
             tm[j] -= h
@@ -149,7 +177,9 @@ class Problem:
             jg[:, :, j] = (rp - rm) / (2.0 * h)
         xo = x_m[obs.point]
         jp = self.model.point_jacobian(st, xo, self.pose_for(st), self.rate)[act]
-        jp /= obs.sigma_px[act, None, None]
+        jp /= self.row_sigma[act, :, None]
+        if self._nav_cols.size and obs.nav is not None:
+            self._nav_image_columns(jg, jp, act)
         n = act.size
         return Linear(r.ravel(), jg.reshape(2 * n, g), jp.reshape(2 * n, 3),
                       np.repeat(obs.point[act], 2), np.tile([IMAGE_ALONG, IMAGE_ACROSS], n),
@@ -174,6 +204,33 @@ class Problem:
             jp[:, k] = (self.dem_residuals(xp) - self.dem_residuals(xm)) / (2 * DEM_STEP_M)
         return Linear(r, np.zeros((idx.size, self.layout.size)), jp, idx,
                       np.full(idx.size, DEM), idx)
+
+    def _nav_image_columns(self, jg: F64, jp: F64, act: I64) -> None:
+        """d(row)/d(knot): a knot's ENU shift w·e moves the perspective centre, as −X."""
+        nav = self.model.obs.nav
+        if nav is None:
+            return
+        d_enu = -jp @ self.r_enu  # (n, 2, 3) per metre east, north, up at the centre
+        rows = np.arange(act.size)
+        for idx, w in ((nav.i0[act], nav.w0[act]), (nav.i1[act], nav.w1[act])):
+            for c in range(3):
+                cols = self._nav_cols[3 * idx + c]
+                for r in (0, 1):  # along, across
+                    np.add.at(jg[:, r, :], (rows, cols), d_enu[:, r, c] * w)
+
+    def _nav_rows(self, theta: F64) -> Linear:
+        if self._nav_prior is None:
+            return Linear(np.zeros(0), np.zeros((0, self.layout.size)), np.zeros((0, 3)),
+                          np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        c_self, prev, col, c_prev = self._nav_prior
+        n = col.size
+        jg = np.zeros((n, self.layout.size))
+        rows = np.arange(n)
+        jg[rows, self._nav_cols[col]] = c_self
+        has = prev >= 0
+        jg[rows[has], self._nav_cols[prev[has]]] = c_prev[has]
+        return Linear(self._nav_values(theta), jg, np.zeros((n, 3)), np.full(n, -1),
+                      np.full(n, NAV_PRIOR), self._nav_cols[col])
 
     def _prior_rows(self, theta: F64) -> Linear:
         n = len(self._priors)

@@ -1,6 +1,15 @@
-"""What an adjustment reports: estimates with σ (a posteriori: σ̂0·√q), the correlation matrix,
-residuals of every observation in pixels and metres, adjusted points, check points, blunders;
-and the calibration file itself (a SensorModel TOML with the σ as comments)."""
+"""What an adjustment reports: estimates with σ, the correlation matrix, residuals of every
+observation in pixels and metres, adjusted points, check points, blunders; and the calibration
+file itself (a SensorModel TOML with the σ as comments).
+
+σ are a posteriori, but only the observations are rescaled by σ̂0: a prior (δx0's, the
+navigation model's) says what is known before the data and is not scaled by how well the data
+fit (issue 32). σ̂0² is the observations' weighted square sum over their redundancy
+(Σ over observation rows of 1 − h, h the leverage), and the covariance is
+(N_obs/σ̂0² + N_prior)⁻¹. Each σ² splits exactly into the part the observations' noise
+carries, the part the navigation's error carries and the part the priors carry
+(C·N·C summed over the three); a parameter most of whose variance comes from a prior is
+reported as set by the prior: the data did not measure it."""
 
 from __future__ import annotations
 
@@ -19,18 +28,21 @@ from postproc.calibration.adjust import (
     check_points,
 )
 from postproc.calibration.conditioning import Scales, assess
-from postproc.calibration.solve import Solution, covariance
+from postproc.calibration.problem import DATA_ROWS, NAV_PRIOR, PRIOR
+from postproc.calibration.solve import Solution, covariance, leverages
 from postproc.georef import SensorModel
 from sisa.core.sensor import ARCSEC_RAD
 
 F64 = npt.NDArray[np.float64]
 HIGH_CORRELATION: Final = 0.9
+SET_BY_PRIOR: Final = 0.5  # a parameter whose variance is mostly its prior's
+SHARES: Final = ("observations", "navigation", "prior")
 
 
 def _image_table(adj: Adjustment, sol: Solution) -> list[dict[str, Any]]:
     pb = adj.problem
     st = pb.layout.unpack(sol.theta)
-    w = pb.image_residuals(st, sol.x_m) * pb.model.obs.sigma_px[:, None]
+    w = pb.image_residuals(st, sol.x_m) * pb.row_sigma
     pr = pb.model.project(st, sol.x_m[pb.model.obs.point], pb.pose_for(st))
     depth = np.abs(pr.p_cam_m[:, 2])
     line_m = depth * np.abs(pb.rate) / pr.focal_m
@@ -66,14 +78,55 @@ def _rms(values: list[float]) -> float:
     return float(np.sqrt(np.mean(v * v))) if v.size else math.nan
 
 
+def _posterior(sol: Solution) -> tuple[float, F64, F64]:
+    """(σ̂0 of the observations, covariance with only the observations rescaled, the share
+    of each variance carried by observations, navigation and priors (G, 3))."""
+    lin = sol.lin
+    h = leverages(lin, covariance(sol.norm))
+    data = np.isin(lin.row_kind, DATA_ROWS)
+    redundancy = float(np.sum(1.0 - h[data]))
+    sigma0 = math.sqrt(float(lin.r[data] @ lin.r[data]) / redundancy) if redundancy > 0 \
+        else math.nan
+    g = sol.theta.size
+    if g == 0:
+        return sigma0, np.zeros((0, 0)), np.zeros((0, 3))
+    parts = {k: lin.jg[lin.row_kind == k] for k in (PRIOR, NAV_PRIOR)}
+    n_prior, n_nav = (parts[k].T @ parts[k] for k in (PRIOR, NAV_PRIOR))
+    n_obs = (sol.norm.s - n_prior - n_nav) / (sigma0**2 if math.isfinite(sigma0) else 1.0)
+    m = n_obs + n_prior + n_nav
+    scale = 1.0 / np.sqrt(np.diag(m))
+    cov = np.linalg.inv(m * scale[:, None] * scale[None, :]) * scale[:, None] * scale[None, :]
+    var = np.diag(cov)
+    shares = np.stack([np.einsum("ij,ji->i", cov @ n, cov) / var  # diag(C·N·C)
+                       for n in (n_obs, n_nav, n_prior)], axis=1)
+    return sigma0, np.asarray(cov, np.float64), np.asarray(shares, np.float64)
+
+
+def _navigation_summary(adj: Adjustment, sol: Solution, cov: F64) -> dict[str, Any] | None:
+    """The navigation model's knots: how many, their spacing, and the GPS error they took
+    up (RMS of the estimates against their prior σ, east/north/up)."""
+    layout = adj.problem.layout
+    knots = layout.knots
+    if knots is None:
+        return None
+    cols = layout.nav_columns
+    e = sol.theta[cols].reshape(-1, 3)
+    s = np.sqrt(np.diag(cov)[cols]).reshape(-1, 3)
+    return {"knots": knots.count, "spacing_s": knots.spacing_s,
+            "prior_sigma_enu_m": np.unique(knots.sigma_enu_m, axis=0).tolist(),
+            "correlation_s": np.unique(knots.tau_s).tolist(),
+            "rms_estimate_enu_m": np.sqrt(np.mean(e * e, axis=0)).tolist(),
+            "rms_sigma_enu_m": np.sqrt(np.mean(s * s, axis=0)).tolist()}
+
+
 def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, sol: Solution,
              blunders: list[dict[str, Any]]) -> CalibrationResult:
     pb = adj.problem
     n_par = sol.theta.size + 3 * int(pb.point_active.sum())
     dof = int(sol.lin.r.size - n_par)
-    sigma0 = math.sqrt(sol.cost / dof) if dof > 0 else math.nan
-    qgg = covariance(sol.norm).qgg
-    cov = (sigma0**2 if math.isfinite(sigma0) else 1.0) * qgg
+    sigma0, cov_all, shares = _posterior(sol)
+    keep = pb.layout.reported
+    cov = cov_all[np.ix_(keep, keep)]
     sig = np.sqrt(np.diag(cov))
     corr = cov / np.outer(sig, sig) if sig.size else cov
     st = pb.layout.unpack(sol.theta)
@@ -82,7 +135,7 @@ def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, so
         match = [r for r in resid if r["id"] == b.get("id") and r.get("line") == b.get("line")]
         if match:
             b.update({k: match[0][k] for k in ("along_px", "across_px", "along_m", "across_m")})
-    check, check_list = check_points(adj, sol.theta, cov)
+    check, check_list = check_points(adj, sol.theta, cov_all)
     counts = {"observations": len(inp.obs), "observations_in_adjustment": len(adj.obs),
               "observations_used": int(pb.obs_in().sum()),
               "control_points": int(((pb.points.kind == "control") & pb.point_active).sum()),
@@ -92,14 +145,18 @@ def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, so
               "dem_rows": int(pb.dem_in().sum()), "check_observations": len(adj.check_ids),
               "strips": len(pb.layout.segments), "parameters": int(sol.theta.size),
               "rows": int(sol.lin.r.size)}
+    layout = pb.layout.only_reported()
     sensor = calibrated_sensor(inp.sensor, st)
     scales = Scales.of(sensor, _line_period_ms(inp), _ground_pixel_m(resid))
-    conditioning = assess(pb.layout, sig, corr, scales)
-    return CalibrationResult(pb.layout, sol.theta, st, sig, corr, cov, sigma0, dof,
+    conditioning = assess(layout, sig, corr, scales)
+    return CalibrationResult(layout, sol.theta[keep], st, sig, corr, cov, sigma0, dof,
                              sol.iterations, sensor, resid, blunders,
                              _point_table(adj, sol, sigma0 if math.isfinite(sigma0) else 1.0),
                              check, check_list, counts,
-                             adj.notes.lines + conditioning["messages"], conditioning)
+                             adj.notes.lines + conditioning["messages"],
+                             sigma_share=shares[keep],
+                             navigation=_navigation_summary(adj, sol, cov_all),
+                             conditioning=conditioning)
 
 
 def _line_period_ms(inp: CalibrationInput) -> float:
@@ -117,10 +174,15 @@ def _ground_pixel_m(resid: list[dict[str, Any]]) -> float:
 
 def parameter_rows(res: CalibrationResult) -> list[dict[str, Any]]:
     start = res.layout.start()
+    shares = res.sigma_share if res.sigma_share is not None else \
+        np.tile([1.0, 0.0, 0.0], (len(res.layout.params), 1))
     return [{"name": p.name, "segment": p.segment if p.segment >= 0 else None,
              "group": p.group.value, "unit": p.unit, "estimate": float(res.theta[i]),
              "sigma": float(res.sigma[i]), "start": float(start[i]),
-             "prior_sigma": p.prior_sigma} for i, p in enumerate(res.layout.params)]
+             "prior_sigma": p.prior_sigma,
+             "sigma_share": dict(zip(SHARES, (float(v) for v in shares[i]), strict=True)),
+             "set_by_prior": bool(shares[i][2] >= SET_BY_PRIOR)}
+            for i, p in enumerate(res.layout.params)]
 
 
 def high_correlations(res: CalibrationResult, limit: float = HIGH_CORRELATION
@@ -171,6 +233,7 @@ def report_json(res: CalibrationResult, extra: dict[str, Any] | None = None) -> 
         "high_correlations": high_correlations(res), "look_offsets": look_angles(res),
         "residual_rms": {k: _rms([r[k] for r in used])
                          for k in ("along_px", "across_px", "along_m", "across_m")},
+        "navigation_model": res.navigation,
         "residuals": res.residuals, "blunders": res.blunders, "points": res.points,
         "check_points": res.check, "check_list": res.check_list, "notes": res.notes,
         "conditioning": res.conditioning,
@@ -189,7 +252,7 @@ def sensor_toml(res: CalibrationResult) -> str:
     for p in parameter_rows(res):
         if p["segment"] is None:
             lines.append(f"#   {p['name']:<12} = {p['estimate']:12.4f} ± {p['sigma']:.4f} "
-                         f"{p['unit']}")
+                         f"{p['unit']}" + ("  (set by its prior)" if p["set_by_prior"] else ""))
     for h in high_correlations(res)[:6]:
         lines.append(f"#   correlation {h['a']} ↔ {h['b']}: {h['r']:+.3f}")
     return "\n".join(lines) + "\n\n" + res.sensor.to_toml()

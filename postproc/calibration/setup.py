@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
 from postproc.calibration.model import CameraModel, ObsGeometry
+from postproc.calibration.navigation import NavKnots
 from postproc.calibration.params import State
 from postproc.calibration.problem import PointSet
 from postproc.calibration.surface import GivenHeights, Surface, intersect_rays
@@ -58,13 +59,14 @@ def observation_names(obs: ImageObservations, which: Bool) -> list[str]:
 
 
 def line_geometry(obs: ImageObservations, clock: SegmentClock, point_row: I64,
-                  seg_k: I64) -> ObsGeometry:
+                  seg_k: I64, knots: NavKnots | None = None) -> ObsGeometry:
     t = clock.time_of(obs.segment, obs.line)
     mid = {s: _segment_mid_ns(clock, s) for s in np.unique(obs.segment).tolist()}
     t_mid = np.array([mid[int(s)] for s in obs.segment.tolist()], dtype=np.int64)
     period = np.array([clock.line_period_ns(int(s)) for s in obs.segment.tolist()])
+    nav = None if knots is None else knots.weights(obs.segment, t)
     return ObsGeometry(point_row, seg_k, t, (t - t_mid).astype(np.float64) * 1e-9, period,
-                       obs.line, obs.pixel, obs.sigma_px)
+                       obs.line, obs.pixel, obs.sigma_px, nav)
 
 
 def _segment_mid_ns(clock: SegmentClock, segment: int) -> int:

@@ -75,8 +75,10 @@ def normal_equations(lin: Linear, n_points: int) -> Normal:
         raise InputError("a ground point in the adjustment is not determined by its "
                          "observations (a tie point needs two strips)")
     npp_inv = np.asarray(np.linalg.inv(npp), np.float64)
-    s = ngg - np.einsum("pgi,pij,phj->gh", ngp, npp_inv, ngp)
-    bg_red = bg - np.einsum("pgi,pij,pj->g", ngp, npp_inv, bp)
+    w = ngp @ npp_inv  # (P, G, 3): one matrix product (BLAS), not an einsum over P·G²
+    s = ngg - np.swapaxes(w, 0, 1).reshape(g, 3 * n_points) @ \
+        np.swapaxes(ngp, 0, 1).reshape(g, 3 * n_points).T
+    bg_red = bg - np.einsum("pgi,pi->g", w, bp)
     return Normal(s, ngp, npp_inv, bg_red, bp)
 
 
@@ -126,15 +128,15 @@ def covariance(norm: Normal) -> Covariance:
             scale[None, :]
     else:
         qgg = np.zeros((0, 0))
-    qgp = -np.einsum("gh,phi,pij->pgj", qgg, norm.ngp, norm.npp_inv)
-    qpp = norm.npp_inv + np.einsum("pij,pgj,gh,phk,pkl->pil", norm.npp_inv, norm.ngp, qgg,
-                                   norm.ngp, norm.npp_inv)
-    return Covariance(qgg, qgp, qpp)
+    a = norm.ngp @ norm.npp_inv  # (P, G, 3)
+    qgp = -(qgg @ a)  # (P, G, 3): −Q_gg·N_gp·N_pp⁻¹
+    qpp = norm.npp_inv + np.swapaxes(a, 1, 2) @ (qgg @ a)
+    return Covariance(qgg, qgp, np.asarray(qpp, np.float64))
 
 
 def leverages(lin: Linear, cov: Covariance) -> F64:
     """h = a·Q·aᵀ of every row (its redundancy number is 1 − h)."""
-    h = np.einsum("mg,gh,mh->m", lin.jg, cov.qgg, lin.jg)
+    h = np.einsum("mg,mg->m", lin.jg @ cov.qgg, lin.jg)
     has_p = lin.pidx >= 0
     p = lin.pidx[has_p]
     jg, jp = lin.jg[has_p], lin.jp[has_p]

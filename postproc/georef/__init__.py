@@ -22,10 +22,12 @@ from postproc.georef.navigation import (
     MAX_GAP_LIMIT_S,
     NAV_WANTED,
     AntennaFixes,
+    InsSamples,
     Pose,
     Trajectory,
     ecef_to_geodetic,
     fixes_from_columns,
+    fuse_ins_gps,
     geodetic_to_ecef,
     nav_from_columns,
 )
@@ -37,7 +39,8 @@ from postproc.georef.trajfiles import LEAP_SECONDS_RANGE
 __all__ = [
     "CALIBRATED_SUFFIX", "LEAP_SECONDS_RANGE", "MAX_GAP_LIMIT_S", "NAV_WANTED",
     "PLAUSIBLE_HEIGHTS_M", "AntennaFixes", "CastStats", "Dem", "GeorefJob", "GeorefOptions",
-    "GeorefResult", "GroundPoints", "Pose", "SegmentResult", "SensorModel", "Trajectory",
-    "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "geodetic_to_ecef",
+    "GeorefResult", "GroundPoints", "InsSamples", "Pose", "SegmentResult", "SensorModel",
+    "Trajectory", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns",
+    "fuse_ins_gps", "geodetic_to_ecef",
     "intersect", "merged_wanted", "nav_from_columns", "reference_intersect", "write_report",
 ]

@@ -56,6 +56,7 @@ if TYPE_CHECKING:
         CalibrationResult,
         GroundPoints,
         ImageObservations,
+        NavigationAccuracy,
     )
     from postproc.georef import SensorModel
 
@@ -131,6 +132,14 @@ def _add_weights(parser: argparse.ArgumentParser) -> None:
                    help="prior σ of δy0 (default 0 = none)")
     g.add_argument("--prior-attitude-arcsec", type=float, default=20.0, metavar="AS",
                    help="prior σ of per-strip attitude offsets (default 20)")
+    g.add_argument("--nav-sigma-m", default=None, metavar="H,V",
+                   help="the trajectory's stated accuracy: σ of its GPS positions, horizontal "
+                        "and vertical (default for a run: its scenario's receiver; for a "
+                        "flight log none, and σ then leave the navigation's error out; 0,0: "
+                        "none)")
+    g.add_argument("--nav-correlation-s", type=float, default=None, metavar="S",
+                   help="correlation time of that error (Gauss–Markov; default for a run: its "
+                        "scenario's, else 60)")
     g.add_argument("--check-heights", action="store_true",
                    help="check points enter the adjustment with only their height observed "
                         "(seed 000's procedure); their horizontal position stays a check")
@@ -243,6 +252,7 @@ def _options(args: argparse.Namespace) -> CalibrationOptions:
         if 0 < value < PRIOR_MIN:  # the eigen-solver failed on 1e-300
             raise InputError(f"{flag} {value:g}: must be 0 (no prior) or ≥ {PRIOR_MIN:g} (a "
                              "tighter prior holds the value: leave its group out of --estimate)")
+    _navigation(args)  # its options checked before any work
     gcp_sigma_m = _pair(args.gcp_sigma_m, "--gcp-sigma-m")
     for v in gcp_sigma_m:
         _within("--gcp-sigma-m", v, GCP_SIGMA_M_RANGE, "metres: below 1 mm the weights "
@@ -344,14 +354,50 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     if untied is not None:  # observations on untimed lines are left out, and this is why
         say_warning(args.command, untied)
     traj = nav_from_columns(cols, sync.ins, antenna_offset_m=sensor.mounting.antenna_offset_m)
+    navigation = _navigation(args)
     dem = None
     if not args.no_dem and (args.dem is not None or _is_run(args.flight)):
         dem_path = _default(args, args.dem, "terrain/dem.tif", "--dem")
         dem = Dem.read(dem_path) if dem_path.is_file() or args.dem else None
     info["line_times"] = ("sync of the flight log, lines from "
                           + ("the scanner's lines files" if scanner else "frame-header order"))
+    if navigation is not None:
+        info["navigation_accuracy"] = {"gps_sigma_m": list(navigation.gps_sigma_m),
+                                       "gps_correlation_s": navigation.gps_correlation_s}
     return CalibrationInput(traj, SegmentClock.from_line_times(sync.lines), points, obs,
-                            sensor, dem), info
+                            sensor, dem, navigation), info
+
+
+NAV_CORRELATION_S_RANGE: Final = (1.0, 86_400.0)  # a second (the fix rate) to a day
+
+
+def _navigation(args: argparse.Namespace) -> NavigationAccuracy | None:
+    """The trajectory's stated accuracy: --nav-sigma-m / --nav-correlation-s, else a run's
+    scenario's GPS receiver (σ and correlation time it states; not its truth), else none."""
+    from postproc.calibration import NavigationAccuracy
+
+    tau = args.nav_correlation_s
+    if tau is not None:
+        _within("--nav-correlation-s", tau, NAV_CORRELATION_S_RANGE, "seconds")
+    scn_path = args.flight[0] / "scenario.toml" if _is_run(args.flight) else None
+    stated = None
+    if scn_path is not None and scn_path.is_file():
+        from emulators.scenario import load_scenario
+
+        gps = load_scenario(scn_path).gps
+        stated = ((gps.horizontal_sigma_m, gps.vertical_sigma_m), gps.noise_correlation_s)
+    if args.nav_sigma_m is not None:
+        sigma = _pair(args.nav_sigma_m, "--nav-sigma-m")
+        for v in sigma:
+            _within("--nav-sigma-m", v, (0.0, GCP_SIGMA_M_RANGE[1]), "metres")
+    elif stated is not None:
+        sigma = stated[0]
+    else:
+        return None
+    if max(sigma) == 0.0:
+        return None
+    return NavigationAccuracy(sigma, tau if tau is not None else
+                              stated[1] if stated is not None else 60.0)
 
 
 def _shared_sensor(args: argparse.Namespace, runs: list[Path]) -> SensorModel:
@@ -441,6 +487,7 @@ def headline(res: CalibrationResult, truth: dict[str, Any] | None) -> list[str]:
         if p["segment"] is None:
             mark = "*" if biased and p["name"] in BORESIGHT_NAMES else ""
             t = f"   (truth{mark} {tv[p['name']]:.4g})" if p["name"] in tv else ""
+            t += "   set by its prior" if p["set_by_prior"] else ""
             out.append(f"  {p['name']:<12} {p['estimate']:12.4f} ± {p['sigma']:<10.4f} "
                        f"{p['unit']}{t}")
     if biased and truth is not None and any(

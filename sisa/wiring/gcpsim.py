@@ -56,6 +56,8 @@ class SimSettings:
     blunders: int = 0
     blunder_px: float = 20.0
     seed: int = 0
+    # the DEM's own error at the tie points: their true heights are off the DEM by this σ
+    tie_height_noise_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,36 @@ class TruthSegment:
     number: int
     line: I64
     t_ns: I64
+
+
+@dataclass(frozen=True)
+class FlightTruth:
+    """What the measurements are made from: the scenario, its true trajectory, the true line
+    times of every segment, the DEM, and the INS's drawn attitude errors (roll, pitch, heading:
+    bias ″ and drift ″/h; None: none known)."""
+
+    scn: Scenario
+    traj: TruthTrajectory
+    segments: list[TruthSegment]
+    dem: Dem
+    ins_bias_arcsec: F64 | None = None
+    ins_drift_arcsec_per_h: F64 | None = None
+
+
+def flight_truth(run: Path) -> FlightTruth:
+    """A simulated run folder's truth (scenario, truth/frames.csv, terrain/dem.tif,
+    truth/ins_errors.csv)."""
+    scn = load_scenario(run / "scenario.toml")
+    segs = truth_segments(run)
+    traj = run_trajectory(run, scn, np.concatenate([s.t_ns for s in segs]) if segs
+                          else np.zeros(0, np.int64))
+    bias = drift = None
+    err_path = run / "truth" / "ins_errors.csv"
+    if err_path.is_file():
+        e = read_truth_csv(err_path)
+        bias = np.asarray(e["bias_arcsec"][:3], np.float64)
+        drift = np.asarray(e["drift_arcsec_per_h"][:3], np.float64)
+    return FlightTruth(scn, traj, segs, Dem.read(run / "terrain" / "dem.tif"), bias, drift)
 
 
 def truth_segments(run: Path) -> list[TruthSegment]:
@@ -182,10 +214,10 @@ def border_control(points: GroundPoints, count: int) -> frozenset[int]:
     return frozenset(ctl[np.argsort(d, kind="stable")[:count]].tolist())
 
 
-def _tie_candidates(run: Path, points: GroundPoints, n: int, rng: np.random.Generator
-                    ) -> GroundPoints:
-    """n·TIE_CANDIDATES points on the DEM inside the control points' extent."""
-    dem = Dem.read(run / "terrain" / "dem.tif")
+def _tie_candidates(dem: Dem, points: GroundPoints, n: int, rng: np.random.Generator,
+                    height_noise_m: float = 0.0) -> GroundPoints:
+    """n·TIE_CANDIDATES points on the DEM (off it by `height_noise_m` σ: the DEM's error)
+    inside the control points' extent."""
     lat, lon, _ = ecef_to_geodetic(points.ecef_m)
     to_map = Transformer.from_crs(4326, dem.epsg, always_xy=True)
     e, nn = (np.asarray(v) for v in to_map.transform(lon, lat))
@@ -193,6 +225,8 @@ def _tie_candidates(run: Path, points: GroundPoints, n: int, rng: np.random.Gene
     ce = rng.uniform(e.min(), e.max(), m)
     cn = rng.uniform(nn.min(), nn.max(), m)
     h = dem.height_at(ce, cn)
+    if height_noise_m > 0:
+        h = h + rng.normal(0.0, height_noise_m, h.size)
     ok = np.isfinite(h)
     clon, clat = Transformer.from_crs(dem.epsg, 4326, always_xy=True).transform(ce[ok], cn[ok])
     ids = np.array([f"T{i + 1:05d}" for i in range(int(ok.sum()))])
@@ -212,17 +246,15 @@ def _survey_noise(points: GroundPoints, sigma: tuple[float, float], rng: np.rand
     return GroundPoints(points.ids, points.kind, ecef, points.epsg)
 
 
-def effective_boresight_arcsec(run: Path, scn: Scenario, traj: TruthTrajectory, t_ns: I64
-                               ) -> tuple[float, float, float]:
+def effective_boresight_arcsec(flight: FlightTruth, t_ns: I64) -> tuple[float, float, float]:
     """The boresight the data can see: the true one composed with the INS's attitude error
     (bias + drift, truth/ins_errors.csv) averaged over the observation times."""
-    err_path = run / "truth" / "ins_errors.csv"
-    if not err_path.is_file() or t_ns.size == 0:
+    scn, traj = flight.scn, flight.traj
+    bias, drift = flight.ins_bias_arcsec, flight.ins_drift_arcsec_per_h
+    if bias is None or drift is None or t_ns.size == 0:
         return tuple(float(a) for a in scn.mounting.boresight_arcsec)  # type: ignore[return-value]
-    e = read_truth_csv(err_path)
     hours = (t_ns - traj.t_start_ns).astype(np.float64) / 3.6e12
-    err = [(e["bias_arcsec"][k] + e["drift_arcsec_per_h"][k] * hours) * ARCSEC_RAD
-           for k in range(3)]
+    err = [(bias[k] + drift[k] * hours) * ARCSEC_RAD for k in range(3)]
     st = traj.state(t_ns)
     r_true = body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
     r_ins = body_to_ned_matrix(st.roll_rad + err[0], st.pitch_rad + err[1],
@@ -239,15 +271,21 @@ def effective_boresight_arcsec(run: Path, scn: Scenario, traj: TruthTrajectory, 
 
 def simulate_observations(run: Path, points: GroundPoints, settings: SimSettings
                           ) -> SimulatedObservations:
-    """Measurements of `points` (control and check) and of new tie points, from the truth."""
-    scn = load_scenario(run / "scenario.toml")
-    segs = truth_segments(run)
-    traj = run_trajectory(run, scn, np.concatenate([s.t_ns for s in segs]) if segs
-                          else np.zeros(0, np.int64))
+    """Measurements of `points` (control and check) and of new tie points, from the truth of
+    a simulated run folder."""
+    return simulate_flight_observations(flight_truth(run), points, settings)
+
+
+def simulate_flight_observations(flight: FlightTruth, points: GroundPoints,
+                                 settings: SimSettings) -> SimulatedObservations:
+    """Measurements of `points` (control and check) and of new tie points, from a flight's
+    truth (a run folder's, or one built in memory)."""
+    scn, segs, traj = flight.scn, flight.segments, flight.traj
     rng = np.random.default_rng([settings.seed, 7])
     pts = points
     if settings.tie_points > 0:
-        pts = GroundPoints.concat(points, _tie_candidates(run, points, settings.tie_points, rng))
+        pts = GroundPoints.concat(points, _tie_candidates(
+            flight.dem, points, settings.tie_points, rng, settings.tie_height_noise_m))
     proj = TruthProjector(scn, traj)
     views = _views(proj, segs, pts.ecef_m, round(settings.delay_ms * 1e6))
     views = _limit_views(views, settings.max_views, scn.scanner.centre_pixel,
@@ -277,7 +315,7 @@ def simulate_observations(run: Path, points: GroundPoints, settings: SimSettings
                            surveyed.epsg)
     mid = {s.number: int(s.t_ns[s.t_ns.size // 2]) for s in segs}
     t_obs = np.array([mid[v[1]] for v in views], dtype=np.int64)
-    truth = _truth(run, scn, traj, t_obs, settings)
+    truth = _truth(flight, t_obs, settings)
     return SimulatedObservations(obs, adj_pts, true_pts, np.sort(bad).astype(np.int64), truth)
 
 
@@ -292,13 +330,12 @@ def _keep_ties(views: list[tuple[int, int, float, float]], pts: GroundPoints, wa
     return [v for v in views if pts.kind[v[0]] != "tie" or v[0] in chosen]
 
 
-def _truth(run: Path, scn: Scenario, traj: TruthTrajectory, t_obs: I64,
-           settings: SimSettings) -> dict[str, Any]:
+def _truth(flight: FlightTruth, t_obs: I64, settings: SimSettings) -> dict[str, Any]:
+    scn = flight.scn
     sc, m = scn.scanner, scn.mounting
     return {
         "boresight_arcsec": list(m.boresight_arcsec),
-        "boresight_with_ins_bias_arcsec": list(effective_boresight_arcsec(run, scn, traj,
-                                                                          t_obs)),
+        "boresight_with_ins_bias_arcsec": list(effective_boresight_arcsec(flight, t_obs)),
         "delta_focal_mm": sc.delta_focal_mm,
         "delta_principal_point_um": list(sc.delta_principal_point_um),
         "time_delay_ms": settings.delay_ms,

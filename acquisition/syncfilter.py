@@ -25,13 +25,15 @@ Design choices, and why:
   is the timing board's own prediction: the last edge plus whole measured periods, within
   `pps_gate_ns` (a few µs, + 0.1 ppm of the gap). A locked train gives way only to a new chain
   of such edges none of which was accepted (the PPS moved), or after PPS_HOLD_S without a PPS.
-- Scanner on = evidence a spurious ppf cannot fake: a frame header with a ppf in its latency
-  window, or `scanner_on_after_ppf` ppf (default 3; 1 = the seed's "first ppf", which a stray
-  ppf can fake) at the configured line rate (every interval within interval_tolerance of
-  `line_period_ns`). Three ppf merely alike in rate were enough before: 3 Hz of spurious pulses
-  switched an idle unit to mode 2 four times a flight, and its forwards had no counter. A
-  scanner at another line rate switches on its first header. Scanner off = no ppf for
-  `idle_after_ns`. These are the only mode switches.
+- Scanner on = evidence a spurious ppf cannot fake: `scanner_on_after_ppf` ppf (default 3;
+  1 = the seed's "first ppf", which a stray ppf can fake) at the configured line rate (every
+  interval within interval_tolerance of `line_period_ns`), or, for a scanner at another rate
+  (its latest ppf interval off the line period), a frame header with a ppf in its latency
+  window (the switch is dated at that ppf). Three ppf merely alike in rate were enough before:
+  3 Hz of spurious pulses switched an idle unit to mode 2 four times a flight, and its forwards
+  had no counter. At the line rate a header does not switch, so when the scanner is found on
+  does not depend on when a header reached the host (a replayed log switches at the same ppf).
+  Scanner off = no ppf for `idle_after_ns`. These are the only mode switches.
 - Minimum spacing between ANY two forwarded pulses, so the receiver's dead time (1 / max event rate)
   never eats one, across mode switches too. Two PPS forwards may be `spacing_tolerance_ns` closer
   than 1 / rate: they are one GPS second apart by construction (only PPS jitter and the board
@@ -439,6 +441,12 @@ class _FrameRun:
         nominal = self.cfg.line_period_ns
         return all(abs(i - nominal) <= self.cfg.interval_tolerance * nominal for i in recent)
 
+    def off_line_rate(self) -> bool:
+        """The latest ppf interval is not the configured line period."""
+        nominal = self.cfg.line_period_ns
+        return bool(self.intervals) and (abs(self.intervals[-1] - nominal)
+                                         > self.cfg.interval_tolerance * nominal)
+
     def ppf_for_header(self, header: FrameHeader, t_host_ns: int) -> _Frame | None:
         """The latest ppf of this stretch in the header's latency window (host time)."""
         lo, hi = self._window(header)
@@ -750,8 +758,9 @@ class SyncFilter:
         """A frame header from the scanner's serial port (in mode 1, with a ppf of the
         tentative stretch in its window: the scanner is on)."""
         logs: list[Log] = []
-        ppf = (self._run.ppf_for_header(header, t_host_ns)
-               if self.mode is Mode.PPS and self._run is not None else None)
+        run = self._run
+        ppf = (run.ppf_for_header(header, t_host_ns)
+               if self.mode is Mode.PPS and run is not None and run.off_line_rate() else None)
         if ppf is not None:  # on since that ppf, on the board counter
             logs = self._switch(Mode.FRAMES, ppf.board_ns, t_host_ns, SwitchReason.SCANNER_HEADER)
         if self._run is not None and self._run.match_header(header, t_host_ns):

@@ -512,14 +512,17 @@ def _segment_ppf(stream: Stream, seg: Segment) -> list[int]:
 
 
 def test_modes_switch_only_at_scanner_on_and_off():
-    """Scanner on at the first frame header (a ppf in its window), which comes before the
-    second ppf, at either line rate: on since the first ppf; off after the idle time."""
+    """Scanner on at the third ppf at the line rate (16 ms); the 48 ms segment, at another
+    rate, at the header of its second ppf (the first interval off the line rate), dated at that
+    ppf; off after the idle time."""
     cfg, stream, run = _flight_run(16, 0, seed=3)
     switches = run.logs(SyncModeSwitch)
     assert [(s.from_mode, s.to_mode) for s in switches] == [(1, 2), (2, 1)] * 3
-    for seg, on in zip(FLIGHT, switches[::2], strict=True):
-        assert on.board_ns == _segment_ppf(stream, seg)[0]
-        assert on.reason == "scanner on: frame header"
+    for seg, on, (ppf, reason) in zip(FLIGHT, switches[::2], [
+            (2, "scanner on: ppf at the line rate"), (1, "scanner on: frame header"),
+            (2, "scanner on: ppf at the line rate")], strict=True):
+        assert on.board_ns == _segment_ppf(stream, seg)[ppf]
+        assert on.reason == reason
     for seg, off in zip(FLIGHT, switches[1::2], strict=True):
         delay = off.board_ns - board(round(seg.end_s * S))
         assert cfg.idle_after_ns - 16 * MS <= delay <= cfg.idle_after_ns + 120 * MS

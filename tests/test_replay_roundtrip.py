@@ -12,8 +12,8 @@ counter itself must agree), the health windows. And the sync log
 give every INS record and every line the same GPS time.
 
 The flight starts now (GPS time from the host clock): a receiver's first time tags come before
-its first fix, and the recorder takes their GPS week from the host clock, so a flight older than
-half a week replays with those tags in the replay day's week (docs/replay.md). It is replayed at
+its first fix and wait for its date (docs/replay.md); flying now keeps the comparison exact
+whatever the host clock says. It is replayed at
 x2 to stay under a minute: its scanner runs at 32 ms lines with 4 ms exposures, so the header
 latency the sync unit matches on (halved by the rate) stays inside its window with margin.
 """

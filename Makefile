@@ -1,4 +1,6 @@
-# Two entry points, both self-contained on a fresh machine (Python 3.11 + PyPI):
+# Two entry points, both self-contained on a fresh machine with Python 3.11 and make: what
+# else they need comes from tools/deps.sh (Debian packages, installed when run as root or with
+# password-less sudo; else it says which and how) and from PyPI into .venv/
 #   make demo   set up, then run the main job on the built-in `bench` scenario
 #   make test   set up, then lint, type-check and run the whole test suite
 PYTHON ?= python3
@@ -6,11 +8,12 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 DEMO   := runs/bench-demo
 
-.PHONY: setup demo test lint clean
+.PHONY: setup test-deps demo test lint clean
 
 setup: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml postproc/products/_orthokernels.c
+	PYTHON=$(PYTHON) bash tools/deps.sh demo
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
@@ -27,7 +30,10 @@ lint: setup
 	$(BIN)/mypy
 	$(BIN)/mypy bench
 
-test: lint
+test-deps: setup
+	PYTHON=$(PYTHON) bash tools/deps.sh test
+
+test: test-deps lint
 	$(BIN)/python -m pytest -n 2 -q
 
 clean:

@@ -156,6 +156,7 @@ class Acquisition:
             self.streams["pps"].stats = pulse_stats
         self.links = {source: LinkCounters() for source in SOURCE_STREAMS}
         self._utc_date: dt.date | None = None
+        self._undated_tags: list[tuple[int, PashrPtt | PashrTtt]] = []
         self._last_fix_gps_ns: int | None = None
         self._gga_seen = False  # GNS fixes are logged only from a receiver that sends no GGA
         self._last_in: dict[PulseLine, tuple[int, int]] = {}  # line → (board_ns, t_edge_ns)
@@ -183,6 +184,7 @@ class Acquisition:
     def _on_nmea(self, t_host_ns: int, msg: object) -> None:
         if isinstance(msg, Rmc | Zda) and msg.utc_date is not None:
             self._utc_date = msg.utc_date
+            self._flush_undated_tags()
         if isinstance(msg, Gga):
             self._gga_seen = True
         if isinstance(msg, Gga) or (isinstance(msg, Gns) and not self._gga_seen):
@@ -190,13 +192,27 @@ class Acquisition:
                     and msg.lat_deg is not None and msg.lon_deg is not None):
                 self._log_fix(t_host_ns, msg, msg.utc_time_of_day_ns, self._utc_date)
         elif isinstance(msg, PashrPtt | PashrTtt):
-            kind = "PTT" if isinstance(msg, PashrPtt) else "TTT"
-            t_gps = gps_ns_from_time_of_week(msg.gps_time_of_week_ns, self._gps_estimate(t_host_ns))
-            self.log(GpsTimeTag(t_host_ns, kind, msg.gps_time_of_week_ns, t_gps), None)
-            if isinstance(msg, PashrPtt):
-                second = (t_gps + NS_PER_S // 2) // NS_PER_S * NS_PER_S
-                self.last_pps_gps_ns = second
-                self._apply(self.filter.on_gps_time(second, t_host_ns))
+            if self._utc_date is None and len(self._undated_tags) < MAX_UNDATED_TAGS:
+                self._undated_tags.append((t_host_ns, msg))  # its week from the receiver's date
+                return
+            self._flush_undated_tags()
+            self._on_time_tag(t_host_ns, msg)
+
+    def _flush_undated_tags(self) -> None:
+        """The time tags held for the receiver's date, in order (with the host clock's guess of
+        the week if the date never came: a receiver without RMC or ZDA sentences)."""
+        held, self._undated_tags = self._undated_tags, []
+        for t_host_ns, msg in held:
+            self._on_time_tag(t_host_ns, msg)
+
+    def _on_time_tag(self, t_host_ns: int, msg: PashrPtt | PashrTtt) -> None:
+        kind = "PTT" if isinstance(msg, PashrPtt) else "TTT"
+        t_gps = gps_ns_from_time_of_week(msg.gps_time_of_week_ns, self._gps_estimate(t_host_ns))
+        self.log(GpsTimeTag(t_host_ns, kind, msg.gps_time_of_week_ns, t_gps), None)
+        if isinstance(msg, PashrPtt):
+            second = (t_gps + NS_PER_S // 2) // NS_PER_S * NS_PER_S
+            self.last_pps_gps_ns = second
+            self._apply(self.filter.on_gps_time(second, t_host_ns))
 
     def _log_fix(self, t_host_ns: int, fix: Gga | Gns, utc_time_of_day_ns: int,
                  utc_date: dt.date) -> None:
@@ -214,9 +230,15 @@ class Acquisition:
                         fix.hdop if fix.hdop is not None else float("nan")), None)
 
     def _gps_estimate(self, t_host_ns: int) -> int:
-        """Best guess of GPS time now, to pick the GPS week of a time-of-week tag."""
+        """Best guess of GPS time now, to pick the GPS week of a time-of-week tag: the last
+        fix, else the receiver's date (noon of it), else the host clock. The host clock may be
+        weeks off the flight (a replayed or emulated flight, a logger whose clock was never
+        set): tags wait for the date rather than take a week from it (the recorder showed
+        `week 2447` for its first 2 s of a June flight replayed in November, then 2423)."""
         if self._last_fix_gps_ns is not None:
             return self._last_fix_gps_ns
+        if self._utc_date is not None:
+            return gps_ns_from_utc(self._utc_date, 12 * 3600 * NS_PER_S, self.config.leap_s)
         return gps_ns_from_unix_ns(t_host_ns, self.config.leap_s)
 
     def on_scanner_bytes(self, t_host_ns: int, data: bytes) -> None:
@@ -451,10 +473,16 @@ class Acquisition:
             self.log(batch, None)
 
     def finish(self, t_host_ns: int) -> None:
+        self._flush_undated_tags()
         self._flush_can()
         self._apply(self.filter.flush())
         self._next_health_ns = t_host_ns
         self._health(t_host_ns)
+
+
+# Time tags held for the receiver's date (an RMC or ZDA, which follows within the second):
+# a receiver that sends no date has its tags' week from the host clock after these
+MAX_UNDATED_TAGS = 4
 
 
 class _CanBatch:

@@ -24,7 +24,7 @@ import base64
 import bisect
 import heapq
 import json
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Final
@@ -33,7 +33,7 @@ from recorder.framing import Paths
 from recorder.messages import CAN_EXTENDED_FLAG, Topic
 from recorder.reader import LogReader
 from recorder.stats import LogStats
-from sisa.core.errors import InputError
+from sisa.core.errors import InputError, shown_text
 
 REORDER_WINDOW_NS: Final = 2_000_000_000  # a CAN batch is written ≤ ~0.3 s after its first frame
 PPM: Final = 1e-6
@@ -209,6 +209,21 @@ def survey_log(paths: Paths) -> Survey:
 
 # --- the schedule ---------------------------------------------------------------------------------
 
+def wires_named(text: str) -> set[Wire]:
+    """The wires a comma list names, each by its name (gps, scanner, ins, pulses) or its raw
+    topic (/gps/raw, ...); InputError naming the choices for anything else."""
+    by_topic = {str(topic): wire for topic, wire in RAW_TOPICS.items()}
+    chosen: set[Wire] = set()
+    for name in (n.strip() for n in text.split(",")):
+        wire = by_topic.get(name) or next((w for w in Wire if w.value == name), None)
+        if wire is None:
+            choices = ", ".join(f"{w.value} ({t})" for t, w in by_topic.items())
+            raise InputError(f"--topics: {shown_text(name)}: not a wire of the replay; "
+                             f"choose from {choices}")
+        chosen.add(wire)
+    return chosen
+
+
 def _raw_items(topic: str, log_time_ns: int, obj: dict[str, Any]) -> list[Item]:
     """The items of one raw message; KeyError/TypeError/ValueError if it is not SISA's schema."""
     wire = RAW_TOPICS[topic]
@@ -239,15 +254,17 @@ class ScheduleStats:
 
 
 def iter_schedule(paths: Paths, from_ns: int | None = None, until_ns: int | None = None,
-                  stats: ScheduleStats | None = None) -> Iterator[Item]:
-    """Every raw item with from_ns ≤ t_log_ns ≤ until_ns, in log-time order (file order among
-    equal times), streamed with a bounded reorder buffer."""
+                  stats: ScheduleStats | None = None, wires: Collection[Wire] | None = None
+                  ) -> Iterator[Item]:
+    """Every raw item with from_ns ≤ t_log_ns ≤ until_ns (of `wires` only, if given), in
+    log-time order (file order among equal times), streamed with a bounded reorder buffer."""
     out = _InOrder(from_ns, until_ns, stats if stats is not None else ScheduleStats())
     heap: list[tuple[int, int, Item]] = []
     order = 0
     newest = -(2**63)
     for channel, msg in LogReader(paths).raw():
-        if channel.topic not in RAW_TOPICS:
+        wire = RAW_TOPICS.get(channel.topic)
+        if wire is None or (wires is not None and wire not in wires):
             continue
         obj = _json(msg.data)
         try:

@@ -290,6 +290,7 @@ def two_flights(tmp_path_factory: pytest.TempPathFactory) -> Path:
         parts.append(split_parts(root / name / "flight.mcap"))
     mixed = root / "mixed"
     (mixed / "scanner").mkdir(parents=True)
+    (mixed / "dem.tif").write_bytes(b"")  # there (a missing input is said first), never read
     for src in (parts[0][0], parts[0][1], parts[1][2], parts[0][3]):
         (mixed / src.name).write_bytes(src.read_bytes())
     return mixed

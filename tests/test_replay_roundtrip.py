@@ -12,8 +12,8 @@ counter itself must agree), the health windows. And the sync log
 give every INS record and every line the same GPS time.
 
 The flight starts now (GPS time from the host clock): a receiver's first time tags come before
-its first fix, and the recorder takes their GPS week from the host clock, so a flight older than
-half a week replays with those tags in the replay day's week (docs/replay.md). It is replayed at
+its first fix and wait for its date (docs/replay.md); flying now keeps the comparison exact
+whatever the host clock says. It is replayed at
 x2 to stay under a minute: its scanner runs at 32 ms lines with 4 ms exposures, so the header
 latency the sync unit matches on (halved by the rate) stays inside its window with margin.
 """
@@ -349,3 +349,39 @@ def test_a_piped_replay_says_it_waits_and_shows_progress_while_it_plays(tmp_path
         proc.wait()
     assert proc.returncode == 0
     assert out.strip().splitlines()[-1].startswith("replay done:")
+
+
+def test_topics_plays_a_subset_of_the_wires(tmp_path):
+    """`sisa replay --topics` plays only the wires named (issue 33, item 11); the others' ports
+    stay silent, and no client is waited for on them."""
+    flight = tmp_path / "two.mcap"
+    t0 = 1_700_000_000 * NS_PER_S
+    with FlightRecorder(flight) as rec:
+        for k in range(5):
+            rec.write(RawBytes(t0 + k * NS_PER_S // 10, "gps", b"%02d\n" % k), Topic.GPS_RAW)
+        rec.write(PulseEdgeLog(t0 + NS_PER_S // 5, "PPS", NS_PER_S, 0), Topic.PULSE_IN)
+    played = {}
+    for topics in ("gps", "/gps/raw"):
+        done = subprocess.run([*SISA, "replay", str(flight), "--once", "--topics", topics],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        assert "(gps only)" in done.stdout
+        played[topics] = done.stdout.strip().splitlines()[-1]
+        assert "waiting for a client" not in done.stderr  # the pulse link is not played
+    for summary in played.values():
+        assert "5 items in 1 pass(es): GPS 15 B, scanner 0 B, CAN 0 frames, 0 edges;" in summary
+
+
+@pytest.mark.parametrize(("topics", "says"), [
+    ("radar", "--topics: radar: not a wire of the replay; choose from gps (/gps/raw), "),
+    ("scanner", "--topics scanner: the log holds no scanner to play (it holds gps, pulses)"),
+])
+def test_topics_that_name_nothing_to_play_are_one_line(tmp_path, capsys, topics, says):
+    flight = tmp_path / "two.mcap"
+    with FlightRecorder(flight) as rec:
+        rec.write(RawBytes(1_700_000_000 * NS_PER_S, "gps", b"x\n"), Topic.GPS_RAW)
+        rec.write(PulseEdgeLog(1_700_000_000 * NS_PER_S, "PPS", NS_PER_S, 0), Topic.PULSE_IN)
+    assert main(["replay", str(flight), "--once", "--topics", topics]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"sisa replay: error: {says}"), err
+    assert err.count("\n") == 1

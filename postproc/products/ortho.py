@@ -679,7 +679,10 @@ class TiffWriter:
     the file (SPARSE_OK; GDAL reads them as nodata) instead of being written as zeros."""
 
     def __init__(self, path: Path, grid: OrthoGrid, raw: EnviRaster, nodata: float,
-                 description: str, compress: str = "deflate") -> None:
+                 description: str, compress: str = "deflate",
+                 bands: Sequence[int] | None = None) -> None:
+        """`bands`: the image's bands (0-based) to write, in this order (default: all)."""
+        self._bands = None if bands is None else list(bands)
         if compress not in TIFF_COMPRESSIONS:
             raise InputError(f"GeoTIFF compression {compress!r}: use one of "
                              f"{', '.join(TIFF_COMPRESSIONS)}")
@@ -699,7 +702,8 @@ class TiffWriter:
         try:
             self._ds = rasterio.open(
                 self._tmp, "w", driver="GTiff", width=grid.width, height=grid.height,
-                count=raw.bands, dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
+                count=raw.bands if self._bands is None else len(self._bands),
+                dtype=raw.dtype.name, crs=f"EPSG:{grid.epsg}",
                 transform=grid.transform, nodata=nodata, tiled=True, blockxsize=TIFF_BLOCK,
                 blockysize=TIFF_BLOCK, interleave="band", bigtiff="IF_SAFER",
                 # spectral bands, not colours: GDAL makes 3 or 4 bytes bands RGB(A) by default,
@@ -711,11 +715,12 @@ class TiffWriter:
                              f"GeoTIFF of {raw.bands} bands: "
                              f"{str(exc).replace(self._tmp.name, self.path.name)}") from None
         self._ds.update_tags(AREA_OR_POINT="Area", TIFFTAG_IMAGEDESCRIPTION=description)
-        for b, label in enumerate(band_labels(raw)):
-            self._ds.set_band_description(b + 1, label)
+        labels = band_labels(raw)
+        for k, b in enumerate(range(raw.bands) if self._bands is None else self._bands):
+            self._ds.set_band_description(k + 1, labels[b])
             wl = raw.wavelengths_nm[b]
             if wl is not None:
-                self._ds.update_tags(b + 1, wavelength=f"{wl:g}", wavelength_units="Nanometers")
+                self._ds.update_tags(k + 1, wavelength=f"{wl:g}", wavelength_units="Nanometers")
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sisa-tiff")
         self._pending: Future[None] | None = None
 
@@ -731,6 +736,8 @@ class TiffWriter:
 
     def _write(self, data: npt.NDArray[Any], row0: int, col0: int, valid: B) -> None:
         rows, cols = valid.shape
+        if self._bands is not None:
+            data = data[self._bands]
         if row0 % TIFF_BLOCK or col0 % TIFF_BLOCK:
             self._ds.write(data, window=Window(col0, row0, cols, rows))
             return
@@ -916,7 +923,7 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
                  out_tif: Path, glt_stem: Path | None, *, tile_cells: int | None = None,
                  compress: str = "deflate", workers: int = WORKERS,
                  progress: Progress | None = None, on_total: Progress | None = None,
-                 empty_ok: bool = True) -> OrthoResult:
+                 empty_ok: bool = True, bands: Sequence[int] | None = None) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
     unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
     the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
@@ -926,7 +933,8 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     (the products do not depend on it). `on_total` is told how many cells the swath can reach
     (the windows to map), `progress` how many of them each finished window held. Without
     `empty_ok`, a grid on which no cell is filled is an InputError, nothing written. Positions
-    far from the rest of the IGM (SwathIndex.far) are mapped as none, with a warning."""
+    far from the rest of the IGM (SwathIndex.far) are mapped as none, with a warning.
+    `bands`: the image's bands (0-based) the GeoTIFF holds, in this order (default: all)."""
     out_tif = Path(out_tif)
     glt_files = () if glt_stem is None else (Path(f"{glt_stem}.bil"), Path(f"{glt_stem}.hdr"))
     for path in (out_tif, *glt_files):  # found at the end: a traceback beside finished products
@@ -949,7 +957,10 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     desc = (f"SISA ortho of {raw.path.name}: each cell holds the input pixel whose "
             "pixel-centre ground position (IGM) is nearest to the cell centre")
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
-        tif = TiffWriter(out_tif, grid, raw, nodata, desc, compress)
+        if bands is not None and not all(0 <= b < raw.bands for b in bands):
+            raise InputError(f"{raw.path}: bands {', '.join(str(b + 1) for b in bands)}: the "
+                             f"image has bands 1 to {raw.bands}")
+        tif = TiffWriter(out_tif, grid, raw, nodata, desc, compress, bands)
         glt: GltWriter | None = None
         try:
             if glt_stem is not None:

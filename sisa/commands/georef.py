@@ -64,10 +64,14 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.set_defaults(handler=_run)
 
 
-def add_georef_args(parser: argparse.ArgumentParser) -> None:
+SENSOR_DEFAULT = "a nominal CASI-501 with zero offsets"
+
+
+def add_georef_args(parser: argparse.ArgumentParser, sensor_default: str = SENSOR_DEFAULT
+                    ) -> None:
     parser.add_argument("--sensor", type=Path, default=None, metavar="TOML",
                         help="sensor/calibration file (scanner geometry, mounting, time delay); "
-                             "default: a nominal CASI-501 with zero offsets")
+                             f"default: {sensor_default}")
     parser.add_argument("--crs", type=int, default=None, metavar="EPSG",
                         help="output CRS, projected in metres (default: the DEM's)")
     parser.add_argument("--cell", type=float, default=None, metavar="M",

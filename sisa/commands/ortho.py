@@ -49,6 +49,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the IGM's CRS, for an IGM whose header names none")
     parser.add_argument("--compress", choices=COMPRESSIONS, default="deflate",
                         help="GeoTIFF compression (default: deflate, level 1 with predictor)")
+    parser.add_argument("--bands", default=None, metavar="LIST",
+                        help="the image's bands to map, 1-based, in the GeoTIFF's order, e.g. "
+                             "4,3,2 (default: every band)")
     parser.add_argument("--no-glt", action="store_true",
                         help="the GeoTIFF alone, without the GLT (a sparse file of 8 bytes a "
                              "cell: 0.7 GB for a 20 000-line strip at 1 m)")
@@ -70,6 +73,7 @@ def _run(args: argparse.Namespace) -> int:
     )
 
     out = Path(args.out)
+    bands = None if args.bands is None else _bands(args.bands)
     if out.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"--out {out}: name the GeoTIFF (.tif)")
     if not out.parent.is_dir():
@@ -99,10 +103,13 @@ def _run(args: argparse.Namespace) -> int:
         # 21 GB sparse GLT, exit 0); on a grid given, they are mapped as none, with a warning
         raise InputError(f"{args.igm}: {index.far.text}: a damaged IGM? give --bounds to map "
                          "it anyway")
+    if bands is not None and max(bands) >= image.bands:
+        raise InputError(f"--bands {args.bands}: {args.image} has bands 1 to {image.bands}")
     grid = OrthoGrid.covering(args.bounds or index.bounds_m, cell_m, epsg)
     with progress("ortho", "ortho", unit="cells") as bar:
         res = orthorectify(index, image, grid, out, glt, compress=args.compress,
-                           progress=bar.advance, on_total=bar.set_total, empty_ok=False)
+                           progress=bar.advance, on_total=bar.set_total, empty_ok=False,
+                           bands=bands)
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "
@@ -110,3 +117,14 @@ def _run(args: argparse.Namespace) -> int:
           f"ortho {ortho_s:.2f} s, "
           f"{time.perf_counter() - started:.2f} s in all")
     return 0
+
+
+def _bands(text: str) -> list[int]:
+    """--bands 4,3,2 as 0-based band indices; one line for anything else."""
+    try:
+        numbers = [int(b) for b in text.split(",")]
+    except ValueError:
+        raise InputError(f"--bands {text}: give band numbers from 1, e.g. 4,3,2") from None
+    if min(numbers) < 1 or len(set(numbers)) != len(numbers):
+        raise InputError(f"--bands {text}: band numbers from 1, each once")
+    return [b - 1 for b in numbers]

@@ -54,7 +54,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--nominal", action="store_true",
                         help="georeference with the nominal sensor (no boresight or "
                              "self-calibration), as an uncalibrated system would")
-    add_georef_args(parser)
+    add_georef_args(parser, "the run's scenario's sensor, as simulated (its scanner geometry, "
+                    "boresight and mounting; with --nominal, without boresight and "
+                    "self-calibration)")
     parser.set_defaults(handler=_run, dem=None)
 
 
@@ -109,6 +111,11 @@ def _run(args: argparse.Namespace) -> int:
     run: Path = args.run
     if not name_taken(run) or not run.exists():
         raise InputError(f"{run}: no such folder")
+    if not run.is_dir():  # `sisa process runs/bench-demo/flight.mcap` said "no flight.mcap"
+        hint = (f" (the run folder is {run.parent})" if (run.parent / "flight.mcap").is_file()
+                and (run.parent / "scenario.toml").is_file() else "")
+        raise InputError(f"{run}: a file, not a run folder: give the folder `sisa simulate` or "
+                         f"`sisa bench` made{hint}")
     check_inputs(("--sensor", args.sensor, "file"),
                  ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
     if not (run / "flight.mcap").is_file():

@@ -239,9 +239,11 @@ class _Status:
         table = Table(title=f"sisa record → {self.shown_as}", expand=False)
         from acquisition.runner import STREAM_SOURCE
 
-        for col in ("stream", "messages", "rate Hz", "expected Hz", "gaps", "errors", "drops",
+        # headers no wider than their column needs, never cut ("expected Hz" showed as
+        # "expect…" in an 80-column terminal): the unit goes in the caption
+        for col in ("stream", "messages", "rate", "expected", "gaps", "errors", "drops",
                     "late", "link"):
-            table.add_column(col, justify="right")
+            table.add_column(col, justify="right", min_width=len(col), no_wrap=True)
         for name, c in self.acq.streams.items():
             link = self.acq.links[STREAM_SOURCE[name]]
             state = "away" if link.lost_t_host_ns is not None else "up"
@@ -253,7 +255,8 @@ class _Status:
 
         free_gb = shutil.disk_usage(self.out.parent).free / 1e9
         pps = self.acq.last_pps_gps_ns
-        table.caption = (f"sync mode {self.acq.filter.mode}, session {self.acq.session}, "
+        table.caption = (f"rates in Hz; sync mode {self.acq.filter.mode}, session "
+                         f"{self.acq.session}, "
                          f"last PPS {'-' if pps is None else gps_time_label(pps)}, "
                          f"disk free {free_gb:.1f} GB")
         return table

@@ -76,6 +76,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="start this many seconds after the first raw message")
     parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
                         help="play only this many seconds of the log")
+    parser.add_argument("--topics", default=None, metavar="LIST",
+                        help="play only these wires, a comma list of gps, scanner, ins, pulses "
+                             "(or their raw topics, /gps/raw, ...); the others' ports stay "
+                             "silent (default: all)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--loop", action="store_true", help="start again at the end, forever")
     mode.add_argument("--once", action="store_true",
@@ -137,6 +141,21 @@ def _span(args: argparse.Namespace, survey: Survey) -> _Span:
     return _Span(start, min(survey.end_ns, until), limited=True)
 
 
+def _chosen_wires(args: argparse.Namespace, survey: Survey) -> set[str] | None:
+    """--topics as the wires to play (None: all), each one the log holds."""
+    if args.topics is None:
+        return None
+    from recorder.replay import wires_named
+
+    chosen = wires_named(args.topics)
+    absent = sorted(w.value for w in chosen if w not in survey.first_ns)
+    if absent:
+        held = ", ".join(sorted(w.value for w in survey.first_ns))
+        raise InputError(f"--topics {args.topics}: the log holds no {', '.join(absent)} to "
+                         f"play (it holds {held})")
+    return {w.value for w in chosen}
+
+
 def _run(args: argparse.Namespace) -> int:
     from emulators.bridge import CanTarget
     from recorder.replay import survey_log
@@ -146,6 +165,7 @@ def _run(args: argparse.Namespace) -> int:
     paths = flight_parts(args.files)
     target = CanTarget.parse(args.can)
     survey = survey_log(paths)
+    args.wires = _chosen_wires(args, survey)
     span = _span(args, survey)
     _report_damage(survey)
     sys.setswitchinterval(0.0005)  # the pacing thread gets the GIL back within 0.5 ms
@@ -191,7 +211,8 @@ def _announce(endpoints: dict[str, str], paths: list[Path], span: _Span,
     print(f"Pulse lines (timestamped edges, TCP):  {endpoints['pulses']}")
     parts = f" ({len(paths)} parts)" if len(paths) > 1 else ""
     keys = "" if args.once or not sys.stdin.isatty() else "; space pauses, q stops"
-    print(f"Replaying {paths[0]}{parts}: {span.seconds:.1f} s at {args.rate:g}x real time"
+    only = "" if args.wires is None else f" ({', '.join(sorted(args.wires))} only)"
+    print(f"Replaying {paths[0]}{parts}{only}: {span.seconds:.1f} s at {args.rate:g}x real time"
           f"{', looped' if args.loop else ''}{keys}; Ctrl-C to stop.", flush=True)
 
 
@@ -457,7 +478,8 @@ class _Player:
         self.args = args
         self.timeline = survey.timeline(BoardModel())
         self.wires = {str(w) for w, t in survey.last_ns.items()
-                      if t >= span.from_ns and survey.first_ns[w] <= span.until_ns}
+                      if t >= span.from_ns and survey.first_ns[w] <= span.until_ns
+                      and (args.wires is None or str(w) in args.wires)}
         self.clock: PlayClock = PlayClock(args.rate, span.from_ns, time.perf_counter_ns())
         self.loop: LoopEdges = LoopEdges(span.until_ns - span.from_ns + LOOP_GAP_NS)
         self.display = _Display(span, GpsClock(survey.gps_pairs), args.quiet)
@@ -527,12 +549,13 @@ class _Player:
             time.sleep(0.1)
 
     def _play_passes(self) -> None:
-        from recorder.replay import iter_schedule
+        from recorder.replay import Wire, iter_schedule
 
         while True:
             self.counts.passes += 1
+            chosen = None if self.args.wires is None else {Wire(w) for w in self.args.wires}
             ahead = _Lookahead(iter_schedule(self.paths, self.span.from_ns, self.span.limit_ns,
-                                             self.schedule_stats))
+                                             self.schedule_stats, chosen))
             ahead.fill(None, self.span.from_ns + LOOKAHEAD_NS)
             self.clock.restart(self.span.from_ns, time.perf_counter_ns())
             while (item := ahead.pop()) is not None:

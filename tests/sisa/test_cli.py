@@ -499,3 +499,53 @@ def test_every_help_says_what_ctrl_c_does(path, capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "Ctrl-C (or SIGTERM)" in out
     assert "exit 0" in out if path[0] in ("record", "emulate", "replay") else "exit 130" in out
+
+
+def test_process_help_names_the_sensor_it_uses(capsys):
+    """`sisa process --help` said --sensor defaults to "a nominal CASI-501 with zero offsets";
+    it uses the run's scenario's sensor (issue 33, item 7). `sisa georef` keeps its own."""
+    for command, says in (("process", "default: the run's scenario's sensor"),
+                          ("georef", "default: a nominal CASI-501 with zero offsets")):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert says in " ".join(capsys.readouterr().out.split())
+    with pytest.raises(SystemExit):
+        main(["process", "--help"])
+    assert "CASI-501" not in capsys.readouterr().out
+
+
+def test_process_given_the_runs_flight_log_names_the_run_folder(tmp_path, capsys):
+    """`sisa process runs/bench-demo/flight.mcap` said "no flight.mcap"."""
+    run = tmp_path / "bench-demo"
+    run.mkdir()
+    (run / "flight.mcap").write_bytes(b"")
+    (run / "scenario.toml").write_text("")
+    assert main(["process", str(run / "flight.mcap")]) == 2
+    assert capsys.readouterr().err == (
+        f"sisa process: error: {run / 'flight.mcap'}: a file, not a run folder: give the folder "
+        f"`sisa simulate` or `sisa bench` made (the run folder is {run})\n")
+
+
+def test_record_status_headers_are_never_cut_in_an_80_column_terminal():
+    """A column header showed as `expect…`."""
+    from rich.console import Console
+
+    from acquisition.runner import Acquisition
+    from emulators.scenario import load_scenario
+    from sisa.commands.record import _Status
+    from sisa.wiring.acqconfig import acquisition_config
+
+    acq = Acquisition(acquisition_config(load_scenario("bench")), lambda _m, _t: None,
+                      lambda _e: None)
+    status = _Status.__new__(_Status)  # the table alone, without a live display
+    status.acq, status.out = acq, Path("/tmp/flight.mcap")
+    status.shown_as = Path("runs/bench-rt/flight.mcap")
+    console = Console(width=80, record=True)
+    console.print(status._table())
+    drawn = console.export_text()
+    assert "…" not in drawn
+    header = next(line for line in drawn.splitlines() if "stream" in line)
+    for name in ("stream", "messages", "rate", "expected", "gaps", "errors", "drops", "late",
+                 "link"):
+        assert f" {name} " in header, header
+    assert "rates in Hz" in drawn

@@ -411,3 +411,32 @@ def test_a_far_pixel_on_a_grid_given_is_mapped_as_none(made: Made, tmp_path: Pat
     assert proc.returncode == 0, proc.stderr
     with rasterio.open(tmp_path / "o.tif") as o, rasterio.open(tmp_path / "n.tif") as n:
         np.testing.assert_array_equal(o.read(), n.read())
+
+
+def test_bands_maps_a_subset_in_the_order_given(made: Made, tmp_path: Path) -> None:
+    """`sisa ortho --bands` (issue 33, item 11, as aplmap's band subsets): the GeoTIFF holds
+    the bands named, in that order, each exactly as in the whole ortho, with its description."""
+    g = made.grid
+    bounds = (g.west_m, g.north_m - g.height * g.cell_m, g.west_m + g.width * g.cell_m,
+              g.north_m)
+    with rasterio.open(made.tif) as ref:
+        full, names = ref.read(), ref.descriptions
+    assert len(names) >= 2
+    wanted = [len(names), 1]  # the last band, then the first
+    out = tmp_path / "sub.tif"
+    proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out", out,
+                      "--cell", g.cell_m, "--bounds", *bounds, "--bands",
+                      ",".join(map(str, wanted)), "--no-glt")
+    assert proc.returncode == 0, proc.stderr
+    with rasterio.open(out) as sub:
+        assert sub.count == 2
+        np.testing.assert_array_equal(sub.read(), full[[b - 1 for b in wanted]])
+        assert sub.descriptions == tuple(names[b - 1] for b in wanted)
+    for bad, says in ((f"{len(names) + 1}", f"has bands 1 to {len(names)}"),
+                      ("0", "band numbers from 1, each once"), ("1,1", "each once"),
+                      ("x", "give band numbers from 1")):
+        proc = sisa_ortho(made.folder / "seg_igm.bil", made.folder / "seg.bil", "--out",
+                          tmp_path / "bad.tif", "--bands", bad)
+        assert proc.returncode == 2
+        assert says in proc.stderr, proc.stderr
+        assert not (tmp_path / "bad.tif").exists()

@@ -19,9 +19,9 @@ skipped (its swath's and the DEM's bounds said), as is one whose DEM window hold
 fail, saying why no pixel met the DEM.
 
 Inputs that still give products but not the ones asked for are said in `result.warnings` too:
-a segment whose rays miss the DEM in part (HIT_WARN_FRACTION), an ortho that holds no pixel, a
-DEM of several bands, --leap-seconds where no time is on UTC, an output CRS whose grid is not
-ground metres or north there. No pixel on the DEM at all is an InputError saying why (the
+a segment whose rays miss the DEM in part (demcover.HIT_WARN_FRACTION), an ortho that holds no
+pixel, a DEM of several bands, --leap-seconds where no time is on UTC, an output CRS whose grid
+is not ground metres or north there. No pixel on the DEM at all is an InputError saying why (the
 surface above the camera, the swath off the DEM or over its voids only), as is an ortho cell
 wider than half the swath (refused at a segment's first block of rays, not after the whole
 flight is cast).

@@ -97,7 +97,7 @@ class GpsTimeTag(LoggedMessage):
     t_host_ns: int
     kind: str  # "PTT" | "TTT"
     gps_time_of_week_ns: int
-    t_gps_ns: int  # week resolved from the host clock and the last fix
+    t_gps_ns: int  # week: last fix, else receiver's date (tags wait for it), else host clock
 
 
 @dataclass(frozen=True)

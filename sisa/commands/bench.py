@@ -103,15 +103,15 @@ def _run(args: argparse.Namespace) -> int:
     scn = scenario_from_args(args)
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)  # before anything starts
+    real_s = _real_seconds(traj, args)
+    if real_s < MIN_REAL_S:  # refused in one line, before the timeline and any warning
+        raise InputError(f"this run plays {real_s:.2g} s of real time: sisa record takes about "
+                         f"a second to start, so at least {MIN_REAL_S:g} s (a longer --duration, "
+                         "or a lower --speed)")
     print("\n".join(timeline(scn, traj, args.start, args.duration)), flush=True)
     warning = imaging_warning(traj, args.start, args.duration)
     if warning is not None:
         say_warning("bench", warning)
-    real_s = _real_seconds(traj, args)
-    if real_s < MIN_REAL_S:
-        raise InputError(f"this run plays {real_s:.2g} s of real time: sisa record takes about "
-                         f"a second to start, so at least {MIN_REAL_S:g} s (a longer --duration, "
-                         "or a lower --speed)")
     sisa = [sys.executable, "-m", "sisa.cli"]
     stopped: KeyboardInterrupt | None = None  # Ctrl-C or SIGTERM, at whatever moment
     with staged_output_dir(args.out, force=args.force) as run:

@@ -349,7 +349,6 @@ class _Part:
     mcap: Writer
     add_message: AddMessage
     channels: dict[tuple[Topic, str], int] = field(default_factory=dict)
-    schemas: dict[str, int] = field(default_factory=dict)  # name → id, each written once
     first_log_ns: int | None = None
     dirty: bool = False
 
@@ -385,11 +384,10 @@ class _Part:
         key = (topic, schema_name)
         channel_id = self.channels.get(key)
         if channel_id is None:
-            schema_id = self.schemas.get(schema_name)
-            if schema_id is None:  # a schema shared by several topics is written once
-                schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
-                                                      SCHEMA_BYTES[schema_name])
-                self.schemas[schema_name] = schema_id
+            # a schema is written with each channel's first chunk, so that a damaged chunk
+            # loses only its own messages (a schema shared with an earlier chunk would go too)
+            schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
+                                                  SCHEMA_BYTES[schema_name])
             channel_id = self.mcap.register_channel(str(topic), MESSAGE_ENCODING, schema_id)
             self.channels[key] = channel_id
         return channel_id

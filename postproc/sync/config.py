@@ -14,7 +14,7 @@ class TimeStatus(IntEnum):
 
     OK = 0
     NO_PULSES = 1  # no latched pulse in its clock piece / no timed forwarded frame in its segment
-    AMBIGUOUS = 2  # pulses, but no match unique by the required margin
+    AMBIGUOUS = 2  # pulses, but no match whose false-match bound is below the threshold
     CLOCK_JUMP = 3  # between two clock fits: a jump between two pulses, side unknown
     OUTSIDE_FIT = 4  # further than the allowed extrapolation from the fitted pulses
     UNLINKED = 5  # a scan line no frame header ties to the log

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.stats import binom
+from scipy.special import bdtrc
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -111,8 +111,9 @@ def chance_tail(agree: I64, unexplained: I64, q: float) -> F64:
     unexplained agree at another shift by chance. q/(1 − q) bounds the chance of agreeing
     there given that a latch does not agree at the hypothesis's own shift."""
     qc = 1.0 if q >= 0.5 else q / (1.0 - q)
-    tail = binom.sf(np.asarray(agree) - 1, np.asarray(unexplained), qc)
-    return np.asarray(np.where(np.asarray(agree) <= 0, 1.0, tail), dtype=np.float64)
+    agree = np.asarray(agree)
+    tail = bdtrc(np.maximum(agree - 1, 0), np.asarray(unexplained), qc)  # P(X > agree − 1)
+    return np.asarray(np.where(agree <= 0, 1.0, tail), dtype=np.float64)
 
 
 def score_shifts(u: F64, y: F64, window_s: float, tol_s: float,

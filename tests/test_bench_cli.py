@@ -174,9 +174,10 @@ def test_a_recorder_that_fails_stops_the_bench_at_once():
 
 
 def test_an_emulator_that_holds_is_stopped_after_the_recorder():
-    emu = _child(f"import time\nprint({HELD_LINE!r}, flush=True)\n"
+    stops = "import signal, time\nsignal.signal(signal.SIGTERM, signal.default_int_handler)\n"
+    emu = _child(f"{stops}print({HELD_LINE!r}, flush=True)\n"
                  "try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    print('bye')")
-    rec = _child("import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
+    rec = _child(f"{stops}try:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
                  "    print('recorded')")
     rec_end, emu_end = stop_after_hold(emu, rec, drain_s=0.1)
     assert (rec_end.code, rec_end.stdout) == (0, "recorded\n")

@@ -131,7 +131,8 @@ def _run(args: argparse.Namespace) -> int:
         rec_end = emu_end = None
         try:
             (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-            emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True)
+            emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True,
+                                   process_group=0)  # see STOPPED_STARTING
             with progress("bench", "starting: DEM, ground points, emulator") as bar:
                 # the DEM and ground points, as `sisa simulate` writes them, while the
                 # emulator starts
@@ -143,7 +144,8 @@ def _run(args: argparse.Namespace) -> int:
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
                                     "--out", str(run / "flight.mcap"),
                                     "--shown-as", str(args.out / "flight.mcap")],
-                                   stdout=subprocess.PIPE, text=True)
+                                   stdout=subprocess.PIPE, text=True,
+                                   process_group=0)
             rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
         except KeyboardInterrupt as exc:
             stopped = exc
@@ -196,10 +198,14 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
-# sisa record's exit when asked to stop (SIGINT) before its own handler is in place: Python's
-# KeyboardInterrupt in `sisa.cli.main`, or death by the signal while it was still starting up
-STOPPED_STARTING = (130, -signal.SIGINT)
+# sisa record's exit when asked to stop (SIGTERM) before its own handler is in place:
+# Terminated in `sisa.cli.main`, or death by the signal while the interpreter was starting up
+STOPPED_STARTING = (143, -signal.SIGTERM)
 
+# The children run in process groups of their own, and the bench alone stops them, with
+# SIGTERM: the terminal's Ctrl-C goes to its whole foreground group, and a child still starting
+# its interpreter died of it with a traceback (CI, 2026-11-28); SIGTERM, which Python leaves at
+# its default until `sisa.cli` takes it, ends a starting child silently.
 
 def _ignore_stops() -> Callable[[], None]:
     """Ignore SIGINT and SIGTERM until the returned function puts their handlers back."""
@@ -263,7 +269,7 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
     def stop_emulator_if_recorder_ends() -> None:
         rec.wait()
         if not held.is_set():
-            emu.send_signal(signal.SIGINT)
+            emu.send_signal(signal.SIGTERM)
 
     watcher = threading.Thread(target=stop_emulator_if_recorder_ends, daemon=True)
     watcher.start()
@@ -275,13 +281,14 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
 
 
 def _stop(proc: subprocess.Popen[str], grace_s: float = 15.0, *, ask: bool = False) -> Ended:
-    """Wait for a process that should end by itself (with `ask`, at once: ask it with SIGINT),
-    then ask it, then insist; with what it wrote to its pipes from then on."""
+    """Wait for a process that should end by itself (with `ask`, at once: ask it with SIGTERM,
+    which a child still starting dies of silently and a running one takes as a stop), then
+    ask it, then insist; with what it wrote to its pipes from then on."""
     if not ask:
         with contextlib.suppress(subprocess.TimeoutExpired):
             out, err = proc.communicate(timeout=grace_s)
             return Ended(proc.returncode, out or "", err or "")
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signal.SIGTERM)
     try:
         out, err = proc.communicate(timeout=grace_s)
     except subprocess.TimeoutExpired:

@@ -209,15 +209,15 @@ def test_emulate_duration_beyond_any_flight_runs_to_the_end(tmp_path: Path) -> N
                                          (["--speed", "1e308"], "5.5e-306 s")])
 def test_bench_too_short_in_real_time_is_refused(args: list[str], plays: str, tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    """Over before `sisa record` had started: 'sisa record exited 130' (or -2), or, by chance,
+    """Over before `sisa record` had started: 'sisa record exited 143' (or -15), or, by chance,
     exit 0 with nothing recorded."""
     _fails(["bench", "--no-images", *args, "--out", str(tmp_path / "run")], capsys, tmp_path,
            f"this run plays {plays} of real time", "at least 2 s")
 
 
 def test_bench_says_why_a_recorder_stopped_while_starting() -> None:
-    ok, started = Ended(0, "", ""), Ended(130, "", "")
-    killed = Ended(-signal.SIGINT, "", "")
+    ok, started = Ended(0, "", ""), Ended(143, "", "")
+    killed = Ended(-signal.SIGTERM, "", "")
     assert failure(ok, ok, 5.0, stopped_early=False) is None
     for rec in (started, killed):
         said = failure(ok, rec, 1.5, stopped_early=False)
@@ -225,7 +225,7 @@ def test_bench_says_why_a_recorder_stopped_while_starting() -> None:
         assert said.startswith("the emulated run was over (1.5 s of real time) before sisa "
                                "record had started")
     assert failure(ok, started, 1.5, stopped_early=True) == \
-        "sisa emulate exited 0, sisa record exited 130"
+        "sisa emulate exited 0, sisa record exited 143"
     assert failure(Ended(1, "", ""), ok, 9.0, stopped_early=False) == \
         "sisa emulate exited 1, sisa record exited 0"
 

@@ -6,6 +6,12 @@ A device schedules its own outputs (bytes on a serial port, CAN frames, pulse ed
 emulation timeline, `t_ns` = true GPS ns, and accepts input edges (its sync or event input) that
 act at the edge's own timestamp. A sink receives every output in time order; in virtual time the
 sink may answer with input edges (the sync unit forwarding a pulse), delivered at once.
+
+An input edge may bring a device's next output forward (the GPS receiver sends a TTT 30 ms after
+a pulse on its event input): after every delivery the runner asks the device again. It did not:
+the tag waited for the receiver's next scheduled output (its next PPS or NMEA epoch, up to ~0.95
+s later) and went out stamped then: at 20.8 tags/s their host receive times fell ~0.4 s behind
+on average, the host → GPS map fitted them at −870 ppm, and no INS record was timed.
 """
 
 from __future__ import annotations
@@ -77,9 +83,12 @@ class Router:
             for line in getattr(dev, "input_lines", ()):
                 self._listeners.setdefault(int(line), []).append(dev)
 
-    def deliver(self, edge: Edge) -> None:
-        for dev in self._listeners.get(int(edge.line), ()):
+    def deliver(self, edge: Edge) -> list[Device]:
+        """Hand the edge to its listeners; the devices it went to."""
+        listeners = self._listeners.get(int(edge.line), [])
+        for dev in listeners:
             dev.on_edge(edge)
+        return listeners
 
 
 class Runner:
@@ -100,19 +109,39 @@ class Runner:
         self.late_ns_max = 0
         # edges from another process (real time): drained before every emission
         self.inbox: queue.SimpleQueue[Edge] = queue.SimpleQueue()
+        self._index = {id(d): i for i, d in enumerate(self.devices)}
+        self._due: list[int | None] = [None] * len(self.devices)  # each device's heap entry
+        self._heap: list[tuple[int, int]] = []
+
+    def _schedule(self, i: int) -> None:
+        """(Re)enter device i at its next output time; an entry it no longer has is stale."""
+        t = self.devices[i].next_time_ns()
+        if t is not None and t != self._due[i]:
+            heapq.heappush(self._heap, (t, i))
+        self._due[i] = t
+
+    def _rescheduled(self, devices: Sequence[Device]) -> None:
+        for dev in devices:
+            self._schedule(self._index[id(dev)])
 
     def run(self, until_ns: int | None = None, should_stop: Callable[[], bool] | None = None,
             skip_until_ns: int | None = None) -> None:
         """Emit in time order until `until_ns`. Outputs before `skip_until_ns` are produced as
         fast as possible and dropped (a start offset: the devices' state runs on)."""
-        heap = [(t, i) for i, d in enumerate(self.devices) if (t := d.next_time_ns()) is not None]
-        heapq.heapify(heap)
+        heap = self._heap
+        heap.clear()
+        for i in range(len(self.devices)):
+            self._due[i] = None
+            self._schedule(i)
         skip = skip_until_ns if skip_until_ns is not None else -(2**63)
         wall0: int | None = None  # the wall clock is anchored at the first paced emission
-        t0 = max(heap[0][0] if heap else 0, skip)
+        t0 = max(min(heap)[0] if heap else 0, skip)
         try:
             while heap:
                 t_ns, i = heapq.heappop(heap)
+                if t_ns != self._due[i]:
+                    continue  # stale: an input edge moved this device's next output
+                self._due[i] = None
                 if until_ns is not None and t_ns > until_ns:
                     break
                 if should_stop is not None and should_stop():
@@ -129,9 +158,7 @@ class Runner:
                             break
                     self._drain_inbox()
                     self._deliver(dev.emit(t_ns))
-                nxt = dev.next_time_ns()
-                if nxt is not None:
-                    heapq.heappush(heap, (nxt, i))
+                self._schedule(i)
         finally:
             for dev in self.devices:
                 dev.finish()
@@ -140,7 +167,7 @@ class Runner:
         for out in outputs:
             self.outputs += 1
             for edge in self.sink(out):
-                self.router.deliver(edge)
+                self._rescheduled(self.router.deliver(edge))
 
     def _drain_inbox(self) -> None:
         while True:
@@ -148,7 +175,7 @@ class Runner:
                 edge = self.inbox.get_nowait()
             except queue.Empty:
                 return
-            self.router.deliver(edge)
+            self._rescheduled(self.router.deliver(edge))
 
     def _pace(self, due_wall_ns: int, should_stop: Callable[[], bool] | None) -> bool:
         """Sleep until the emission is due, never spin: what a device emits carries its own

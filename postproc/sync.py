@@ -166,7 +166,9 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
         raise InputError("the log has no INS records and no frame headers: nothing to time")
     cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
     g = inp.gps
-    host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns)
+    real_pps = ~inp.sisa.pps_spurious
+    host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns,
+                    inp.sisa.pps_t_host_ns[real_pps], inp.sisa.pps_gps_second_ns[real_pps])
     board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
                       g.tag_t_gps_ns, g.tag_is_ptt)
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,

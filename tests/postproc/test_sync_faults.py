@@ -47,6 +47,10 @@ PROFILES: dict[str, dict[str, Any]] = {
     "frames_dropped": {"faults": {"dropped_frame_fraction": 0.05}},
     "frame_counter_wrap": {"scanner": {"frame_counter_bits": 8}},
     "ins_drift_200ppm": {"ins": {"clock_drift_ppm": 200.0}},
+    # issue 32 item 1: 1 of 3 frame pulses to a receiver taking 25 events/s (20.8 TTT tags a
+    # second) on a Z-12's 9600-baud port, 99 % loaded: its sentences queue up to 150 ms
+    "tags_20hz_9600_baud": {"sisa": {"one_of_n": 3},
+                            "gps": {"max_event_rate_hz": 25.0, "serial_baud": 9600}},
 }
 NEAR_JUMP_S = 5.0  # records this close to a clock jump may be flagged (pulses ≤ 4 s apart)
 
@@ -192,6 +196,10 @@ def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> Non
         assert 0 < lines["frames_dropped"] <= dropped
     elif profile == "frame_counter_wrap":
         assert lines["frame_counter_modulus"] == 256
+    elif profile == "tags_20hz_9600_baud":
+        assert pulses["timed_by"]["ttt"] > 300
+        assert pulses["host_map"]["from"] == "pps"
+        assert abs(pulses["host_map"]["rate_ppm"] + 3.0) < 0.1  # the host clock: +3 ppm
     elif profile == "ins_drift_200ppm":
         assert all(m["ins_clock_fast_ppm"] == pytest.approx(200.0, abs=0.1)
                    for m in ins["clock_models"])

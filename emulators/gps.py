@@ -15,6 +15,12 @@ the truth as rejected. Pulses are never queued.
 
 During a PPS outage (fault profile) the receiver has lost lock: no PPS, no PTT, GGA quality 0 and
 RMC void, and events are not tagged.
+
+The serial port sends one byte after another at `gps.serial_baud` (8N1: 10 bits a byte): a
+sentence due while another is on the wire waits for it (the receiver's output queue), and is
+output when its first byte leaves. A Z-12 at 9600 baud sends ~960 bytes a second: 20 TTT tags a
+second (34 bytes each) and the fixes would fill it; `Scenario` refuses a load above the port's
+capacity and `sisa scenario show` gives the load (`gps_serial_load_pct`).
 """
 
 from __future__ import annotations
@@ -51,6 +57,11 @@ PTT_LATENCY_NS = 25_000_000
 TTT_LATENCY_NS = 30_000_000
 SENTENCE_SPACING_NS = 5_000_000  # one sentence after another on the serial line
 FIX_CHUNK_S = 60.0
+
+
+def wire_time_ns(n_bytes: int, baud: int) -> int:
+    """Time `n_bytes` take on an 8N1 serial line (a start bit, 8 data bits, a stop bit)."""
+    return n_bytes * 10 * NS_PER_S // baud
 
 
 def antenna_fix_ecef_m(st: TrajectoryState, antenna_offset_m: Sequence[float],
@@ -105,6 +116,7 @@ class GpsReceiver(Device):
             faults.append(t_gps_ns=a, kind="pps_outage", target="gps",
                           detail=f"{f.duration_s:g} s, until {b}")
         self._armed_at_ns = traj.t_start_ns
+        self._uart_free_ns = traj.t_start_ns  # the serial port is sending until then
         self._epoch_ns = round(NS_PER_S / scn.gps.nmea_rate_hz)
         # epoch → (lat, lon, h, speed, course, error n, e, d): computed a minute ahead
         self._fixes: dict[int, tuple[float, ...]] = {}
@@ -186,7 +198,13 @@ class GpsReceiver(Device):
     # --- NMEA ------------------------------------------------------------------------------
 
     def _send(self, message: NmeaMessage, t_ns: int) -> list[Output]:
-        return [Output(t_ns, Port.GPS_SERIAL, encode(message))]
+        """On the wire now if the port is free; else queued until it is."""
+        if self._uart_free_ns > t_ns:
+            self._schedule.at(self._uart_free_ns, partial(self._send, message))
+            return []
+        data = encode(message)
+        self._uart_free_ns = t_ns + wire_time_ns(len(data), self.scn.gps.serial_baud)
+        return [Output(t_ns, Port.GPS_SERIAL, data)]
 
     def _send_at(self, t_ns: int, message: NmeaMessage) -> None:
         self._schedule.at(t_ns, partial(self._send, message))

@@ -78,6 +78,11 @@ MAX_GROUND_POINTS = 10_000  # each of control and check points; Garrotxa has 111
 # even a 5σ draw leaves the attitude well inside what the INS records carry (pitch ±90°).
 MAX_ATTITUDE_SIGMA_ARCSEC = 3600.0
 MAX_ATTITUDE_DRIFT_ARCSEC_PER_H = MAX_ATTITUDE_SIGMA_ARCSEC / MAX_FLIGHT_H  # 150″/h
+# Bytes of the receiver's sentences as acquisition.nmea writes them (at most; the tests check):
+# the serial port must carry them all (`gps_serial_load`). A port loaded past GPS_LINK_WARN_LOAD
+# queues sentences behind each other for long stretches; past 1, without end.
+GGA_BYTES, RMC_BYTES, ZDA_BYTES, TAG_BYTES = 88, 82, 38, 34  # the longest of each
+GPS_LINK_WARN_LOAD = 0.7
 
 
 class GpsSolution(StrEnum):
@@ -276,6 +281,9 @@ class GpsSettings(StrictModel):
         50.0, ge=-120, le=120, description="receiver's geoid: GGA altitude = height − this"
     )
     nmea_latency_ms: float = Field(40.0, ge=0, le=900, description="epoch → first sentence")
+    serial_baud: int = Field(
+        115_200, ge=1200, le=921_600, description="the receiver's serial port (8N1); it must "
+        "carry the fixes and a TTT tag for every forwarded pulse (an Ashtech Z-12 ships at 9600)")
 
     @property
     def horizontal_sigma_m(self) -> float:
@@ -384,6 +392,7 @@ class Scenario(StrictModel):
         if where is not None:
             raise ValueError(f"{where}: must be a finite number (not NaN or infinity)")
         _check_turn_rate(self)
+        _check_gps_link(self)
         _check_flight_duration(self)
         _check_terrain_size(self)
         return self
@@ -407,6 +416,37 @@ def _check_turn_rate(scn: Scenario) -> None:
         f"(block.ground_speed_kmh) turns at {rate:.3g}°/s, more than {MAX_TURN_RATE_DEG_S:g}°/s "
         f"(the trajectory rolls turns in over ~1.5 s): bank at most {max_bank:.2f}° at this "
         "speed, or fly faster")
+
+
+def gps_event_rate_hz(scn: Scenario) -> float:
+    """Pulses a second the sync unit sends to the receiver's event input at most: 1 of n frame
+    pulses in mode 2 (held to the receiver's maximum event rate), one-bits in mode 1 if sent."""
+    from emulators.block import resolve_one_of_n  # emulators.block imports this module
+
+    mode2 = min(1000.0 / scn.scanner.line_period_ms / resolve_one_of_n(scn),
+                scn.gps.max_event_rate_hz)
+    return max(mode2, 1.0 if scn.sisa.event_input_in_mode1 else 0.0)
+
+
+def gps_serial_load(scn: Scenario) -> tuple[float, float]:
+    """(bytes a second the receiver's port must send, the fraction of its capacity): GGA and RMC
+    every epoch, ZDA and PTT every second, a TTT for every pulse on the event input."""
+    g = scn.gps
+    per_s = (g.nmea_rate_hz * (GGA_BYTES + RMC_BYTES) + min(g.nmea_rate_hz, 1.0) * ZDA_BYTES
+             + TAG_BYTES + gps_event_rate_hz(scn) * TAG_BYTES)
+    return per_s, per_s / (g.serial_baud / 10.0)
+
+
+def _check_gps_link(scn: Scenario) -> None:
+    per_s, load = gps_serial_load(scn)
+    if load <= 1.0:
+        return
+    raise ValueError(
+        f"gps.serial_baud: {scn.gps.serial_baud} baud carries {scn.gps.serial_baud // 10} bytes "
+        f"a second; the receiver would have to send {per_s:.0f} (fixes at gps.nmea_rate_hz, a "
+        f"{TAG_BYTES}-byte TTT for each of {gps_event_rate_hz(scn):.3g} forwarded pulses a "
+        "second): its tags would queue without end. A faster port, a larger sisa.one_of_n, or "
+        "a lower gps.max_event_rate_hz")
 
 
 def flight_duration_bound_s(scn: Scenario) -> dict[str, float]:

@@ -217,9 +217,22 @@ def _claims_shared(segment: I64, u: I64) -> Bool:
 
 
 def frame_drops(table: LineTable, modulus: int) -> int:
-    """Frames exposed but not recorded: counter steps beyond one, within segments."""
+    """Counter steps beyond one, within segments: in the lines files, frames exposed but not
+    recorded; in the frame headers, frames whose header is missing (a dropped frame has none,
+    but a header lost or damaged on the serial link is missing as well)."""
     same = table.segment[1:] == table.segment[:-1]
     return int(np.sum(np.maximum(_steps(table.frame_counter, modulus) - 1, 0)[same]))
+
+
+def headers_lost(table: LineTable, hdr: HeaderColumns, u_line: I64, linked: Bool,
+                 u_hdr: I64) -> int:
+    """Recorded lines (of the lines files) whose frame header is not in the log: lost or damaged
+    on the way (a line of a segment no header ties to the log counts too)."""
+    lost = int(np.count_nonzero(~linked))
+    for seg in np.unique(table.segment[linked]).tolist():
+        sel = linked & (table.segment == seg)
+        lost += int(np.count_nonzero(~np.isin(u_line[sel], u_hdr[hdr.segment == seg])))
+    return lost
 
 
 def lines_from_headers(hdr: HeaderColumns) -> LineTable:

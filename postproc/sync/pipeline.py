@@ -98,7 +98,13 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
     u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
     t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
     frame_pulse = pulses.mode == 2
-    counts = {"frame_counter_modulus": modulus, "frames_dropped": ln.frame_drops(lines, modulus),
+    # dropped frames (exposed, not recorded) are known from the lines files only; missing from
+    # the header stream are those and the headers lost on the serial link, apart only with them
+    counts = {"frame_counter_modulus": modulus,
+              "frames_dropped": ln.frame_drops(lines, modulus) if table is not None else None,
+              "headers_lost": (ln.headers_lost(lines, hdr, u_line, linked, u_hdr)
+                               if table is not None else None),
+              "header_gaps": ln.frame_drops(ln.lines_from_headers(hdr), modulus),
               # the sync filter names a forwarded frame by the header it tied to it on host
               # time; none named at all is the symptom syncreport.untied_frames_note explains
               "frame_pulses_forwarded": int(np.count_nonzero(frame_pulse)),
@@ -116,7 +122,9 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
         raise InputError("the log has no INS records and no frame headers: nothing to time")
     cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
     g = inp.gps
-    host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns)
+    real_pps = ~inp.sisa.pps_spurious
+    host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns,
+                    inp.sisa.pps_t_host_ns[real_pps], inp.sisa.pps_gps_second_ns[real_pps])
     board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
                       g.tag_t_gps_ns, g.tag_is_ptt)
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,

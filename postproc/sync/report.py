@@ -40,7 +40,8 @@ def _map_summary(m: ClockMap | None) -> dict[str, Any] | None:
     if m is None:
         return None
     return {"pairs": m.line.n, "residual_rms_ns": round(m.residual_rms_ns, 3),
-            "rate_ppm": round(m.drift_ppm, 6), "span_s": round(m.line.x_max - m.line.x_min, 3)}
+            "rate_ppm": round(m.drift_ppm, 6), "span_s": round(m.line.x_max - m.line.x_min, 3),
+            **({"from": m.source} if m.source else {})}
 
 
 def pulse_report(sisa: SisaColumns, pulses: SisaPulses, stats: dict[str, int],
@@ -52,6 +53,7 @@ def pulse_report(sisa: SisaColumns, pulses: SisaPulses, stats: dict[str, int],
     latches = sol.timeline.latch_record.size
     return {
         "sync_sessions": int(sisa.session_lfsr_bits.size),
+        "lfsr_bits": int(sisa.session_lfsr_bits.min()) if sisa.session_lfsr_bits.size else None,
         "pps_seen": int(sisa.pps_board_ns.size),
         "pps_rejected_as_spurious": int(np.count_nonzero(sisa.pps_spurious)),
         "forwarded": int(pulses.t_gps_ns.size),
@@ -144,15 +146,38 @@ def frames_untied(lines: dict[str, Any]) -> bool:
 # bench, 15 s timed every record
 AMBIGUOUS_HINT = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, "
                   "mode-2 trains alone do not: record a register period (15 s with 4 bits) with "
-                  "the scanner off (docs/sync.md, 'The whole-second ambiguity')")
+                  "the scanner off (docs/sync.md, 'The whole-second ambiguity'); if the log has "
+                  "one, the coarse time from the host clock failed (see the host map in `sisa "
+                  "sync`'s report)")
 
 
-def no_ins_timed_note(ins_status: npt.ArrayLike) -> str | None:
-    """The warning when sync timed no INS record and left every one ambiguous; else None."""
+def _pattern_was_there(pulses: dict[str, Any]) -> bool:
+    """The log holds at least a register period's one-bits of mode-1 pulses."""
+    bits = pulses.get("lfsr_bits")
+    return bits is not None and pulses.get("forwarded_mode1", 0) >= 2 ** (bits - 1)
+
+
+def no_ins_timed_note(ins_status: npt.ArrayLike, report: dict[str, Any] | None = None
+                      ) -> str | None:
+    """The warning when sync timed no INS record and left every one ambiguous; else None.
+    With the report: the advice that fits the log. "Record a register period with the scanner
+    off" was printed for a log with 346 s of it, whose host → GPS map had gone wrong."""
     status = np.asarray(ins_status)
     if status.size == 0 or not (status == TimeStatus.AMBIGUOUS).all():
         return None
-    return f"no INS record timed, all {status.size} ambiguous: {AMBIGUOUS_HINT}"
+    head = f"no INS record timed, all {status.size} ambiguous"
+    if report is None or not _pattern_was_there(report["pulses"]):
+        return f"{head}: {AMBIGUOUS_HINT}"
+    pulses = report["pulses"]
+    host = pulses.get("host_map") or {}
+    residual_ms = host.get("residual_rms_ns", float("nan")) / 1e6
+    return (f"{head}, though the log has {pulses['forwarded_mode1']} mode-1 pulses (the PPS "
+            f"pattern): no block of latches matched them, so the coarse time of the INS "
+            f"records (host receive times through the host → GPS map: from "
+            f"{host.get('from', '?')}, residual {residual_ms:.3g} ms, rate "
+            f"{host.get('rate_ppm', float('nan')):.4g} ppm; a few ms and ppm on a sound log) is "
+            "off by more than the 3 ms the match allows: check the host clock and the receive "
+            "times in the log (docs/sync.md, 'Clocks the log holds')")
 
 
 def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:

@@ -34,6 +34,7 @@ def scenario_toml(scn: Any) -> str:
 def derived_figures(scn: Any) -> dict[str, Any]:
     """Planning figures plus the flown timeline (units in the names)."""
     from emulators.block import block_figures
+    from emulators.scenario import gps_event_rate_hz, gps_serial_load
     from emulators.trajectory import TruthTrajectory
 
     fig = block_figures(scn)
@@ -63,6 +64,8 @@ def derived_figures(scn: Any) -> dict[str, Any]:
         "header_window_width_ms": round(window_hi_ms - window_lo_ms, 3),
         "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1]
                                        + scn.sisa.read_interval_ms, 3),
+        "gps_event_rate_hz": round(gps_event_rate_hz(scn), 4),
+        "gps_serial_load_pct": round(100.0 * gps_serial_load(scn)[1], 1),
     }
 
 
@@ -87,6 +90,24 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
                      "ms after its frame ends (scanner.header_latency_ms + "
                      "sisa.read_interval_ms), past the end of sisa.header_window_ms: such "
                      "headers are not tied to their pulses")
+    from emulators.scenario import GPS_LINK_WARN_LOAD
+
+    load = derived["gps_serial_load_pct"]
+    if load > 100 * GPS_LINK_WARN_LOAD:
+        notes.append(f"the receiver's serial port is {load}% loaded (gps.serial_baud = "
+                     f"{scn.gps.serial_baud}, {derived['gps_event_rate_hz']} TTT tags a second): "
+                     "sentences queue behind each other and reach the recorder late")
+    line_rate = derived["line_rate_hz"]
+    wanted = line_rate / derived["one_of_n"]
+    if wanted > scn.gps.max_event_rate_hz * 1.0001:
+        notes.append(f"1 of sisa.one_of_n = {derived['one_of_n']} frame pulses at {line_rate} "
+                     f"lines/s is {wanted:.3g} a second, more than gps.max_event_rate_hz = "
+                     f"{scn.gps.max_event_rate_hz:g}: the sync unit holds them to "
+                     f"{scn.gps.max_event_rate_hz:g} a second (not 1 of n)")
+    if derived["gps_event_rate_hz"] > scn.ins.rate_hz / 2:
+        notes.append(f"{derived['gps_event_rate_hz']} forwarded pulses a second is more than half "
+                     f"the INS record rate ({scn.ins.rate_hz:g} Hz): the INS latches one pulse a "
+                     "record and loses the others")
     gate_ns = scn.sisa.pps_gate_us * 1e3
     if 6 * scn.gps.pps_jitter_ns > gate_ns:
         notes.append(f"gps.pps_jitter_ns = {scn.gps.pps_jitter_ns:g} is more than a sixth of "

@@ -82,7 +82,7 @@ def _run(args: argparse.Namespace) -> int:
         notes = [] if recording is None else [recording]
         notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
-        ambiguous = no_ins_timed_note(ins.status)
+        ambiguous = no_ins_timed_note(ins.status, result.report)
         if ambiguous is not None:  # was said only as a count
             notes.append(ambiguous)
         untied = untimed_lines_note(result.report["lines"], flight)

@@ -7,7 +7,9 @@ own drift. The flight log gets exactly what a real flight would record; the trut
 
 from __future__ import annotations
 
+import heapq
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Protocol
 
@@ -17,6 +19,7 @@ import numpy as np
 from acquisition.clocks import SimulatedHostClock, TimingBoard
 from acquisition.pulses import Edge
 from acquisition.runner import Acquisition
+from emulators.gps import wire_time_ns
 from emulators.runtime import Output, Port, Runner
 from emulators.scenario import Scenario
 from emulators.system import EmulatedSystem
@@ -27,7 +30,7 @@ from sisa.core.errors import ConfigError
 from sisa.core.timescale import NS_PER_S
 from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
-SERIAL_BAUD = 115_200
+SERIAL_BAUD = 115_200  # the scanner's header port (the GPS receiver's: gps.serial_baud)
 USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
 CAN_LATENCY_NS = (100_000, 400_000)
 TICK_NS = 100_000_000
@@ -43,7 +46,14 @@ class Steps(Protocol):
 
 class VirtualWiring:
     """The sink of a virtual-time run: delivers device outputs to the acquisition as the host
-    would receive them, and the acquisition's output pulses back to the devices."""
+    would receive them, and the acquisition's output pulses back to the devices.
+
+    Serial messages and CAN frames reach the host when their last byte has crossed the wire
+    and the host read them (`gps.serial_baud`, SERIAL_BAUD, the USB and CAN latencies): they are
+    handed to the acquisition then, in arrival order with the edges and ticks, never at the
+    moment the device began sending. (Handed over at the start, a message's late receive time
+    held every event after it back to it, the host being one reader: at 9600 baud a fix takes
+    85 ms, and the pulse edges behind it were logged late.)"""
 
     def __init__(self, system: EmulatedSystem, acq_log: FlightRecorder, seed: int,
                  on_time: Callable[[int], None] | None = None) -> None:
@@ -62,6 +72,9 @@ class VirtualWiring:
             (system.traj.t_start_ns + round(f.at_s * NS_PER_S), round(f.duration_s * NS_PER_S))
             for f in scn.faults.sync_restarts)
         self._last_t_host_ns = 0
+        self._arrivals: list[tuple[int, int, Callable[[int], None]]] = []  # (t, seq, deliver)
+        self._arrived = 0
+        self._port_last: dict[Port, int] = {}
 
     def _log(self, msg: LoggedMessage, topic: Topic | None) -> None:
         self.recorder.write(msg, topic)
@@ -71,34 +84,52 @@ class VirtualWiring:
 
     def __call__(self, out: Output) -> Sequence[Edge]:
         self._maybe_crash(out.t_ns)
-        self._tick_until(out.t_ns)
+        self._run_until(out.t_ns)
         payload = out.payload
         if isinstance(payload, Edge):
             self.acq.on_edge(self._host(out.t_ns + 50_000), payload)
         elif isinstance(payload, can.Message):
-            self.acq.on_can_frame(self._host(out.t_ns + self._latency(CAN_LATENCY_NS)), payload)
+            self._arrive(out.port, out.t_ns + self._latency(CAN_LATENCY_NS),
+                         partial(self.acq.on_can_frame, msg=payload))
         else:
-            wire_ns = len(payload) * 10 * NS_PER_S // SERIAL_BAUD
-            t_host = self._host(out.t_ns + wire_ns + self._latency(USB_LATENCY_NS))
-            if out.port is Port.GPS_SERIAL:
-                self.acq.on_gps_bytes(t_host, payload)
-            else:
-                self.acq.on_scanner_bytes(t_host, payload)
+            gps = out.port is Port.GPS_SERIAL
+            baud = self.system.scn.gps.serial_baud if gps else SERIAL_BAUD
+            at = out.t_ns + wire_time_ns(len(payload), baud) + self._latency(USB_LATENCY_NS)
+            deliver = self.acq.on_gps_bytes if gps else self.acq.on_scanner_bytes
+            self._arrive(out.port, at, partial(deliver, data=payload))
         edges, self._pending[:] = list(self._pending), []
         return edges
+
+    def _arrive(self, port: Port, t_ns: int, deliver: Callable[[int], None]) -> None:
+        """Hand `deliver` its host receive time once the emulation reaches `t_ns`, or what came
+        before it on the same port has arrived (a port delivers in order)."""
+        t_ns = max(t_ns, self._port_last.get(port, t_ns))
+        self._port_last[port] = t_ns
+        self._arrived += 1
+        heapq.heappush(self._arrivals, (t_ns, self._arrived, deliver))
+
+    def _run_until(self, t_ns: int | None) -> None:
+        """Ticks and arrivals up to `t_ns` (None: every arrival left), in time order."""
+        while self._arrivals or (t_ns is not None and self._next_tick_ns <= t_ns):
+            arrival = self._arrivals[0][0] if self._arrivals else None
+            limit = t_ns if t_ns is not None else arrival
+            if arrival is not None and arrival < self._next_tick_ns and (
+                    limit is None or arrival <= limit):
+                _, _, deliver = heapq.heappop(self._arrivals)
+                deliver(self._host(arrival))
+            elif limit is not None and self._next_tick_ns <= limit:
+                self.acq.tick(self._host(self._next_tick_ns), self._next_tick_ns)
+                self._next_tick_ns += TICK_NS
+                if self._on_time is not None:
+                    self._on_time(self._next_tick_ns - self.system.traj.t_start_ns)
+            else:
+                break
 
     def _host(self, t_ns: int) -> int:
         """Host receive time; never earlier than the previous receive (one reader thread)."""
         t_host = max(self.host.now_ns(t_ns), self._last_t_host_ns)
         self._last_t_host_ns = t_host
         return t_host
-
-    def _tick_until(self, t_ns: int) -> None:
-        while self._next_tick_ns <= t_ns:
-            self.acq.tick(self._host(self._next_tick_ns), self._next_tick_ns)
-            self._next_tick_ns += TICK_NS
-            if self._on_time is not None:
-                self._on_time(self._next_tick_ns - self.system.traj.t_start_ns)
 
     def _maybe_crash(self, t_ns: int) -> None:
         while self._restarts and self._restarts[0][0] <= t_ns:
@@ -108,6 +139,7 @@ class VirtualWiring:
                                       detail=f"down {down / NS_PER_S:g} s")
 
     def finish(self) -> None:
+        self._run_until(None)
         self.acq.finish(self._last_t_host_ns)
 
 

@@ -134,3 +134,36 @@ def test_a_stop_is_heard_while_waiting_for_a_far_emission():
     worker.join(3.0)  # (a daemon: a runner that does not hear the stop fails, not hangs)
     assert not worker.is_alive()
     assert seen == [0]
+
+
+class Tagger(Device):
+    """A receiver: answers a pulse on its event input 30 ns later; otherwise talks every 1000."""
+
+    input_lines = (PulseLine.GPS_EVENT,)
+
+    def __init__(self):
+        self.scheduled = [1000, 2000, 3000]
+        self.emitted = []
+
+    def next_time_ns(self):
+        return min(self.scheduled) if self.scheduled else None
+
+    def emit(self, t_ns):
+        self.scheduled.remove(t_ns)
+        self.emitted.append(t_ns)
+        return []
+
+    def on_edge(self, edge):
+        self.scheduled.append(edge.t_ns + 30)
+
+
+def test_an_input_edge_brings_a_devices_next_output_forward():
+    """Issue 32, item 1: the receiver's TTT waited for its next scheduled output (its next
+    second) and went out then; it goes out when it is due."""
+    pulses, tagger = Ticker(300, 3), Tagger()
+
+    def sink(out):
+        return [Edge(PulseLine.GPS_EVENT, 0, out.t_ns + 5)] if out.port is Port.PULSES else []
+
+    Runner([pulses, tagger], sink).run()
+    assert tagger.emitted == [35, 335, 635, 1000, 2000, 3000]

@@ -46,9 +46,11 @@ def _board(t: I64) -> I64:
     return NS + (t - T0) + np.rint((t - T0) * 12e-6).astype(np.int64)
 
 
-def _flight(jump_at_s: float, jump_ns: int, seed: int = 1) -> tuple[SyncInput, I64, I64]:
+def _flight(jump_at_s: float, jump_ns: int, seed: int = 1, one_of_n: int = ONE_OF_N,
+            ttt_held_to_the_second: bool = False) -> tuple[SyncInput, I64, I64]:
     """The log, every record's true measurement epoch, and the jump's record index (the first
-    record measured after it)."""
+    record measured after it). `ttt_held_to_the_second`: every TTT reaches the host only with
+    the receiver's next second (as the emulator sent them before issue 32, item 1)."""
     rng = np.random.default_rng(seed)
     sec = T0 + np.arange(SECONDS, dtype=np.int64) * NS
     edge = sec + np.rint(rng.normal(0, 20, SECONDS)).astype(np.int64)
@@ -64,7 +66,7 @@ def _flight(jump_at_s: float, jump_ns: int, seed: int = 1) -> tuple[SyncInput, I
         t_mid.append(T0 + 123_456 + np.rint(k * LINE_NS).astype(np.int64))
         seg.append(np.full(k.size, i))
     mids, segs = np.concatenate(t_mid), np.concatenate(seg).astype(np.int64)
-    pick = np.concatenate([np.flatnonzero(segs == i)[2::ONE_OF_N] for i in range(len(STRIPS))])
+    pick = np.concatenate([np.flatnonzero(segs == i)[2::one_of_n] for i in range(len(STRIPS))])
     pulses = np.sort(np.concatenate([edge[fwd1], mids[pick]]) + 1_000)
 
     # the INS clock: offset, drift, and a jump at t_jump (placed half-way between two records)
@@ -104,8 +106,9 @@ def _flight(jump_at_s: float, jump_ns: int, seed: int = 1) -> tuple[SyncInput, I
         np.concatenate([np.full(n1, -1, np.int64), pick % (1 << 16)]),
         np.array([4], dtype=np.int64), 2 * len(STRIPS))
     ttt = mids[pick] + 1_000
+    sent = -(-ttt // NS) * NS + 25_000_000 if ttt_held_to_the_second else ttt + 30_000_000
     gps = GpsTimes(_host(sec + 48_000_000), sec,
-                   np.concatenate([_host(sec + 25_000_000), _host(ttt + 30_000_000)]),
+                   np.concatenate([_host(sec + 25_000_000), _host(sent)]),
                    np.concatenate([(edge + 50) // 100 * 100, (ttt + 50) // 100 * 100]),
                    np.concatenate([np.ones(SECONDS, np.bool_), np.zeros(n2, np.bool_)]))
     headers = HeaderColumns(_host(mids + 9_600_000), np.arange(mids.size) % (1 << 16), segs)

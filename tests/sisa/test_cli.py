@@ -549,3 +549,53 @@ def test_record_status_headers_are_never_cut_in_an_80_column_terminal():
                  "link"):
         assert f" {name} " in header, header
     assert "rates in Hz" in drawn
+def test_show_refuses_a_gps_port_that_cannot_carry_the_tags_and_warns_near_it(tmp_path, capsys):
+    """Issue 32, item 1: 1 of 3 frame pulses to a receiver taking 25 events/s is 20.8 TTT tags a
+    second; at 9600 baud (an Ashtech Z-12's) the port is ~99 % loaded (a note), at 4800 it
+    cannot carry them (refused, one line, exit 2); at 115 200 it is 8 %."""
+    fast = tmp_path / "fast.toml"
+    fast.write_text('base = "bench"\n[sisa]\none_of_n = 3\n[gps]\nmax_event_rate_hz = 25.0\n')
+    table, out = _show(str(fast), capsys)
+    assert table["derived"]["gps_event_rate_hz"] == pytest.approx(20.8333)
+    assert table["derived"]["gps_serial_load_pct"] == pytest.approx(8.3, abs=0.2)
+    assert "serial port is" not in out
+    slow = tmp_path / "slow.toml"
+    slow.write_text(fast.read_text() + "serial_baud = 9600\n")
+    table, out = _show(str(slow), capsys)
+    assert table["derived"]["gps_serial_load_pct"] == pytest.approx(99.0, abs=0.2)
+    assert "# note: the receiver's serial port is 99.0% loaded" in out
+    slow.write_text(fast.read_text() + "serial_baud = 4800\n")
+    assert main(["scenario", "show", str(slow)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "gps.serial_baud: 4800 baud carries 480 bytes a second" in err
+
+
+def test_show_says_when_the_sync_unit_holds_pulses_back_or_the_ins_loses_them(tmp_path, capsys):
+    many = tmp_path / "many.toml"
+    many.write_text('base = "bench"\n[sisa]\none_of_n = 1\n[gps]\nmax_event_rate_hz = 40.0\n')
+    _, out = _show(str(many), capsys)
+    assert "the sync unit holds them to 40 a second" in out
+    assert "more than half the INS record rate" in out
+
+
+def test_the_sentence_sizes_the_port_load_counts_are_what_the_codec_writes():
+    from acquisition.nmea import (
+        FixQuality,
+        ModeIndicator,
+        encode,
+        gga_from_fix,
+        ptt_from_gps_ns,
+        rmc_from_fix,
+        ttt_from_gps_ns,
+        zda_from_gps_ns,
+    )
+    from emulators.scenario import GGA_BYTES, RMC_BYTES, TAG_BYTES, ZDA_BYTES
+
+    t = 1_465_549_200 * 10**9 + 123_456_789
+    assert len(encode(gga_from_fix(t, 18, -41.6, -179.0, 29_650.0, -120.0,
+                                   FixQuality.RTK_FIXED, 12, 99.9))) <= GGA_BYTES
+    assert len(encode(rmc_from_fix(t, 18, -41.6, -179.0, 999.0, 359.9,
+                                   ModeIndicator.RTK_FIXED))) <= RMC_BYTES
+    assert len(encode(zda_from_gps_ns(t, 18))) <= ZDA_BYTES
+    assert len(encode(ptt_from_gps_ns(t))) == len(encode(ttt_from_gps_ns(t))) == TAG_BYTES

@@ -11,9 +11,9 @@ import dataclasses
 
 import numpy as np
 
-from postproc.lines import LineTable
 from postproc.sync import TimeStatus, synchronise
-from postproc.synclog import HeaderColumns, SyncInput
+from postproc.sync.flightlog import HeaderColumns, SyncInput
+from postproc.sync.lines import LineTable
 from tests.postproc.test_sync_jumps import _flight
 
 

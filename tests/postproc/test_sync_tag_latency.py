@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from postproc.sync import TimeStatus, synchronise
-from postproc.syncreport import no_ins_timed_note
+from postproc.sync.report import no_ins_timed_note
 from tests.postproc.test_sync_jumps import _flight
 
 

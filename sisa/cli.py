@@ -106,6 +106,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     console script; not for tests, which call this in their own process)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.command_line = list(sys.argv[1:] if argv is None else argv)  # as typed, for records
     handler: Handler | None = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()

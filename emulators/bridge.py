@@ -93,8 +93,11 @@ class RealTimeBridge:
     """The sink of a real-time run: owns the ports and routes every output to its wire."""
 
     def __init__(self, can_target: CanTarget, inbox: queue.SimpleQueue[Edge],
-                 pulse_port: int = 0) -> None:
+                 pulse_port: int = 0, gps_copy: bool = False) -> None:
         self.gps = PtyPort()
+        # a second pty with the same GPS bytes, for a second reader (gpsd): two readers of
+        # one pty would each get part of the stream
+        self.gps_copy = PtyPort() if gps_copy else None
         self.scanner = PtyPort()
         self.can = CanOutput(can_target)
         self.pulses = PulseEndpoint(inbox.put, port=pulse_port)
@@ -103,6 +106,8 @@ class RealTimeBridge:
         payload = out.payload
         if out.port is Port.GPS_SERIAL and isinstance(payload, bytes):
             self.gps.write(payload)
+            if self.gps_copy is not None:
+                self.gps_copy.write(payload)
         elif out.port is Port.SCANNER_SERIAL and isinstance(payload, bytes):
             self.scanner.write(payload)
         elif isinstance(payload, can.Message):
@@ -112,11 +117,14 @@ class RealTimeBridge:
         return ()
 
     def endpoints(self) -> dict[str, str]:
+        copy = {} if self.gps_copy is None else {"gps_copy": self.gps_copy.name}
         return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": self.can.channel,
-                "pulses": self.pulses.address}
+                "pulses": self.pulses.address, **copy}
 
     def close(self) -> None:
         self.pulses.close()
         self.can.close()
         self.gps.close()
+        if self.gps_copy is not None:
+            self.gps_copy.close()
         self.scanner.close()

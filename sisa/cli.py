@@ -116,6 +116,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
                       if not a.startswith("-")), None)
         print(f"sisa{'' if named is None else ' ' + named}: interrupted", file=sys.stderr)
         return 130
+    args.command_line = list(sys.argv[1:] if argv is None else argv)  # as typed, for records
     handler: Handler | None = getattr(args, "handler", None)
     if handler is None:
         parser.print_help()

@@ -2,15 +2,18 @@
 With no navigation errors, every pixel must land where the emulator's own forward model (a
 different ray caster in a different frame) says it looked."""
 
+import hashlib
 import json
 import re
 import shutil
 import subprocess
 import sys
+from html.parser import HTMLParser
 
 import numpy as np
 import pytest
 import rasterio
+from PIL import Image
 
 from tests.recorder import overwrite_middle
 
@@ -84,6 +87,118 @@ def test_report_has_every_section(processed):
                   "Ground accuracy against truth", "Ortho mosaic"):
         assert title in page
     assert page.count("data:image/png;base64,") >= 5
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+# After the page has loaded, every image's decoded size goes into the DOM that --dump-dom prints.
+PROBE = ("<script>window.addEventListener('load', () => document.body.setAttribute("
+         "'data-probe', JSON.stringify([...document.images].map("
+         "i => [i.complete, i.naturalWidth, i.naturalHeight]))));</script>")
+UNIT = re.compile(r"\S.*\(([^()]+)\)$")  # "roll (°)", "time since ... GPS (min)"
+
+
+def _chromium(tmp_path, *args):
+    if CHROMIUM is None:
+        pytest.fail("headless Chromium is needed to check the report (Debian: apt-get install "
+                    "chromium)")
+    proc = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
+                           "--hide-scrollbars", f"--user-data-dir={tmp_path / 'profile'}", *args],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout
+
+
+class _Page(HTMLParser):
+    """The figures' axes labels, the archive record's terms and the input files' rows."""
+
+    def __init__(self):
+        super().__init__()
+        self.figures, self.terms, self.files, self.probe = [], [], [], None
+        self._in, self._row, self._text = None, None, []
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "img":
+            self.figures.append((a.get("alt", ""), json.loads(a.get("data-axes") or "null")))
+        if tag == "body" and "data-probe" in a:
+            self.probe = json.loads(a["data-probe"])
+        if tag in ("dt", "td"):
+            self._in, self._text = tag, []
+        if tag == "tr":
+            self._row = []
+
+    def handle_data(self, data):
+        if self._in:
+            self._text.append(data)
+
+    def handle_endtag(self, tag):
+        if tag == self._in:
+            text = "".join(self._text).strip()
+            (self.terms if tag == "dt" else self._row).append(text)
+            self._in = None
+        if tag == "tr" and self._row and re.fullmatch(r"[0-9a-f]{64}", self._row[-1]):
+            self.files.append(self._row)
+
+
+def test_the_report_renders_in_headless_chromium_with_its_archive_record(processed, tmp_path):
+    """Issue 33, item 9: the page renders (every image decodes, the screenshot is not blank);
+    every plot has labelled axes with units (read from the figures' own labels, kept in the
+    page); one time axis for all plots against time; heading within ±180°; the archive record
+    (date, software, command, input files with sizes and checksums, flight and strip times,
+    sensor file); the mosaic on a map grid with its band legend; the latch residuals
+    explained."""
+    run, out, _ = processed
+    page_path = out / "report.html"
+    page = page_path.read_text(encoding="utf-8")
+    probe = tmp_path / "probe.html"
+    probe.write_text(page.replace("</body>", PROBE + "</body>"), encoding="utf-8")
+    dom = _Page()
+    dom.feed(_chromium(tmp_path, "--dump-dom", probe.as_uri()))
+    assert dom.probe, "the page did not finish loading"
+    assert all(done and w > 100 and h > 100 for done, w, h in dom.probe), dom.probe
+    assert len(dom.probe) == len(dom.figures) >= 5
+    times = set()
+    for alt, axes in dom.figures:
+        assert alt
+        assert axes, alt
+        for ax in axes:
+            for key in ("x", "y"):
+                assert UNIT.match(ax[key]), (alt, ax)
+            if "time since" in ax["x"]:
+                times.add(ax["x"])
+    assert len(times) == 1, times  # attitude and sync on one axis
+    assert {"made", "software", "command", "flight (navigation)", "time axis of the plots",
+            "sensor file"} <= set(dom.terms)
+    assert "sisa process " in page
+    shown = {row[0]: row for row in dom.files}
+    for name in ("flight.mcap", "scenario.toml", "terrain/dem.tif", "scanner/segment_000.bil"):
+        data = (run / name).read_bytes()
+        assert shown[name][1:] == [str(len(data)), hashlib.sha256(data).hexdigest()], name
+    summary = json.loads((out / "georef_summary.json").read_text())
+    assert page.count("(week ") >= 2 * len(summary["segments"]) + 1  # strips' first/last, flight
+    assert "[scanner]" in page  # the sensor file's TOML
+    assert "of gated PPS (ns)" in page
+    assert "Why the latch residuals" in page
+    mosaic = next(axes for alt, axes in dom.figures if alt.startswith("Ortho mosaic"))
+    assert mosaic[0]["x"] == f"easting, {summary['crs']} (km)"
+    assert "red: band " in page
+    shot = tmp_path / "shot.png"
+    _chromium(tmp_path, f"--screenshot={shot}", "--window-size=1200,7000", page_path.as_uri())
+    pixels = np.asarray(Image.open(shot).convert("RGB"), dtype=np.int16)
+    assert pixels.shape == (7000, 1200, 3)
+    inked = np.any(pixels < 200, axis=2)
+    assert inked.mean() > 0.03  # text, tables and plots, not a blank page
+    assert len(np.unique(pixels.reshape(-1, 3)[::97], axis=0)) > 200  # plots and the mosaic
+
+
+def test_heading_is_drawn_within_180_degrees_without_wrap_lines():
+    from postproc.georef.report import heading_pm180
+
+    heading, at = heading_pm180(np.radians([350.0, 10.0, 170.0, 190.0, 200.0]))
+    np.testing.assert_allclose(heading[:3], [-10.0, 10.0, 170.0])
+    assert np.isnan(heading[3])  # a break, not a line across the plot
+    np.testing.assert_allclose(heading[4:], [-170.0, -160.0])
+    assert at.tolist() == [3]
 
 
 def test_an_existing_output_is_refused_and_left_alone(processed):

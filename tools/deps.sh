@@ -8,7 +8,8 @@
 #                         built at install; `python -m venv` needs ensurepip)
 #   tools/deps.sh test    demo's, and gpsd + gpspipe, node + npm (the independent MCAP reader,
 #                         whose packages `npm ci` installs from the committed lock) and gdalwarp
-#                         (the reference `gdalwarp -geoloc` in the tests)
+#                         (the reference `gdalwarp -geoloc` in the tests), chromium (headless:
+#                         the processing report rendered as a reader sees it)
 #   tools/deps.sh make    make itself (for .ci/run, before it can call make)
 #
 # Several groups may be given. PYTHON names the interpreter (default python3).
@@ -52,6 +53,7 @@ check_test() {
   have node || want nodejs "node (the independent MCAP reader)"
   have npm || want npm "npm (installs the MCAP reader's packages)"
   have gdalwarp || want gdal-bin "gdalwarp (the reference ortho)"
+  have chromium || want chromium "chromium (renders the processing report in a test)"
 }
 
 if (($# == 0)); then

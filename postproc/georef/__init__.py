@@ -32,15 +32,15 @@ from postproc.georef.navigation import (
     nav_from_columns,
 )
 from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
-from postproc.georef.report import write_report
+from postproc.georef.report import Provenance, write_report
 from postproc.georef.sensorfile import CALIBRATED_SUFFIX, SensorModel
 from postproc.georef.trajfiles import LEAP_SECONDS_RANGE
 
 __all__ = [
     "CALIBRATED_SUFFIX", "LEAP_SECONDS_RANGE", "MAX_GAP_LIMIT_S", "NAV_WANTED",
     "PLAUSIBLE_HEIGHTS_M", "AntennaFixes", "CastStats", "Dem", "GeorefJob", "GeorefOptions",
-    "GeorefResult", "GroundPoints", "InsSamples", "Pose", "SegmentResult", "SensorModel",
-    "Trajectory", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns",
+    "GeorefResult", "GroundPoints", "InsSamples", "Pose", "Provenance", "SegmentResult",
+    "SensorModel", "Trajectory", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns",
     "fuse_ins_gps", "geodetic_to_ecef",
     "intersect", "merged_wanted", "nav_from_columns", "reference_intersect", "write_report",
 ]

@@ -27,11 +27,12 @@ from postproc.products.ortho import (
     nice_cell_m,
     orthorectify,
 )
-from postproc.products.quicklook import write_quicklook
+from postproc.products.quicklook import RgbView, read_rgb, write_quicklook
 
 __all__ = [
     "TIFF_BLOCK", "CutShortWarning", "EnviRaster", "IgmWriter", "OrthoGrid", "Progress",
+    "RgbView",
     "SwathIndex", "common_lines", "footprint_feature", "igm_bounds", "igm_epsg",
-    "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify",
+    "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify", "read_rgb",
     "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",
 ]

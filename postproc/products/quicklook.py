@@ -13,6 +13,7 @@ import os
 import re
 import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
@@ -21,6 +22,7 @@ import numpy.typing as npt
 import rasterio
 from rasterio.enums import Resampling
 from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
+from rasterio.windows import from_bounds
 
 from sisa.core.errors import InputError
 from sisa.core.outdir import partial_path
@@ -75,21 +77,46 @@ def stretch(values: npt.NDArray[Any], valid: npt.NDArray[np.bool_]) -> U8:
     return out
 
 
-def write_quicklook(src: Path, png: Path, *, max_size_px: int = MAX_SIZE_PX) -> tuple[int, int]:
-    """Write an RGBA PNG, longest side ≤ max_size_px; returns its (height, width)."""
-    src, png = Path(src), Path(png)
+@dataclass(frozen=True)
+class RgbView:
+    """A raster's true-colour view as the quicklook draws it, and what it shows."""
+
+    rgba: U8  # (4, rows, cols), alpha 0 on nodata
+    bands: tuple[int, int, int]  # 1-based bands shown as red, green, blue
+    wavelengths_nm: tuple[float | None, float | None, float | None]  # of those bands
+    descriptions: tuple[str, str, str]  # of those bands
+    bounds: tuple[float, float, float, float] | None  # west, south, east, north (None: no map)
+    epsg: int | None
+
+
+def read_rgb(src: Path, *, max_size_px: int = MAX_SIZE_PX,
+             bounds: tuple[float, float, float, float] | None = None) -> RgbView:
+    """The true-colour view of a raster, longest side ≤ max_size_px (read decimated); of the
+    map window `bounds` (west, south, east, north, outside the raster: nodata) if given."""
+    src = Path(src)
     if max_size_px < 1:
         raise InputError(f"quicklook size must be at least 1 pixel, got {max_size_px}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(src) as ds:  # no GDAL_CACHEMAX Env: it made this read 300x slower
-                bands = rgb_bands(band_wavelengths_nm(ds))
-                scale = max(ds.height, ds.width) / max_size_px
-                shape = (max(1, round(ds.height / max(scale, 1.0))),
-                         max(1, round(ds.width / max(scale, 1.0))))
-                data = ds.read(list(bands), out_shape=(3, *shape),
-                               resampling=Resampling.nearest, masked=True)
+                wavelengths = band_wavelengths_nm(ds)
+                bands = rgb_bands(wavelengths)
+                win = None if bounds is None else from_bounds(
+                    *bounds, transform=ds.transform).round_offsets().round_lengths()
+                height, width = (ds.height, ds.width) if win is None else (
+                    int(win.height), int(win.width))
+                scale = max(height, width) / max_size_px
+                shape = (max(1, round(height / max(scale, 1.0))),
+                         max(1, round(width / max(scale, 1.0))))
+                data = ds.read(list(bands), out_shape=(3, *shape), window=win,
+                               boundless=win is not None, resampling=Resampling.nearest,
+                               masked=True)
+                mapped = ds.crs is not None and not ds.transform.is_identity
+                if mapped:
+                    bounds = tuple(ds.bounds if win is None else ds.window_bounds(win))
+                epsg = ds.crs.to_epsg() if mapped else None
+                descriptions = tuple(ds.descriptions[b - 1] or f"band {b}" for b in bands)
     except RasterioIOError as exc:
         raise InputError(f"{src}: unreadable raster: {exc}") from None
     mask = np.asarray(np.ma.getmaskarray(data).any(axis=0), dtype=np.bool_)
@@ -100,8 +127,18 @@ def write_quicklook(src: Path, png: Path, *, max_size_px: int = MAX_SIZE_PX) -> 
     for k in range(3):
         rgba[k] = stretch(np.ma.getdata(data[k]), valid)
     rgba[3] = np.where(valid, 255, 0)
-    _write_png(png, rgba)
-    return shape
+    r, g, b = (wavelengths[i - 1] for i in bands)
+    d0, d1, d2 = descriptions
+    return RgbView(rgba, bands, (r, g, b), (d0, d1, d2),
+                   (bounds[0], bounds[1], bounds[2], bounds[3]) if mapped and bounds else None,
+                   None if epsg is None else int(epsg))
+
+
+def write_quicklook(src: Path, png: Path, *, max_size_px: int = MAX_SIZE_PX) -> tuple[int, int]:
+    """Write an RGBA PNG, longest side ≤ max_size_px; returns its (height, width)."""
+    view = read_rgb(src, max_size_px=max_size_px)
+    _write_png(Path(png), view.rgba)
+    return int(view.rgba.shape[1]), int(view.rgba.shape[2])
 
 
 def _write_png(png: Path, rgba: U8) -> None:

@@ -28,9 +28,11 @@ from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
+    from emulators.bridge import RealTimeBridge
     from emulators.runtime import Runner
     from emulators.scenario import Scenario
     from emulators.trajectory import TruthTrajectory
+    from sisa.wiring.gpsd import Gpsd
 
 MIN_SPEED = 0.001  # --speed: slower flies a minute of the scenario in more than 16 hours
 HELD_LINE = "emulate: the scenario is over; every port held open, silent, until Ctrl-C"
@@ -63,6 +65,12 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="at the end of the scenario (or --duration), keep every port "
                              "open and silent until Ctrl-C, so that a recorder on them can be "
                              "stopped before its devices go away")
+    parser.add_argument("--gpsd", action="store_true",
+                        help="also start gpsd (if installed) on a copy of the GPS port, "
+                             "listening on loopback, and print how to connect")
+    parser.add_argument("--gpsd-port", type=int, default=0,
+                        help="gpsd's TCP port (default: any free port; a system gpsd keeps "
+                             "2947)")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
@@ -194,6 +202,11 @@ def _run(args: argparse.Namespace) -> int:
     check_port(args.pulses_port)
     check_endpoints_path(args.endpoints)
     target = CanTarget.parse(args.can)
+    if args.gpsd:
+        from sisa.wiring.gpsd import gpsd_binary
+
+        check_port(args.gpsd_port, "--gpsd-port")
+        gpsd_binary()  # installed, or one line before anything starts
     if name_taken(args.out, "--out"):
         raise InputError(f"{args.out} already exists: choose a new output folder")
     try:
@@ -204,14 +217,19 @@ def _run(args: argparse.Namespace) -> int:
         system = EmulatedSystem(scn, None if args.no_images else args.out / "scanner",
                                 traj=traj, real_time=True)
         runner = Runner(system.devices, lambda out: (), speed=args.speed)
-        bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port)
+        bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port,
+                                gps_copy=args.gpsd)
     except BaseException:  # a bus or port that cannot be opened: leave nothing behind
         shutil.rmtree(args.out, ignore_errors=True)
         raise
+    gpsd = _start_gpsd(args, bridge)
     if args.endpoints is not None:
         try:
-            write_endpoints(args.endpoints, bridge.endpoints())
+            write_endpoints(args.endpoints, {**bridge.endpoints(),
+                                             **({"gpsd": gpsd.address} if gpsd else {})})
         except InputError:
+            if gpsd is not None:
+                gpsd.stop()
             bridge.close()
             shutil.rmtree(args.out, ignore_errors=True)
             raise
@@ -223,6 +241,8 @@ def _run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    if gpsd is not None:
+        print("\n".join(gpsd.how_to_connect()))
     _announce(bridge.endpoints(), scn.block.name, args)
     if not args.quiet:
         print("\n".join(timeline(scn, traj, args.start, args.duration)), flush=True)
@@ -243,6 +263,8 @@ def _run(args: argparse.Namespace) -> int:
             while not stop.wait(0.5):  # a bare wait() would defer the signal handler
                 pass
     finally:
+        if gpsd is not None:
+            gpsd.stop()
         bridge.close()
         system.write_truth(args.out / "truth")
     print(f"emulate: {runner.outputs} outputs in {time.monotonic() - started:.1f} s; "
@@ -273,6 +295,19 @@ def _follow(bar: Progress, runner: Runner, t0_ns: int, start_ns: int, end_ns: in
         bar.update(completed=(t_ns - start_ns) / 1e9)
 
     return poll
+def _start_gpsd(args: argparse.Namespace, bridge: RealTimeBridge) -> Gpsd | None:
+    """gpsd on the bridge's copy of the GPS port (--gpsd); the bridge and the run folder go if
+    it cannot start."""
+    if not args.gpsd or bridge.gps_copy is None:
+        return None
+    from sisa.wiring.gpsd import Gpsd
+
+    try:
+        return Gpsd(bridge.gps_copy.name, args.gpsd_port)
+    except BaseException:
+        bridge.close()
+        shutil.rmtree(args.out, ignore_errors=True)
+        raise
 
 
 def _announce(endpoints: dict[str, str], name: str, args: argparse.Namespace) -> None:

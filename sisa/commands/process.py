@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
+import shlex
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,7 +40,7 @@ from sisa.core.outdir import name_taken, staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
-    from postproc.georef import SensorModel
+    from postproc.georef import GeorefOptions, Provenance, SensorModel
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -106,6 +108,23 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
         say_warning("process", "no check point lies on a georeferenced line: no check points")
 
 
+def _provenance(args: argparse.Namespace, run: Path, parts: list[Path],
+                options: GeorefOptions) -> Provenance:
+    """The archive record's command, inputs and sensor source (the report hashes the files)."""
+    from postproc.georef import Provenance
+
+    given = [options.trajectory, options.geoid if isinstance(options.geoid, Path) else None,
+             args.sensor]
+    inputs = [*parts, *sorted(p for p in (run / "scanner").iterdir() if p.is_file()),
+              run / "terrain" / "dem.tif", run / "terrain" / "ground_points.csv",
+              run / "scenario.toml", *(Path(p) for p in given if p is not None)]
+    source = (f"--sensor {args.sensor}" if args.sensor is not None else
+              "the run's scenario.toml" + (" (nominal: --nominal)" if args.nominal else ""))
+    typed = getattr(args, "command_line", None)
+    command = "sisa " + (shlex.join(typed) if typed is not None else f"process {run}")
+    return Provenance(command, os.getcwd(), inputs, root=run, sensor_source=source)
+
+
 def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     run: Path = args.run
@@ -139,9 +158,9 @@ def _run(args: argparse.Namespace) -> int:
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
                                   leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
+    parts = flight_parts([run / "flight.mcap"])
     with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
-        result = run_georef(flight_parts([run / "flight.mcap"]), run / "scanner", tmp, options,
-                            bar, command="process")
+        result = run_georef(parts, run / "scanner", tmp, options, bar, command="process")
         bar.step("accuracy against truth")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         _say_what_is_not_judged(run, acc)
@@ -152,7 +171,8 @@ def _run(args: argparse.Namespace) -> int:
         bar.step("report")
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,
-                     headline=rows)
+                     headline=rows, provenance=_provenance(args, run, parts, options),
+                     sensor_toml=options.sensor.to_toml(), sensor_name=options.sensor.name)
     print(f"report: {out / 'report.html'}")
     for name, value in rows:
         print(f"  {name}: {value}")

@@ -11,6 +11,7 @@ import sys
 import time
 
 import can
+import pytest
 import serial
 
 from acquisition.codec import ErrorPolicy
@@ -89,3 +90,52 @@ def test_emulate_serves_real_clients_and_takes_sync_pulses(tmp_path):
     synced = [r for r in records if r.status & InsStatus.SYNC_PULSE]
     assert len(synced) >= 2  # our forwarded PPS came back inside INS records
     assert (tmp_path / "run" / "truth" / "ins_records.csv").is_file()
+
+
+def test_gpsd_serves_the_emulated_receiver_and_stops_with_it(tmp_path):
+    """Issue 33, item 11: `sisa emulate --gpsd` starts gpsd on a copy of the GPS port (so a
+    recorder on the port itself still gets every byte), says how to connect, and stops it."""
+    endpoints_file = tmp_path / "endpoints.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "emulate", "--preset", "bench", "--out",
+         str(tmp_path / "run"), "--duration", "60", "--no-images", "--gpsd", "--endpoints",
+         str(endpoints_file)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ep = _wait_for(endpoints_file)
+        address = ep["gpsd"]
+        assert address.startswith("127.0.0.1:")
+        assert ep["gps_copy"] != ep["gps"]
+        gps = serial.Serial(ep["gps"], 115200, timeout=0)
+        piped = subprocess.run(["gpspipe", "-w", "-x", "6", address], capture_output=True,
+                               text=True, timeout=30, check=False).stdout
+        nmea = NmeaStreamDecoder(ErrorPolicy.RAISE)  # the port itself: every sentence whole
+        fixes = [d.message for d in nmea.feed(gps.read(65536)) if isinstance(d.message, Gga)]
+        gps.close()
+        proc.send_signal(signal.SIGINT)
+    finally:
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert f"gpsd (on a copy of the GPS port):    tcp://{address}" in out
+    assert f"gpspipe -w {address}" in out
+    tpv = [r for r in map(json.loads, piped.splitlines())
+           if r.get("class") == "TPV" and r.get("mode", 0) >= 2]
+    assert len(tpv) >= 2, piped
+    assert abs(tpv[-1]["lat"] - 41.564) < 0.01  # the bench flight's alignment point
+    assert len(fixes) >= 3
+    host, port = address.split(":")
+    with pytest.raises(ConnectionRefusedError):  # gpsd went with the emulator
+        socket.create_connection((host, int(port)), timeout=1).close()
+
+
+def test_gpsd_missing_is_one_line_and_nothing_made(tmp_path, monkeypatch, capsys):
+    from sisa.cli import main
+    from sisa.wiring import gpsd
+
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setattr(gpsd, "GPSD_FALLBACK", tmp_path / "no-gpsd")
+    assert main(["emulate", "--preset", "bench", "--out", str(tmp_path / "run"),
+                 "--gpsd"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sisa emulate: error: --gpsd: gpsd is not installed (Debian: ")
+    assert "\n" not in err
+    assert not (tmp_path / "run").exists()

@@ -231,3 +231,24 @@ def test_the_acquisition_makes_the_same_time_tags_of_ubx() -> None:
     assert tags == [GpsTimeTag(1_000, "PTT", second % NS_PER_WEEK, second),
                     GpsTimeTag(1_000, "TTT", event % NS_PER_WEEK, event)]
     assert acq.last_pps_gps_ns == second
+
+
+NOISE = st.lists(st.one_of(st.binary(max_size=80), st.sampled_from(SENTENCES),
+                           MESSAGES.map(encode_ubx),
+                           st.sampled_from([b"\xb5", b"\xb5\x62", b"\xb5\x62\x0d\x03\xff\xff",
+                                            b"$", b"\r\n", b"*"])),
+                 max_size=40)
+
+
+@settings(max_examples=300, deadline=None)
+@given(NOISE)
+def test_fuzz_never_raises_holds_little_and_accounts_for_every_byte(chunks: list[bytes]) -> None:
+    decoder = NmeaUbxStreamDecoder()
+    out, fed = [], 0
+    for chunk in chunks:
+        out += decoder.feed(chunk)
+        fed += len(chunk)
+        assert decoder.buffered_bytes <= 6 + 4096 + 2
+    out += decoder.finish()
+    assert sum(len(d.raw) for d in out) + decoder.stats.bytes_skipped == fed
+    assert decoder.stats.errors == sum(decoder.stats.refused.values())

@@ -13,8 +13,9 @@ damaged one, no message at all, or not enough bytes yet; then it decodes a whole
   protocol that follows a damaged one is never swallowed;
 - each bad stretch is one error: the bytes after a damaged message up to the next message start
   belong to it when its framer says so (`Cut.run_on`), and so does whatever fails to decode
-  inside the length a damaged binary frame claimed (`Cut.shadow`), while a whole message found
-  there is still decoded;
+  inside the length a damaged binary frame claimed or the rest of a damaged line (`Cut.shadow`),
+  while a whole message found there is still decoded; a damaged message that ends where another
+  protocol's message may begin leaves that message's damage its own (`Cut.yields`);
 - it never holds more than the longest message a framer allows, and every byte fed ends up in
   a `Decoded`'s raw, in `stats.bytes_skipped`, or still buffered.
 
@@ -69,6 +70,10 @@ class Cut(NamedTuple):
     kind: ErrorKind = ErrorKind.FRAMING
     run_on: bool = False  # DAMAGED: the bytes after it, up to the next start, are this error
     shadow: int = 0  # DAMAGED: bytes (from the start) inside which failures are this error
+    # DAMAGED with a shadow: if the byte it ends at can begin another protocol's message, the
+    # shadow ends there (that message's own damage is its own error); junk after it is still
+    # this error
+    yields: bool = False
 
 
 MORE = Cut(Verdict.MORE)
@@ -220,10 +225,14 @@ class StreamDecoder(Generic[M]):
         raw = bytes(self._buffer[self._pos:self._pos + cut.length])
         self._pos += cut.length
         self.stats.bytes_skipped += cut.length
-        self._in_bad_run = cut.run_on
+        shadow, run_on = cut.shadow, cut.run_on
+        at_a_start = self._pos < len(self._buffer) and self._buffer[self._pos] in self._by_lead
+        if cut.yields and at_a_start:
+            shadow, run_on = 0, True
+        self._in_bad_run = run_on
         quiet = offset < self._quiet_until  # inside a damaged frame already counted
-        if cut.shadow:
-            self._quiet_until = max(self._quiet_until, offset + cut.shadow)
+        if shadow:
+            self._quiet_until = max(self._quiet_until, offset + shadow)
         if not quiet:
             report_error(self.policy, self.stats, cut.kind, f"{self._label}: {cut.detail}",
                          offset, raw, reason=cut.reason)

@@ -32,6 +32,7 @@ from acquisition.nmea import (
 from acquisition.pulses import EDGE_SIZE, EDGE_TIME_LIMIT_NS, Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
 from acquisition.syncfilter import Forward, Log, Mode, SyncFilter, SyncFilterConfig
+from acquisition.ubx import NmeaUbxStreamDecoder, TimeBase, TimTm2, TimTp
 from recorder.messages import (
     CAN_EXTENDED_FLAG,
     FrameHeaderLog,
@@ -45,7 +46,7 @@ from recorder.messages import (
     StreamHealth,
     Topic,
 )
-from sisa.core.timescale import NS_PER_S, gps_ns_from_unix_ns
+from sisa.core.timescale import NS_PER_S, NS_PER_WEEK, gps_ns_from_unix_ns
 
 LogSink = Callable[[LoggedMessage, Topic | None], None]
 GATE_DELAY_NS = 1_000  # the box's input → output propagation
@@ -107,6 +108,7 @@ class AcquisitionConfig:
     edge_deadline_ns: int = 20_000_000  # an edge later than this (beyond the link's best) is a miss
     read_interval_ns: int = 0  # real time: devices read on this clock (LiveSources), 0: at once
     accept_nmea_without_checksum: bool = False  # else such sentences are refused and counted
+    gps_ubx: bool = False  # the receiver interleaves UBX frames with its NMEA (u-blox)
 
 
 def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
@@ -141,8 +143,9 @@ class Acquisition:
         self.filter = SyncFilter(config.sync, session=0, board_ns=self.board.start_count_ns,
                                  t_host_ns=0)  # replaced by the first event's times in _start
         self._started = False
-        self.nmea = NmeaStreamDecoder(
-            ErrorPolicy.COUNT, accept_missing_checksum=config.accept_nmea_without_checksum)
+        decoder = NmeaUbxStreamDecoder if config.gps_ubx else NmeaStreamDecoder
+        self.gps = decoder(ErrorPolicy.COUNT,
+                           accept_missing_checksum=config.accept_nmea_without_checksum)
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
         self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
         self.streams = {
@@ -176,12 +179,12 @@ class Acquisition:
     def on_gps_bytes(self, t_host_ns: int, data: bytes) -> None:
         self._start(t_host_ns)
         self.log(RawBytes(t_host_ns, "gps", data), Topic.GPS_RAW)
-        for item in self.nmea.feed(data):
+        for item in self.gps.feed(data):
             self.streams["gps"].seen(t_host_ns, 3 * NS_PER_S)
-            self._on_nmea(t_host_ns, item.message)
-        self.streams["gps"].stats = self.nmea.stats
+            self._on_gps(t_host_ns, item.message)
+        self.streams["gps"].stats = self.gps.stats
 
-    def _on_nmea(self, t_host_ns: int, msg: object) -> None:
+    def _on_gps(self, t_host_ns: int, msg: object) -> None:
         if isinstance(msg, Rmc | Zda) and msg.utc_date is not None:
             self._utc_date = msg.utc_date
             self._flush_undated_tags()
@@ -196,20 +199,39 @@ class Acquisition:
                 self._undated_tags.append((t_host_ns, msg))  # its week from the receiver's date
                 return
             self._flush_undated_tags()
-            self._on_time_tag(t_host_ns, msg)
+            self._on_ashtech_tag(t_host_ns, msg)
+        elif isinstance(msg, TimTp) and not msg.not_locked:
+            # TIM-TP states the next pulse; it comes after the pulse one second before it
+            t_gps = msg.pulse_gps_ns - NS_PER_S + (self._leap_ns if msg.time_base_utc else 0)
+            self._time_tag(t_host_ns, True, t_gps % NS_PER_WEEK, t_gps)
+        elif (isinstance(msg, TimTm2) and msg.new_rising_edge and msg.time_valid
+              and msg.time_base in (TimeBase.GNSS, TimeBase.UTC)):
+            utc = msg.time_base == TimeBase.UTC
+            t_gps = msg.rising_gps_ns + (self._leap_ns if utc else 0)
+            self._time_tag(t_host_ns, False, t_gps % NS_PER_WEEK, t_gps)
 
     def _flush_undated_tags(self) -> None:
         """The time tags held for the receiver's date, in order (with the host clock's guess of
         the week if the date never came: a receiver without RMC or ZDA sentences)."""
         held, self._undated_tags = self._undated_tags, []
         for t_host_ns, msg in held:
-            self._on_time_tag(t_host_ns, msg)
+            self._on_ashtech_tag(t_host_ns, msg)
 
-    def _on_time_tag(self, t_host_ns: int, msg: PashrPtt | PashrTtt) -> None:
-        kind = "PTT" if isinstance(msg, PashrPtt) else "TTT"
+    def _on_ashtech_tag(self, t_host_ns: int, msg: PashrPtt | PashrTtt) -> None:
+        """An Ashtech tag states the time of week only: its week is resolved here."""
         t_gps = gps_ns_from_time_of_week(msg.gps_time_of_week_ns, self._gps_estimate(t_host_ns))
-        self.log(GpsTimeTag(t_host_ns, kind, msg.gps_time_of_week_ns, t_gps), None)
-        if isinstance(msg, PashrPtt):
+        self._time_tag(t_host_ns, isinstance(msg, PashrPtt), msg.gps_time_of_week_ns, t_gps)
+
+    @property
+    def _leap_ns(self) -> int:
+        return self.config.leap_s * NS_PER_S
+
+    def _time_tag(self, t_host_ns: int, pps: bool, gps_time_of_week_ns: int, t_gps: int) -> None:
+        """A receiver's time tag, of its PPS (logged as PTT, and the sync filter told which
+        GPS second that PPS was) or of a pulse on its event input (TTT)."""
+        self.log(GpsTimeTag(t_host_ns, "PTT" if pps else "TTT", gps_time_of_week_ns, t_gps),
+                 None)
+        if pps:
             second = (t_gps + NS_PER_S // 2) // NS_PER_S * NS_PER_S
             self.last_pps_gps_ns = second
             self._apply(self.filter.on_gps_time(second, t_host_ns))

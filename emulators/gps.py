@@ -25,6 +25,7 @@ capacity and `sisa scenario show` gives the load (`gps_serial_load_pct`).
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import math
 from collections.abc import Callable, Sequence
@@ -34,9 +35,13 @@ import numpy as np
 import numpy.typing as npt
 
 from acquisition.nmea import (
+    DEFAULT_VERSION,
     FixQuality,
     ModeIndicator,
+    NavStatus,
     NmeaMessage,
+    NmeaVersion,
+    Talker,
     encode,
     gga_from_fix,
     ptt_from_gps_ns,
@@ -45,9 +50,16 @@ from acquisition.nmea import (
     zda_from_gps_ns,
 )
 from acquisition.pulses import Edge, PulseLine
+from acquisition.ubx import (
+    GpsMessage,
+    UbxMessage,
+    encode_ubx,
+    tim_tm2_from_gps_ns,
+    tim_tp_for_pulse,
+)
 from emulators.localplane import LocalPlane
 from emulators.runtime import Device, Output, Port
-from emulators.scenario import GpsSettings, GpsSolution, Scenario
+from emulators.scenario import GpsSettings, GpsSolution, ReceiverModel, Scenario
 from emulators.trajectory import TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
@@ -107,6 +119,12 @@ class GpsReceiver(Device):
         self.chunk_s = chunk_s
         self.plane = LocalPlane.for_scenario(scn)
         self.tag_res_ns = scn.gps.event_tag_resolution_ns
+        self.ublox = scn.gps.receiver is ReceiverModel.UBLOX_F9P
+        # u-blox: NMEA 4.1 from a multi-constellation solution; Ashtech: NMEA 2.3, GPS alone
+        self._talker = Talker.MULTI if self.ublox else Talker.GPS
+        self._nmea_version = NmeaVersion.V4_1 if self.ublox else DEFAULT_VERSION
+        self._edges_seen = 0  # u-blox: TIM-TM2's rising edge counter
+        self._tm2_accuracy_ns = max(1, round(scn.gps.pps_jitter_ns))
         # re-arms 2 % early, so pulses exactly one period apart (PPS ± jitter) all get tagged
         self.dead_time_ns = round(0.98 * NS_PER_S / scn.gps.max_event_rate_hz)
         self._outages = [(traj.t_start_ns + int(f.at_s * NS_PER_S),
@@ -171,10 +189,13 @@ class GpsReceiver(Device):
             return []
         jitter_ns = round(self.rng.normal(0.0, self.scn.gps.pps_jitter_ns))
         t_edge = second + jitter_ns
-        ptt = ptt_from_gps_ns(t_edge)
-        self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge,
-                        ptt_gps_ns=self._rounded(t_edge))
-        self._send_at(second + PTT_LATENCY_NS, ptt)
+        if self.ublox:  # TIM-TP announces the next pulse; this one was announced on time
+            self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge, ptt_gps_ns=second)
+            self._send_at(second + PTT_LATENCY_NS, tim_tp_for_pulse(nxt))
+        else:
+            self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge,
+                            ptt_gps_ns=self._rounded(t_edge))
+            self._send_at(second + PTT_LATENCY_NS, ptt_from_gps_ns(t_edge))
         return [Output(t_ns, Port.PULSES, Edge(PulseLine.PPS, 0, t_edge))]
 
     def _rounded(self, t_ns: int) -> int:
@@ -187,26 +208,31 @@ class GpsReceiver(Device):
         if self.in_outage(t):
             self.events.append(t_edge_gps_ns=t, accepted=0, ttt_gps_ns=-1, reason="no lock")
             return
+        self._edges_seen += 1
         if t < self._armed_at_ns:
             self.events.append(t_edge_gps_ns=t, accepted=0, ttt_gps_ns=-1, reason="dead time")
             return
         self._armed_at_ns = t + self.dead_time_ns
-        ttt = ttt_from_gps_ns(t)
+        tag = (tim_tm2_from_gps_ns(self._rounded(t), self._edges_seen, self._tm2_accuracy_ns)
+               if self.ublox else ttt_from_gps_ns(t))
         self.events.append(t_edge_gps_ns=t, accepted=1, ttt_gps_ns=self._rounded(t), reason="")
-        self._send_at(t + TTT_LATENCY_NS, ttt)
+        self._send_at(t + TTT_LATENCY_NS, tag)
 
     # --- NMEA ------------------------------------------------------------------------------
 
-    def _send(self, message: NmeaMessage, t_ns: int) -> list[Output]:
+    def _send(self, message: GpsMessage, t_ns: int) -> list[Output]:
         """On the wire now if the port is free; else queued until it is."""
         if self._uart_free_ns > t_ns:
             self._schedule.at(self._uart_free_ns, partial(self._send, message))
             return []
-        data = encode(message)
+        if isinstance(message, UbxMessage):
+            data = encode_ubx(message)
+        else:
+            data = encode(message, self._nmea_version)
         self._uart_free_ns = t_ns + wire_time_ns(len(data), self.scn.gps.serial_baud)
         return [Output(t_ns, Port.GPS_SERIAL, data)]
 
-    def _send_at(self, t_ns: int, message: NmeaMessage) -> None:
+    def _send_at(self, t_ns: int, message: GpsMessage) -> None:
         self._schedule.at(t_ns, partial(self._send, message))
 
     def _nmea_epoch(self, t_ns: int) -> list[Output]:
@@ -224,12 +250,17 @@ class GpsReceiver(Device):
                           quality=int(quality))
         mode = ModeIndicator.NOT_VALID if lost else self._mode
         gps = self.scn.gps
-        messages: list[NmeaMessage] = [
-            gga_from_fix(epoch, leap, lat, lon, h, gps.geoid_separation_m, quality, 9, 0.9),
-            rmc_from_fix(epoch, leap, lat, lon, speed, course, mode),
-        ]
-        if epoch % NS_PER_S == 0:
-            messages.append(zda_from_gps_ns(epoch, leap))
+        gga = gga_from_fix(epoch, leap, lat, lon, h, gps.geoid_separation_m, quality, 9, 0.9)
+        rmc = rmc_from_fix(epoch, leap, lat, lon, speed, course, mode)
+        zda = zda_from_gps_ns(epoch, leap) if epoch % NS_PER_S == 0 else None
+        if self.ublox:  # its RMC states no navigational status: V, as u-blox receivers write
+            talker = self._talker.value
+            gga = dataclasses.replace(gga, talker=talker)
+            rmc = dataclasses.replace(rmc, talker=talker, nav_status=NavStatus.NOT_VALID)
+            zda = None if zda is None else dataclasses.replace(zda, talker=talker)
+        messages: list[NmeaMessage] = [gga, rmc]
+        if zda is not None:
+            messages.append(zda)
         for k, msg in enumerate(messages[1:], start=1):
             self._send_at(t_ns + k * SENTENCE_SPACING_NS, msg)
         return self._send(messages[0], t_ns)

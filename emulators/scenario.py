@@ -90,6 +90,13 @@ class GpsSolution(StrEnum):
     PHASE = "phase"
 
 
+class ReceiverModel(StrEnum):
+    """What the GPS receiver speaks on its serial port (docs/protocols.md)."""
+
+    ASHTECH_Z12 = "ashtech_z12"  # NMEA 2.3 (GP) + $PASHR,PTT / $PASHR,TTT time tags
+    UBLOX_F9P = "ublox_f9p"  # NMEA 4.1 (GN) + UBX-TIM-TP / UBX-TIM-TM2 binary, one port
+
+
 class BlockSettings(StrictModel):
     """The photogrammetric block and the flight that covers it."""
 
@@ -265,6 +272,10 @@ class InsSettings(StrictModel):
 class GpsSettings(StrictModel):
     """The geodetic receiver: NMEA stream, PPS and event input."""
 
+    receiver: ReceiverModel = Field(
+        ReceiverModel.ASHTECH_Z12, description="its protocol: ashtech_z12 (NMEA + $PASHR time "
+        "tags) or ublox_f9p (NMEA 4.1 + UBX-TIM-TP and UBX-TIM-TM2, interleaved)"
+    )
     nmea_rate_hz: float = Field(1.0, gt=0, le=20)
     solution: GpsSolution = GpsSolution.PHASE
     horizontal_noise_m: float | None = Field(

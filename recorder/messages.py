@@ -90,14 +90,15 @@ class GpsFix(LoggedMessage):
 
 @dataclass(frozen=True)
 class GpsTimeTag(LoggedMessage):
-    """$PASHR,PTT (the PPS) or $PASHR,TTT (an event) in GPS time."""
+    """A receiver's time tag in GPS time: of its PPS (kind "PTT": Ashtech $PASHR,PTT, or
+    u-blox UBX-TIM-TP) or of a pulse on its event input ("TTT": $PASHR,TTT, UBX-TIM-TM2)."""
 
     topic: ClassVar[Topic] = Topic.GPS_TIME_TAG
     schema_name: ClassVar[str] = "sisa.GpsTimeTag"
     t_host_ns: int
     kind: str  # "PTT" | "TTT"
     gps_time_of_week_ns: int
-    t_gps_ns: int  # week: last fix, else receiver's date (tags wait for it), else host clock
+    t_gps_ns: int  # Ashtech: week of last fix, else receiver's date, else host; UBX: stated
 
 
 @dataclass(frozen=True)

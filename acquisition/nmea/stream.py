@@ -71,7 +71,8 @@ class NmeaFramer:
                 return MORE  # the rest of the line is not here yet
             return Cut(Verdict.DAMAGED, at - start, Refusal.CUT_SHORT, detail, run_on=True)
         rest = end.start() + (buffer[end.start()] == LF) - start
-        return Cut(Verdict.DAMAGED, at - start, Refusal.CUT_SHORT, detail, shadow=rest)
+        return Cut(Verdict.DAMAGED, at - start, Refusal.CUT_SHORT, detail, shadow=rest,
+                   yields=True)
 
     def decode(self, raw: bytes) -> NmeaMessage:
         return decode_sentence(raw, accept_missing_checksum=self.accept_missing_checksum)

@@ -113,6 +113,12 @@ class SentenceSpec(Generic[M]):
         return sum(f.width for f in self.fields if f.since <= version)
 
     @cached_property
+    def plan(self) -> tuple[tuple[str, WireFormat[Any], int, NmeaVersion], ...]:
+        """(name, wire format, width, since) of every field: what the walker reads per
+        sentence, looked up once."""
+        return tuple((f.name, f.wire, f.width, f.since) for f in self.fields)
+
+    @cached_property
     def version_by_width(self) -> dict[int, NmeaVersion]:
         """Each field count the sentence has had, with the first version that had it."""
         out: dict[int, NmeaVersion] = {}
@@ -145,14 +151,14 @@ def decode_fields(spec: SentenceSpec[M], payload: Sequence[str], talker: str) ->
                       f"{spec.kind}: {len(payload)} fields, expected {widths}")
     values: dict[str, Any] = {} if spec.proprietary else {"talker": talker}
     start = 0
-    for f in spec.fields:
-        if f.since > version:
-            values[f.name] = None
+    for name, wire, width, since in spec.plan:
+        if since > version:
+            values[name] = None
             continue
-        tokens = payload[start:start + f.width]
-        start += f.width
+        tokens = payload[start:start + width]
+        start += width
         try:
-            values[f.name] = f.wire.decode(tokens)
+            values[name] = wire.decode(tokens)
         except DecodeError as err:
-            raise RefusedError(Refusal.FIELD_VALUE, f"{spec.kind}.{f.name}: {err}") from err
+            raise RefusedError(Refusal.FIELD_VALUE, f"{spec.kind}.{name}: {err}") from err
     return spec.build(**values)

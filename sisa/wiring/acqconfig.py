@@ -7,7 +7,7 @@ from __future__ import annotations
 from acquisition.runner import AcquisitionConfig
 from acquisition.syncfilter import SyncFilterConfig
 from emulators.block import resolve_one_of_n
-from emulators.scenario import Scenario
+from emulators.scenario import ReceiverModel, Scenario
 from recorder.settings import HEADER_WINDOW_KEY, READ_INTERVAL_KEY
 
 
@@ -30,7 +30,8 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
                              ins_rate_hz=scn.ins.rate_hz, nmea_rate_hz=scn.gps.nmea_rate_hz,
                              line_rate_hz=1e9 / line_period_ns,
                              read_interval_ns=round(scn.sisa.read_interval_ms * 1e6),
-                             accept_nmea_without_checksum=scn.sisa.accept_nmea_without_checksum)
+                             accept_nmea_without_checksum=scn.sisa.accept_nmea_without_checksum,
+                             gps_ubx=scn.gps.receiver is ReceiverModel.UBLOX_F9P)
 
 
 def recording_settings(config: AcquisitionConfig) -> dict[str, str]:

@@ -428,6 +428,12 @@ class Acquisition:
         self._link_event(t_host_ns, source, "link_restored", lost_t_host_ns, t_host_ns,
                          f"reopened after {attempts} attempt(s)")
 
+    def on_link_rejected(self, t_host_ns: int, source: str, lost_t_host_ns: int,
+                         why: str) -> None:
+        """The device's port opened again with something else behind it: given up (the
+        device is still away), logged at once with why."""
+        self._link_event(t_host_ns, source, "link_rejected", lost_t_host_ns, -1, why)
+
     def _link_event(self, t_host_ns: int, source: str, event: str, lost_ns: int,
                     restored_ns: int, detail: str) -> None:
         counters = [self.streams[name] for name in SOURCE_STREAMS[source]]

@@ -80,6 +80,21 @@ def _header_from_body(body: bytes) -> FrameHeader | None:
                        ScannerMode(raws["mode"]), raws["segment"], raws["bands"])
 
 
+def first_header(data: bytes) -> int:
+    """Where in `data` the first whole, valid header begins (its CRC holds, its values are in
+    range), or -1: how a port proves it is the scanner before anything of it is recorded."""
+    start = data.find(SYNC)
+    while 0 <= start <= len(data) - HEADER_BYTES:
+        checked = data[start + len(SYNC):start + HEADER_BYTES - CRC_BYTES]
+        crc = int.from_bytes(data[start + HEADER_BYTES - CRC_BYTES:start + HEADER_BYTES],
+                             "little")
+        if (checked[0] == BODY.size_bytes and crc16_ccitt_false(checked) == crc
+                and _header_from_body(checked[1:]) is not None):
+            return start
+        start = data.find(SYNC, start + 1)
+    return -1
+
+
 class HeaderStreamDecoder:
     """Finds headers in a byte stream cut anywhere, resynchronising after garbage or damage.
 

@@ -232,12 +232,13 @@ class StreamHealth(LoggedMessage):
     bytes_skipped: int
     drops: int
     deadline_misses: int
-    event: str = ""  # "" a periodic report | "link_lost" | "link_restored"
+    event: str = ""  # "" a periodic report | "link_lost" | "link_restored" | "link_rejected"
     link_lost_ns: int = -1  # host time the device went away (events; reports while it is away)
     link_restored_ns: int = -1  # host time it came back (link_restored events)
     disconnects: int = 0  # times the device went away since the recording started
     reconnects: int = 0  # times it came back
-    link_error: str = ""  # link_lost: why (the read error); link_restored: the reopen attempts
+    link_error: str = ""  # link_lost: why (the read error); link_restored: the reopen attempts;
+    # link_rejected: why the reopened port is not the device
     # the checksum and framing errors again, by reason (e.g. "nmea.no_checksum": 3): the
     # decoder's reason names, sorted, and the count of each (a report from before has none)
     refused_reasons: list[str] = dataclasses.field(default_factory=list)

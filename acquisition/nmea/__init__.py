@@ -29,6 +29,7 @@ from acquisition.nmea.codec import (
     ChecksumError,
     decode_sentence,
     encode,
+    first_checked_sentence,
 )
 from acquisition.nmea.gpstime import (
     gga_from_fix,
@@ -70,7 +71,8 @@ __all__ = [
     "EncodeError", "FixQuality", "Gga", "Gns", "Gst", "KnownMessage", "ModeIndicator",
     "NavStatus", "NmeaFramer", "NmeaMessage", "NmeaStreamDecoder", "NmeaVersion", "PashrPtt",
     "PashrTtt", "Refusal", "Rmc", "RmcStatus", "SentenceKind", "SentenceSpec", "Talker", "Unit",
-    "UnknownSentence", "Zda", "checksum", "decode_sentence", "encode", "gga_from_fix",
+    "UnknownSentence", "Zda", "checksum", "decode_sentence", "encode", "first_checked_sentence",
+    "gga_from_fix",
     "gps_ns_from_time_of_week", "gps_ns_from_utc", "gps_ns_from_utc_time_of_day",
     "message_kind", "ptt_from_gps_ns", "rmc_from_fix", "ttt_from_gps_ns", "zda_from_gps_ns",
 ]

@@ -122,3 +122,17 @@ def decode_sentence(raw: bytes, *, accept_missing_checksum: bool = False) -> Nme
     except RefusedError as err:
         raise RefusedError(err.reason, str(err), kind=err.kind, raw=raw) from err
     return UnknownSentence(address, tuple(tokens[1:]))
+
+
+_CHECKED_SENTENCE = re.compile(rb"\$([\x20-\x23\x25-\x7e]{1,%d}?)\*([0-9A-Fa-f]{2})\r?\n"
+                               % (MAX_SENTENCE_BYTES - 6))
+
+
+def first_checked_sentence(data: bytes) -> int:
+    """Where in `data` the first whole sentence whose `*hh` checksum holds begins, or -1 (any
+    sentence, known to the decoder or not): how a port proves it is a receiver speaking
+    NMEA before anything of it is recorded."""
+    for match in _CHECKED_SENTENCE.finditer(data):
+        if checksum(match[1]) == int(match[2], 16):
+            return match.start()
+    return -1

@@ -7,7 +7,13 @@ binary layouts, and a stream decoder for UBX interleaved with NMEA on one port.
 - `stream`: the framer, and the NMEA + UBX stream decoder.
 """
 
-from acquisition.ubx.frame import MAX_PAYLOAD_BYTES, UbxRefusal, encode_frame, fletcher8
+from acquisition.ubx.frame import (
+    MAX_PAYLOAD_BYTES,
+    UbxRefusal,
+    encode_frame,
+    first_ubx_frame,
+    fletcher8,
+)
 from acquisition.ubx.messages import (
     TIM_TM2,
     TIM_TP,
@@ -29,6 +35,6 @@ from acquisition.ubx.stream import GpsMessage, NmeaUbxStreamDecoder, UbxFramer
 __all__ = [
     "MAX_PAYLOAD_BYTES", "TIM_TM2", "TIM_TP", "UBX_SPECS", "GpsMessage", "NmeaUbxStreamDecoder",
     "TimTm2", "TimTp", "TimeBase", "UbxFramer", "UbxMessage", "UbxName", "UbxRefusal",
-    "UnknownUbx", "decode_ubx", "encode_frame", "encode_ubx", "fletcher8", "tim_tm2_from_gps_ns",
-    "tim_tp_for_pulse", "ubx_name",
+    "UnknownUbx", "decode_ubx", "encode_frame", "encode_ubx", "first_ubx_frame", "fletcher8",
+    "tim_tm2_from_gps_ns", "tim_tp_for_pulse", "ubx_name",
 ]

@@ -95,3 +95,16 @@ def cut_frame(buffer: bytearray, start: int, at_end: bool) -> Cut:
         return Cut(Verdict.DAMAGED, len(SYNC), UbxRefusal.CHECKSUM, "UBX checksum mismatch",
                    kind=ErrorKind.CHECKSUM, shadow=total)
     return Cut(Verdict.WHOLE, total)
+
+
+def first_ubx_frame(data: bytes) -> int:
+    """Where the first whole UBX frame whose Fletcher checksum holds begins, or -1: how a port
+    proves it is a u-blox receiver before anything of it is recorded."""
+    start = data.find(SYNC)
+    while 0 <= start <= len(data) - HEADER_BYTES - CHECKSUM_BYTES:
+        end = (start + HEADER_BYTES + CHECKSUM_BYTES
+               + int.from_bytes(data[start + LENGTH_AT:start + HEADER_BYTES], "little"))
+        if end <= len(data) and bytes(fletcher8(data[start + 2:end - 2])) == data[end - 2:end]:
+            return start
+        start = data.find(SYNC, start + 1)
+    return -1

@@ -201,7 +201,8 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
 
 def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEvent,
                 down: set[Source]) -> None:
-    """A device went away or came back: into the health channel, and said on stderr."""
+    """A device went away, came back, or its port opened with something else behind it: into
+    the health channel, and said on stderr."""
     from acquisition.live import LinkState
 
     if event.state is LinkState.LOST:
@@ -209,6 +210,10 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
         acq.on_link_lost(t_host_ns, str(source), event.error)
         print(f"sisa record: {source} lost ({event.error}); reconnecting", file=sys.stderr,
               flush=True)
+    elif event.state is LinkState.REJECTED:
+        acq.on_link_rejected(t_host_ns, str(source), event.lost_t_host_ns, event.error)
+        print(f"sisa record: {source} not reconnected: {event.error}; still waiting for the "
+              f"{source}", file=sys.stderr, flush=True)
     else:
         down.discard(source)
         acq.on_link_restored(t_host_ns, str(source), event.lost_t_host_ns, event.attempts)

@@ -262,7 +262,7 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
     the recorder ends on a stop, not on its devices going away (no disconnects logged, and no
     wait for it to give them up). If the recorder ends first (it failed), the emulator is
     stopped at once rather than left to play out the scenario; if the emulator ends without
-    holding, both just end."""
+    holding (it failed), the recorder, which would wait for its devices, is stopped."""
     assert emu.stdout is not None
     held = threading.Event()
 
@@ -277,7 +277,7 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
         held.set()
         time.sleep(drain_s)
         return _stop(rec, ask=True), _stop(emu, ask=True)
-    return _stop(rec), _stop(emu)
+    return _stop(rec, ask=True), _stop(emu)
 
 
 def _stop(proc: subprocess.Popen[str], grace_s: float = 15.0, *, ask: bool = False) -> Ended:

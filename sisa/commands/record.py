@@ -31,10 +31,14 @@ if TYPE_CHECKING:
 
 STATUS_PERIOD_S = 1.0
 TICK_S = 0.1
-# A device that goes away is reopened by its reader while the others keep recording; the
-# recording ends on Ctrl-C / SIGTERM / --duration, or when *every* device has been away with
-# nothing arriving for this long (the flight, or the emulator feeding the bench, is over).
-ALL_GONE_STOP_S = 10.0
+# A device that goes away is reopened by its reader while the others keep recording, however
+# long it stays away (a USB hub reset in flight must not end the flight's recording): the
+# recording ends on Ctrl-C / SIGTERM / --duration, or, with --give-up-after, when every device
+# has been away that long. Devices away are said on stderr when they go, and again this long
+# after the first of them went, then every AWAY_REPEAT_S.
+AWAY_REMIND_S = 10.0
+AWAY_REPEAT_S = 60.0
+ENDED_ON_LOSS = 3  # the exit code of a recording that ended with a device away
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -43,6 +47,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                          "sisa record --gps /dev/pts/4 --scanner /dev/pts/5 "
                          "--ins slcan:/dev/pts/6 --pulses tcp://127.0.0.1:40211 "
                          "--out runs/flight.mcap")
+    parser.epilog = (f"exit {ENDED_ON_LOSS} if the recording ended with a device away (its "
+                     "data since are missing): devices that go away are reopened until they "
+                     f"come back or the recording is stopped\n\n{parser.epilog}")
     parser.add_argument("--gps", help="GPS receiver serial port")
     parser.add_argument("--scanner", help="scanner frame-header serial port")
     parser.add_argument("--ins", help="INS CAN bus as INTERFACE:CHANNEL (slcan:/dev/pts/6, "
@@ -55,6 +62,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--split-mb", type=float, default=None,
                         help="start a new file every N MB")
     parser.add_argument("--duration", type=float, default=None, help="stop after N seconds")
+    parser.add_argument("--give-up-after", type=float, default=None, metavar="SECONDS",
+                        help="end the recording when every device has been away this long "
+                        f"(exit {ENDED_ON_LOSS}); default: never, it keeps reconnecting until "
+                        "stopped")
     parser.add_argument("--quiet", action="store_true", help="no live status, summary only")
     # sisa bench records into a scratch folder renamed at the end: the status names the final one
     parser.add_argument("--shown-as", type=Path, default=None, help=argparse.SUPPRESS)
@@ -87,13 +98,17 @@ def _run(args: argparse.Namespace) -> int:
                                       **recording_settings(config)}) as rec:
             acq = Acquisition(config, rec.write, sources.send_edge,
                               pulse_stats=sources.pulse_stats)
-            _loop(acq, sources, stop, args)
+            away = _loop(acq, sources, stop, args)
     except RecorderError as exc:  # a recording is kept whatever happens: say how to use it
         raise RecorderError(f"{exc}; the file is readable up to its last complete chunk and "
                             "`sisa log recover` makes it whole") from exc
     finally:
         sources.close()
     _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)
+    if away:
+        print(f"sisa record: recording ended with {away}: what it sent since is missing "
+              f"(exit {ENDED_ON_LOSS})", file=sys.stderr, flush=True)
+        return ENDED_ON_LOSS
     return 0
 
 
@@ -107,6 +122,9 @@ MAX_SPLIT_MB = 1e9  # a petabyte; larger overflowed the byte count (1e308)
 def _check_options(args: argparse.Namespace) -> None:
     if args.duration is not None and args.duration <= 0:
         raise InputError(f"--duration {args.duration:g}: must be > 0 seconds")
+    if args.give_up_after is not None and args.give_up_after <= 0:
+        raise InputError(f"--give-up-after {args.give_up_after:g}: must be > 0 seconds (leave "
+                         "it out to keep reconnecting until stopped)")
     if args.split_minutes is not None and args.split_minutes < MIN_SPLIT_MINUTES:
         raise InputError(f"--split-minutes {args.split_minutes:g}: must be at least "
                          f"{MIN_SPLIT_MINUTES:g}")
@@ -160,7 +178,8 @@ def _install_stop_handlers() -> list[bool]:
 
 
 def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
-          args: argparse.Namespace) -> None:
+          args: argparse.Namespace) -> str:
+    """Record until stopped; what was away at the end ("" if nothing was), in words."""
     from acquisition.clocks import wall_clock_ns
     from acquisition.handover import Handover
     from acquisition.live import LinkEvent
@@ -169,17 +188,18 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
     handover = Handover(acq)
     started = time.monotonic()
     next_tick = next_status = started
-    down: set[Source] = set()
-    last_arrival = started
+    down: dict[Source, float] = {}  # the devices away, since when (monotonic)
+    remind_at = 0.0
     while not stop[0]:
         arrivals = sources.poll(TICK_S / 2)
         now = time.monotonic()
         for item in arrivals:
             if isinstance(item.payload, LinkEvent):
                 handover.flush()
-                _link_event(acq, item.t_host_ns, item.source, item.payload, down)
+                _link_event(acq, item.t_host_ns, item.source, item.payload, down, now)
+                if not down:
+                    remind_at = 0.0
             else:
-                last_arrival = now
                 handover.put(item)
         if now >= next_tick:
             handover.tick(wall_clock_ns())
@@ -189,24 +209,39 @@ def _loop(acq: Acquisition, sources: LiveSources, stop: list[bool],
             next_status = now + STATUS_PERIOD_S
         if args.duration is not None and now - started >= args.duration:
             break
-        if down >= sources.open_sources and now - last_arrival > ALL_GONE_STOP_S:
-            # every device has gone away and stayed away: the flight is over
-            print(f"sisa record: every device away for {ALL_GONE_STOP_S:g} s: recording "
-                  "ended", file=sys.stderr, flush=True)
-            break
+        if down:
+            every = down.keys() >= sources.open_sources
+            all_away_s = now - max(down.values())  # since the last of them went
+            if every and args.give_up_after is not None and all_away_s >= args.give_up_after:
+                print(f"sisa record: every device away for {args.give_up_after:g} s "
+                      "(--give-up-after): recording ended", file=sys.stderr, flush=True)
+                break
+            remind_at = remind_at or min(down.values()) + AWAY_REMIND_S
+            if now >= remind_at:
+                print(f"sisa record: WARNING: {_away(down, now)}"
+                      f"{' (every device)' if every else ''}: still recording and "
+                      "reconnecting; Ctrl-C ends the recording", file=sys.stderr, flush=True)
+                remind_at = now + AWAY_REPEAT_S
     handover.flush()
     acq.finish(wall_clock_ns())
     status.close()
+    return _away(down, time.monotonic())
+
+
+def _away(down: dict[Source, float], now: float) -> str:
+    """The devices away and for how long, in words ("" if none)."""
+    return ", ".join(f"{source} away for {now - since:.1f} s"
+                     for source, since in sorted(down.items(), key=lambda item: item[1]))
 
 
 def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEvent,
-                down: set[Source]) -> None:
+                down: dict[Source, float], now: float) -> None:
     """A device went away, came back, or its port opened with something else behind it: into
     the health channel, and said on stderr."""
     from acquisition.live import LinkState
 
     if event.state is LinkState.LOST:
-        down.add(source)
+        down[source] = now
         acq.on_link_lost(t_host_ns, str(source), event.error)
         print(f"sisa record: {source} lost ({event.error}); reconnecting", file=sys.stderr,
               flush=True)
@@ -215,7 +250,7 @@ def _link_event(acq: Acquisition, t_host_ns: int, source: Source, event: LinkEve
         print(f"sisa record: {source} not reconnected: {event.error}; still waiting for the "
               f"{source}", file=sys.stderr, flush=True)
     else:
-        down.discard(source)
+        down.pop(source, None)
         acq.on_link_restored(t_host_ns, str(source), event.lost_t_host_ns, event.attempts)
         away_s = (t_host_ns - event.lost_t_host_ns) / 1e9
         print(f"sisa record: {source} reconnected after {away_s:.1f} s", file=sys.stderr,

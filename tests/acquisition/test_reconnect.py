@@ -19,6 +19,7 @@ import time
 import tty
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -279,23 +280,109 @@ def test_can_channel_and_pulse_link_reconnect_while_gps_keeps_arriving(tmp_path:
     assert not any(isinstance(a.payload, LinkEvent) for a in everything if a.source is Source.GPS)
 
 
-def test_sisa_record_says_why_it_ends_when_every_device_stays_away(tmp_path: Path) -> None:
-    """Ending by itself (every device away for 10 s) looked like any other end: a summary and
-    exit 0, nothing saying why the recording stopped."""
+class StderrLines:
+    """A child's stderr, read as it comes (the test acts on what it said)."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        assert proc.stderr is not None
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(proc.stderr,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: Any) -> None:
+        for line in stream:
+            self.lines.append(line)
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+    def wait_for(self, needle: str, timeout_s: float, while_waiting: Callable[[], None]
+                 = lambda: None) -> None:
+        deadline = time.monotonic() + timeout_s
+        while needle not in self.text:
+            assert time.monotonic() < deadline, f"never said {needle!r}: {self.text}"
+            while_waiting()
+            time.sleep(0.1)
+
+    def join(self) -> str:
+        self._thread.join(timeout=10)
+        return self.text
+
+
+def _stop(proc: subprocess.Popen[str]) -> str:
+    """Ctrl-C; its stdout (its stderr is being read by a StderrLines)."""
+    proc.send_signal(signal.SIGINT)
+    assert proc.stdout is not None
+    stdout = proc.stdout.read()
+    proc.wait(timeout=20)
+    return stdout
+
+
+def _record(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "sisa.cli", "record", "--quiet", *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+
+
+def _wait_recording(out: Path, gps: PlugPty) -> None:
+    deadline = time.monotonic() + 20
+    while not out.exists() and time.monotonic() < deadline:  # its ports are open by then
+        gps.write(_nmea_epoch())
+        time.sleep(0.1)
+    for _ in range(5):
+        gps.write(_nmea_epoch())
+        time.sleep(0.1)
+
+
+def test_sisa_record_keeps_waiting_for_a_device_past_the_old_limit(tmp_path: Path) -> None:
+    """Every device away for 10 s ended the recording for good, exit 0: a USB hub reset in
+    flight lost the rest of the flight. Now it waits, says so, and takes the device back."""
     gps = PlugPty(tmp_path / "ttyGPS")
     out = tmp_path / "flight.mcap"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sisa.cli", "record", "--quiet", "--gps", str(gps.link),
-         "--out", str(out), "--duration", "60"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    proc = _record("--gps", str(gps.link), "--out", str(out), "--duration", "60")
+    err = StderrLines(proc)
     try:
-        deadline = time.monotonic() + 20
-        while not out.exists() and time.monotonic() < deadline:  # its ports are open by then
+        _wait_recording(out, gps)
+        gps.unplug()
+        err.wait_for("gps lost", 5)
+        lost_at = time.monotonic()
+        err.wait_for("WARNING: gps away for", 15)
+        while time.monotonic() - lost_at < 11.0:  # past the old limit
+            time.sleep(0.2)
+        assert proc.poll() is None, err.text  # still recording
+        gps.plug()
+        err.wait_for("gps reconnected", 10, lambda: gps.write(_nmea_epoch()))
+        for _ in range(10):
             gps.write(_nmea_epoch())
             time.sleep(0.1)
-        for _ in range(5):
-            gps.write(_nmea_epoch())
-            time.sleep(0.1)
+        stdout = _stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        with contextlib.suppress(FileNotFoundError):
+            gps.unplug()
+    stderr = err.join()
+    assert proc.returncode == 0, stderr
+    assert "every device away" not in stderr
+    assert "WARNING: gps away for 1" in stderr  # 10.x s: said once every minute from then
+    assert "still recording and reconnecting" in stderr
+    assert "1 disconnects, 1 reconnects" in stdout, stdout
+    fixes_t = np.array([f.t_host_ns for f in read_messages(out, GpsFix)])
+    back = [h for h in read_messages(out, StreamHealth) if h.event == "link_restored"]
+    assert len(back) == 1
+    assert (back[0].link_restored_ns - back[0].link_lost_ns) / NS_PER_S > 10.5
+    assert (fixes_t > back[0].link_restored_ns).sum() >= 5
+
+
+def test_give_up_after_ends_a_recording_on_loss_with_exit_3(tmp_path: Path) -> None:
+    """The old end on loss, now only when asked for, and no longer a success."""
+    gps = PlugPty(tmp_path / "ttyGPS")
+    out = tmp_path / "flight.mcap"
+    proc = _record("--gps", str(gps.link), "--out", str(out), "--duration", "60",
+                   "--give-up-after", "1")
+    try:
+        _wait_recording(out, gps)
         gps.unplug()
         started = time.monotonic()
         stdout, stderr = proc.communicate(timeout=30)
@@ -306,7 +393,36 @@ def test_sisa_record_says_why_it_ends_when_every_device_stays_away(tmp_path: Pat
             proc.communicate()
         with contextlib.suppress(FileNotFoundError):
             gps.unplug()
-    assert proc.returncode == 0, stderr
-    assert 9.5 < ended_after_s < 20, ended_after_s
-    assert "every device away for 10 s: recording ended" in stderr, stderr
+    assert proc.returncode == 3, stderr
+    assert 0.9 < ended_after_s < 8, ended_after_s
+    assert "every device away for 1 s (--give-up-after): recording ended" in stderr, stderr
+    assert "sisa record: recording ended with gps away for " in stderr, stderr
     assert "recorded " in stdout, stdout
+    assert [h.event for h in read_messages(out, StreamHealth) if h.event] == ["link_lost"]
+
+
+def test_a_recording_stopped_while_a_device_is_away_exits_3(tmp_path: Path) -> None:
+    gps = PlugPty(tmp_path / "ttyGPS")
+    ins = InsDevice(tmp_path / "ttyINS")
+    out = tmp_path / "flight.mcap"
+    proc = _record("--gps", str(gps.link), "--ins", f"slcan:{ins.link}", "--out", str(out))
+    err = StderrLines(proc)
+    feeders: list[Feeder] = []
+    try:
+        ins.wait_open()
+        feeders = [Feeder(0.02, ins.send_record)]
+        _wait_recording(out, gps)
+        gps.unplug()
+        err.wait_for("gps lost", 5)
+        _stop(proc)
+    finally:
+        for feeder in feeders:
+            feeder.stop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        ins.unplug()
+    stderr = err.join()
+    assert proc.returncode == 3, stderr
+    assert "recording ended with gps away for " in stderr, stderr
+    assert "ins away" not in stderr

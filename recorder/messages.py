@@ -237,8 +237,7 @@ class StreamHealth(LoggedMessage):
     link_restored_ns: int = -1  # host time it came back (link_restored events)
     disconnects: int = 0  # times the device went away since the recording started
     reconnects: int = 0  # times it came back
-    link_error: str = ""  # link_lost: why (the read error); link_restored: the reopen attempts;
-    # link_rejected: why the reopened port is not the device
+    link_error: str = ""  # why it went (lost) or is not the device (rejected); reopen attempts
     # the checksum and framing errors again, by reason (e.g. "nmea.no_checksum": 3): the
     # decoder's reason names, sorted, and the count of each (a report from before has none)
     refused_reasons: list[str] = dataclasses.field(default_factory=list)

@@ -24,6 +24,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from emulators.block import STANDARD_GRAVITY_MPS2, block_extent_en_m, strip_lines
 from recorder.settings import DEFAULT_HEADER_WINDOW_MS
+from sisa.core.bounded import read_settings_text, toml_loads
 from sisa.core.errors import ConfigError, one_line_text_problem
 from sisa.core.sensor import (
     Mounting,
@@ -614,7 +615,8 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ConfigError(f"no preset or scenario file named {text!r} (presets: "
                           f"{', '.join(PRESETS)})")
     try:
-        table = tomllib.loads(path.read_text("utf-8"))
-    except (OSError, ValueError) as exc:  # TOMLDecodeError, bad UTF-8, an int > 4300 digits
+        table = toml_loads(read_settings_text(path))
+    except (OSError, ValueError) as exc:  # TOMLDecodeError, bad UTF-8, an int > 4300 digits,
+        # nested too deep, too large
         raise ConfigError(f"{path}: not a readable TOML file: {exc}") from None
     return scenario_from_table(table, source=str(path))

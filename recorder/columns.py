@@ -7,7 +7,7 @@ from __future__ import annotations
 import base64
 import json
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -16,12 +16,13 @@ import numpy.typing as npt
 from recorder.framing import Paths
 from recorder.messages import Topic
 from recorder.parts import MissingPartWarning
-from recorder.reader import BATCH, JSON_ERRORS, LogReader, schema_properties
+from recorder.reader import BATCH, JSON_ERRORS, LogReader, decoding_problem, schema_properties
 from recorder.stats import ChannelInfo, DamagedLogWarning, LogStats, damage_notes
 from recorder.writer import (
     SCHEMAS,
     TOPIC_TYPES,
 )
+from sisa.core.bounded import json_loads
 from sisa.core.errors import DecodeError
 
 Column = tuple[str, tuple[str, ...], Any]  # column name, path into the JSON object, numpy dtype
@@ -77,17 +78,39 @@ class _ColumnBuilder:
         self.parts: dict[str, list[npt.NDArray[Any]]] = {"log_time_ns": []}
         self.parts.update({name: [] for name, _, _ in self.columns})
 
-    def add_batch(self, log_times: list[int], datas: list[bytes]) -> None:
+    def add_batch(self, log_times: list[int], datas: list[bytes],
+                  on_bad: Callable[[int, str], None]) -> None:
+        """One batch of messages into the columns; a message that does not decode, or does
+        not match the columns' types, is skipped, and said to `on_bad(log_time, why)`."""
         try:
-            objs = json.loads(b"[" + b",".join(datas) + b"]")
-            arrays = {name: _to_array(_column_values(objs, path), dtype, path[0] in self.b64)
-                      for name, path, dtype in self.columns}
+            objs = json.loads(b"[" + b",".join(datas) + b"]")  # at once: the usual case
+            if len(objs) != len(datas):
+                raise ValueError("a message holds more than one JSON value")
+            arrays = self._arrays(objs)
             times = np.array(log_times, dtype=np.int64)
-        except JSON_ERRORS as exc:
-            raise DecodeError(f"a message does not match its schema: {exc}") from None
+        except JSON_ERRORS:  # one at a time, each bounded, the bad ones left out
+            objs, kept = [], []
+            for log_time, data in zip(log_times, datas, strict=True):
+                try:
+                    if not 0 <= log_time < 2**63:
+                        raise ValueError(f"log time {log_time} past int64")
+                    obj = json_loads(data)
+                    self._arrays([obj])  # its values are of the columns' types
+                except JSON_ERRORS as exc:
+                    on_bad(log_time, decoding_problem(exc))
+                    continue
+                objs.append(obj)
+                kept.append(log_time)
+            arrays, times = self._arrays(objs), np.array(kept, dtype=np.int64)
         self.parts["log_time_ns"].append(times)
         for name, arr in arrays.items():
             self.parts[name].append(arr)
+
+    def _arrays(self, objs: list[Any]) -> dict[str, npt.NDArray[Any]]:
+        if not all(isinstance(obj, dict) for obj in objs):
+            raise TypeError("a message is no JSON object")
+        return {name: _to_array(_column_values(objs, path), dtype, path[0] in self.b64)
+                for name, path, dtype in self.columns}
 
     def result(self) -> dict[str, npt.NDArray[Any]]:
         out: dict[str, npt.NDArray[Any]] = {}
@@ -126,20 +149,22 @@ class _TopicBatches:
         self.times: list[int] = []
         self.datas: list[bytes] = []
 
-    def add(self, channel: ChannelInfo, log_time: int, data: bytes) -> None:
+    def add(self, channel: ChannelInfo, log_time: int, data: bytes,
+            on_bad: Callable[[int, str], None]) -> None:
         if self.builder is None:
             self.builder = _ColumnBuilder(schema_properties(channel) or {}, self.fields)
         self.times.append(log_time)
         self.datas.append(data)
         if len(self.datas) >= BATCH:
-            self.builder.add_batch(self.times, self.datas)
+            self.builder.add_batch(self.times, self.datas, on_bad)
             self.times, self.datas = [], []
 
-    def result(self, topic: str) -> dict[str, npt.NDArray[Any]]:
+    def result(self, topic: str, on_bad: Callable[[int, str], None]
+               ) -> dict[str, npt.NDArray[Any]]:
         if self.builder is None:
             self.builder = _ColumnBuilder(_known_props(topic), self.fields)
         if self.datas:
-            self.builder.add_batch(self.times, self.datas)
+            self.builder.add_batch(self.times, self.datas, on_bad)
         columns = self.builder.result()
         missing = [f for f in self.fields or () if f not in columns]
         if missing:
@@ -151,29 +176,37 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
                 notes: list[str] | None = None) -> dict[str, dict[str, npt.NDArray[Any]]]:
     """Several topics as numpy columns in ONE streaming pass (each pass over a long log costs
     seconds): {topic: {field: array}} for the wanted fields (None: all), plus `log_time_ns`.
-    A topic that never appears gives empty typed arrays; a message lacking a wanted field, or
-    with a value of the wrong type, raises DecodeError. What could not be read (a file cut
-    short, damaged chunks) is said as a DamagedLogWarning, the parts of a split recording that
-    are not given as a MissingPartWarning, or either appended to `notes` if given (for a
-    caller that reports its own warnings)."""
+    A topic that never appears gives empty typed arrays; a schema without a wanted field raises
+    DecodeError; a message that does not decode (lacking a field, a value of the wrong type,
+    JSON nested past the bound) is skipped and counted (`LogStats.undecodable`), never fatal.
+    What could not be read (a file cut short, damaged chunks, messages skipped) is said as a
+    DamagedLogWarning, the parts of a split recording that are not given as a
+    MissingPartWarning, or either appended to `notes` if given (for a caller that reports its
+    own warnings)."""
     batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
     reader = LogReader(path_or_paths)
     topic = ""
+
+    def on_bad(log_time: int, why: str) -> None:
+        reader.stats.note_bad(topic, log_time, why)
+
     try:  # an error names the file (the part being read) and the topic
         for channel, msg in reader.raw():
             batch = batches.get(channel.topic)
             if batch is not None:
                 topic = channel.topic
-                batch.add(channel, msg.log_time, msg.data)
+                batch.add(channel, msg.log_time, msg.data, on_bad)
         out = {}
         for topic, batch in batches.items():
-            out[topic] = batch.result(topic)
+            out[topic] = batch.result(topic, on_bad)
     except DecodeError as exc:
         where = reader.stats.files[-1].path if reader.stats.files else reader.paths[0]
         raise DecodeError(f"{where}: {topic}: {exc}", raw=exc.raw) from None
     said: list[tuple[str, type[UserWarning]]] = [
         (note, MissingPartWarning) for note in reader.stats.part_notes]
     said += [(note, DamagedLogWarning) for fs in reader.stats.files for note in damage_notes(fs)]
+    if (bad := reader.stats.bad_note()) is not None:
+        said.append((f"{reader.paths[0]}: {bad}", DamagedLogWarning))
     for note, kind in said:
         if notes is not None:
             notes.append(note)

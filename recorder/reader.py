@@ -33,7 +33,6 @@ Why it is built this way:
 from __future__ import annotations
 
 import base64
-import json
 from array import array
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -49,7 +48,9 @@ from recorder.framing import DEFAULT_RECORD_SIZE_LIMIT, Paths, log_paths, open_l
 from recorder.messages import LoggedMessage, Topic
 from recorder.parts import PART_OVERLAP_TOLERANCE_NS, split_set
 from recorder.stats import SEQUENCE_MOD, ChannelInfo, FileStats, LogStats, TopicStats, fill_timing
-from sisa.core.errors import DecodeError, InputError
+from recorder.writer import MESSAGE_ENCODING
+from sisa.core.bounded import MAX_NESTING, json_loads
+from sisa.core.errors import DecodeError, InputError, shown_text
 
 BATCH: Final = 4096
 
@@ -85,7 +86,8 @@ class LogReader:
         for channel, msg in self.raw():
             obj = decoders.decode(channel, msg.data)
             if obj is None:
-                self.stats.undecodable += 1
+                self.stats.note_bad(channel.topic, msg.log_time,
+                                    decoders.problem(channel, msg.data) or "does not decode")
                 continue
             yield channel.topic, msg.log_time, obj
 
@@ -148,8 +150,8 @@ def schema_properties(channel: ChannelInfo) -> dict[str, Any] | None:
     if channel.schema_encoding != "jsonschema":
         return None
     try:
-        props = json.loads(channel.schema_data).get("properties")
-    except (ValueError, AttributeError, RecursionError):
+        props = json_loads(channel.schema_data).get("properties")
+    except (ValueError, AttributeError):
         return None
     return props if isinstance(props, dict) else None
 
@@ -169,17 +171,21 @@ class _Decoder:
 
     def __call__(self, data: bytes) -> dict[str, Any] | None:
         try:
-            obj = json.loads(data)
-            if not isinstance(obj, dict):
-                return None
-            for name in self.b64:
-                obj[name] = base64.b64decode(obj[name])
-            if self.numbers and (b'"NaN"' in data or b'Infinity"' in data):
-                for name in self.numbers:
-                    if isinstance(obj.get(name), str):
-                        obj[name] = float(obj[name])
+            return self.decode(data)
         except JSON_ERRORS:
             return None
+
+    def decode(self, data: bytes) -> dict[str, Any]:
+        """The message's fields; one of JSON_ERRORS saying why it does not decode."""
+        obj = json_loads(data)  # nesting bounded
+        if not isinstance(obj, dict):
+            raise TypeError(f"a JSON {type(obj).__name__}, not an object")
+        for name in self.b64:
+            obj[name] = base64.b64decode(obj[name])
+        if self.numbers and (b'"NaN"' in data or b'Infinity"' in data):
+            for name in self.numbers:
+                if isinstance(obj.get(name), str):
+                    obj[name] = float(obj[name])
         return obj
 
 
@@ -195,6 +201,50 @@ class _Decoders:
             self._by_schema[key] = _Decoder.for_channel(channel)
         decoder = self._by_schema[key]
         return decoder(data) if decoder is not None else None
+
+    def problem(self, channel: ChannelInfo, data: bytes) -> str | None:
+        """Why a message does not decode, in words (None if it does, or is not JSON)."""
+        self.decode(channel, data)
+        decoder = self._by_schema[(channel.message_encoding, channel.schema_encoding,
+                                   channel.schema_data)]
+        if decoder is None:
+            return None
+        try:
+            decoder.decode(data)
+        except JSON_ERRORS as exc:
+            return decoding_problem(exc)
+        return None
+
+
+class MessageCheck:
+    """Why a message does not decode, or None (`sisa log recover` asks it of every message)."""
+
+    def __init__(self) -> None:
+        self._decoders = _Decoders()
+
+    def __call__(self, channel: ChannelInfo, data: bytes) -> str | None:
+        return self._decoders.problem(channel, data)
+
+
+def decoding_problem(exc: BaseException) -> str:
+    """A decoding error in a few words (never the message's own text at length)."""
+    if isinstance(exc, KeyError):
+        return f"no field {shown_text(str(exc.args[0]) if exc.args else '', 40)}"
+    return shown_text(str(exc), 100) or type(exc).__name__
+
+
+def message_problem(data: bytes) -> str | None:
+    """Why a JSON message could not be read by any SISA reader, for a check of every message
+    that must stay cheap (`scan_log`): nesting beyond the bound (a message with more brackets
+    than the bound allows is decoded to find out: no message of SISA's has more than a few),
+    or None."""
+    if data.count(b"[") + data.count(b"{") <= MAX_NESTING:
+        return None
+    try:
+        obj = json_loads(data)
+    except JSON_ERRORS as exc:
+        return decoding_problem(exc)
+    return None if isinstance(obj, dict) else f"a JSON {type(obj).__name__}, not an object"
 
 
 def read_log(path_or_paths: Paths) -> Iterator[tuple[str, int, dict[str, Any]]]:
@@ -212,8 +262,13 @@ def scan_log(path_or_paths: Paths) -> LogStats:
             report = decoders.decode(channel, msg.data)
             if report is None:
                 health.unreadable += 1
+                reader.stats.note_bad(channel.topic, msg.log_time,
+                                      decoders.problem(channel, msg.data) or "does not decode")
             else:
                 health.add(report)
+        elif channel.message_encoding == MESSAGE_ENCODING and (
+                why := message_problem(msg.data)) is not None:
+            reader.stats.note_bad(channel.topic, msg.log_time, why)
     return reader.stats
 
 

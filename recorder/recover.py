@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -18,7 +19,7 @@ from typing import BinaryIO
 from mcap.records import Message
 from mcap.writer import CompressionType, Writer
 
-from recorder.reader import LogReader
+from recorder.reader import LogReader, MessageCheck
 from recorder.stats import ChannelInfo, LogStats
 from recorder.writer import (
     DEFAULT_CHUNK_SIZE,
@@ -27,7 +28,7 @@ from recorder.writer import (
     link_new,
     refuse_existing,
 )
-from sisa.core.errors import InputError, RecorderError
+from sisa.core.errors import InputError, RecorderError, shown_text
 from sisa.core.outdir import partial_path
 
 
@@ -43,6 +44,9 @@ class RecoverReport:
     bytes_unreadable: int  # bytes of the input after its last complete record
     problems: list[str] = field(default_factory=list)
     bytes_skipped: int = 0  # bytes of damaged records and unreadable stretches read past
+    undecodable: int = 0  # messages read whole that do not decode ...
+    dropped: bool = False  # ... left out of the copy (else copied as they are)
+    undecodable_note: str = ""  # the first of them, in words
 
     def summary(self) -> str:
         """One line for the terminal."""
@@ -51,6 +55,13 @@ class RecoverReport:
         if self.bytes_skipped:
             skipped += f", {self.bytes_skipped} damaged bytes skipped"
         tail = f", {self.bytes_unreadable} bytes unreadable" if self.bytes_unreadable else ""
+        if self.undecodable:
+            n = self.undecodable
+            what = f"{n} message{'s' if n != 1 else ''} that do{'es' if n == 1 else ''} not decode"
+            tail += (f"; {what} left out ({self.undecodable_note})" if self.dropped else
+                     f"; {what} copied as {'it is' if n == 1 else 'they are'} "
+                     f"({self.undecodable_note}): --drop-undecodable leaves "
+                     f"{'it' if n == 1 else 'them'} out")
         return (f"{self.out_path}: {self.messages} messages on {len(self.topics)} topics from "
                 f"{self.chunks_read} chunks of {self.in_path} ({state}{skipped}{tail})")
 
@@ -94,8 +105,11 @@ class _Copier:
         self.mcap.finish()  # type: ignore[no-untyped-call]
 
 
-def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
-    """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`."""
+def recover(in_path: Path | str, out_path: Path | str, *, drop_undecodable: bool = False
+            ) -> RecoverReport:
+    """Copy every readable message of `in_path` into a new, complete MCAP file `out_path`;
+    with `drop_undecodable`, not those that do not decode (JSON nested past the bound, not an
+    object, a base64 field that is not base64), which every reader skips and counts."""
     src, out = Path(in_path), Path(out_path)
     try:
         refuse_existing(out)
@@ -103,10 +117,18 @@ def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
         raise InputError(f"{out}: cannot be used as a name: {exc.strerror or exc}") from None
     reader = LogReader(src)  # InputError if missing or not MCAP
     tmp = partial_path(out)
+    dropped: Counter[str] = Counter()
     try:
         with open(tmp, "xb") as fh:
             copier = _Copier(fh)
+            check = MessageCheck()
             for channel, msg in reader.raw():
+                why = check(channel, msg.data)
+                if why is not None:
+                    reader.stats.note_bad(channel.topic, msg.log_time, why)
+                    if drop_undecodable:
+                        dropped[channel.topic] += 1
+                        continue
                 copier.add(channel, msg)
             copier.finish(src, reader.stats)
             fh.flush()
@@ -118,12 +140,20 @@ def recover(in_path: Path | str, out_path: Path | str) -> RecoverReport:
         with contextlib.suppress(OSError):  # (none was made if its name was refused)
             tmp.unlink(missing_ok=True)
     fsync_dir(out.parent)
-    return _report(src, out, reader.stats)
+    return _report(src, out, reader.stats, dropped if drop_undecodable else None)
 
 
-def _report(src: Path, out: Path, stats: LogStats) -> RecoverReport:
+def _report(src: Path, out: Path, stats: LogStats, dropped: Counter[str] | None
+            ) -> RecoverReport:
     fs = stats.files[0]
-    return RecoverReport(src, out, stats.messages,
-                         {t: s.count for t, s in stats.topics.items()}, fs.chunks_read,
-                         fs.chunks_skipped, fs.complete, fs.bytes_unreadable, list(fs.problems),
-                         fs.bytes_skipped)
+    topics = Counter({t: s.count for t, s in stats.topics.items()})
+    topics.subtract(dropped or Counter())
+    kept = stats.messages - (dropped.total() if dropped else 0)
+    first = stats.bad[0] if stats.bad else None
+    note = "" if first is None else (f"{'the first: ' if stats.undecodable > 1 else ''}"
+                                     f"{shown_text(first.topic)} at log time "
+                                     f"{first.log_time_ns}: {first.why}")
+    return RecoverReport(src, out, kept, {t: n for t, n in topics.items() if n > 0},
+                         fs.chunks_read, fs.chunks_skipped, fs.complete, fs.bytes_unreadable,
+                         list(fs.problems), fs.bytes_skipped, stats.undecodable,
+                         dropped is not None, note)

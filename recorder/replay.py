@@ -23,7 +23,6 @@ from __future__ import annotations
 import base64
 import bisect
 import heapq
-import json
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -33,6 +32,7 @@ from recorder.framing import Paths
 from recorder.messages import CAN_EXTENDED_FLAG, Topic
 from recorder.reader import LogReader
 from recorder.stats import LogStats
+from sisa.core.bounded import json_loads
 from sisa.core.errors import InputError, shown_text
 
 REORDER_WINDOW_NS: Final = 2_000_000_000  # a CAN batch is written ≤ ~0.3 s after its first frame
@@ -163,7 +163,7 @@ class Survey:
 
 def _json(data: bytes) -> dict[str, Any] | None:
     try:
-        obj = json.loads(data)
+        obj = json_loads(data)  # nesting bounded: a hostile message is one skipped
     except ValueError:
         return None
     return obj if isinstance(obj, dict) else None

@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from recorder.health import HealthTotals
 from recorder.messages import Topic
+from sisa.core.errors import shown_text
 
 GAP_FACTOR: Final = 2.0
 
@@ -128,15 +129,49 @@ def damage_notes(fs: FileStats) -> list[str]:
     return notes
 
 
+MAX_BAD_KEPT: Final = 20  # messages that do not decode, named (all are counted)
+
+
+@dataclass(frozen=True)
+class BadMessage:
+    """A message that does not decode (its bytes read whole, CRC and all): what a reader
+    skips and counts instead of failing on it."""
+
+    topic: str
+    log_time_ns: int
+    why: str
+
+    def text(self) -> str:
+        return f"{shown_text(self.topic)} at log time {self.log_time_ns}: {self.why}"
+
+
 @dataclass
 class LogStats:
     """What a pass over a log (one file or a split set) found. Complete once the pass ends."""
 
     files: list[FileStats] = field(default_factory=list)
     topics: dict[str, TopicStats] = field(default_factory=dict)
-    undecodable: int = 0
+    undecodable: int = 0  # messages that did not decode, skipped: ...
+    bad: list[BadMessage] = field(default_factory=list)  # ... the first MAX_BAD_KEPT of them
     part_notes: list[str] = field(default_factory=list)  # parts of the recording not given
     health: HealthTotals = field(default_factory=HealthTotals)  # filled by `scan_log`
+
+    def note_bad(self, topic: str, log_time_ns: int, why: str) -> None:
+        self.undecodable += 1
+        if len(self.bad) < MAX_BAD_KEPT:
+            self.bad.append(BadMessage(topic, log_time_ns, why))
+
+    def bad_note(self) -> str | None:
+        """The messages that did not decode and were skipped, in words (None: there were
+        none)."""
+        if not self.undecodable:
+            return None
+        first = self.bad[0]
+        more = (f" (the first of them: {first.text()})" if self.undecodable > 1
+                else f": {first.text()}")
+        return (f"{self.undecodable} message{'s' if self.undecodable != 1 else ''} that do"
+                f"{'es' if self.undecodable == 1 else ''} not decode skipped{more}; `sisa log "
+                "recover --drop-undecodable` makes a copy without them")
 
     @property
     def messages(self) -> int:

@@ -19,13 +19,13 @@ fall back to a default.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import tomli_w
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from sisa.core.bounded import read_settings_text, toml_loads
 from sisa.core.errors import InputError, one_line_text_problem, shown_value
 from sisa.core.sensor import (
     Mounting,
@@ -69,10 +69,11 @@ class SensorModel(StrictModel):
     def load(cls, path: Path) -> SensorModel:
         """One-line InputError naming the file and the first bad field."""
         try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+            data = toml_loads(read_settings_text(Path(path)))
         except OSError as exc:
             raise InputError(f"{path}: cannot read the sensor file: {exc.strerror}") from None
-        except ValueError as exc:  # TOMLDecodeError, bad UTF-8, an integer of > 4300 digits
+        except ValueError as exc:  # TOMLDecodeError, bad UTF-8, an integer of > 4300 digits,
+            # nested too deep, too large
             raise InputError(f"{path}: not a TOML sensor file: {exc}") from None
         if not _has_a_field(data):  # else every value would silently be the nominal one
             raise InputError(f"{path}: empty sensor file (no fields): for the nominal sensor, "

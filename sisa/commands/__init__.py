@@ -126,12 +126,12 @@ def check_endpoints_path(path: Path | None) -> None:
 
 
 def _is_endpoints_file(path: Path) -> bool:
-    import json
+    from sisa.core.bounded import json_loads
 
     try:
         if not path.is_file() or path.stat().st_size > ENDPOINTS_MAX_BYTES:
             return False
-        found = json.loads(path.read_bytes())
+        found = json_loads(path.read_bytes())  # nesting bounded
     except (OSError, ValueError):  # (UnicodeDecodeError is a ValueError)
         return False
     return isinstance(found, dict) and all(isinstance(v, str) for v in found.values())

@@ -41,6 +41,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     recover.add_argument("input", type=Path, metavar="IN", help="the damaged MCAP file")
     recover.add_argument("output", type=new_file_arg, metavar="OUT",
                          help="new file (never overwritten)")
+    recover.add_argument("--drop-undecodable", action="store_true",
+                         help="leave out messages that do not decode (JSON nested too deep, "
+                         "not an object, a damaged field: every reader skips them); without "
+                         "it they are copied as they are, and counted")
     recover.set_defaults(handler=_recover)
     parser.set_defaults(handler=lambda _args: _usage(parser))
 
@@ -90,6 +94,8 @@ def info_document(stats: LogStats, gaps_shown: int) -> dict[str, Any]:
         "time": "log time: the recording host's clock, int64 ns since 1970-01-01 UTC",
         "messages": stats.messages,
         "undecodable": stats.undecodable,
+        "undecodable_first": [{"topic": b.topic, "log_time_ns": b.log_time_ns, "why": b.why}
+                              for b in stats.bad],
         "start_ns": stats.start_ns,
         "end_ns": stats.end_ns,
         "topics": {topic: {"schema": t.schema_name, "count": t.count, "rate_hz": t.rate_hz,
@@ -108,7 +114,7 @@ def _recover(args: argparse.Namespace) -> int:
     from recorder.writer import part_path
 
     _refuse_part_name(args.input, args.output)
-    report = recover(args.input, args.output)
+    report = recover(args.input, args.output, drop_undecodable=args.drop_undecodable)
     print(report.summary())
     if not report.messages:  # a complete file all the same: said, not hidden in the summary
         why = f" ({report.problems[0]})" if report.problems else ""
@@ -188,7 +194,13 @@ def _summary_lines(stats: LogStats) -> list[str]:
     lines = [f"{stats.messages} messages on {len(stats.topics)} topics, log time "
              f"{_utc(stats.start_ns)} .. {_utc(stats.end_ns)} ({span_s:.3f} s, host clock)"]
     if stats.undecodable:
-        lines.append(f"{stats.undecodable} messages could not be decoded")
+        n = stats.undecodable
+        lines.append(f"{n} message{'s' if n != 1 else ''} could not be decoded (every reader "
+                     "skips them; `sisa log recover --drop-undecodable` makes a copy without them)"
+                     + (f"; the first {len(stats.bad)}:" if stats.undecodable > len(stats.bad)
+                        else ":"))
+        lines += [f"  {shown_text(b.topic)} at +{(b.log_time_ns - stats.start_ns) / 1e9:.3f} s "
+                  f"(log time {b.log_time_ns}): {b.why}" for b in stats.bad]
     return lines
 
 

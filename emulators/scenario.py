@@ -25,7 +25,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from emulators.block import STANDARD_GRAVITY_MPS2, block_extent_en_m, strip_lines
 from recorder.settings import DEFAULT_HEADER_WINDOW_MS
 from sisa.core.bounded import read_settings_text, toml_loads
-from sisa.core.errors import ConfigError, one_line_text_problem
+from sisa.core.errors import ConfigError, one_line_text_problem, shown_value
 from sisa.core.sensor import (
     Mounting,
     ScannerGeometry,
@@ -597,7 +597,8 @@ def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scen
     base = table.pop("base", None)
     if base is not None:
         if base not in PRESETS:
-            raise ConfigError(f"{source}: base: unknown preset {base!r} (one of {PRESETS})")
+            raise ConfigError(f"{source}: base: unknown preset {shown_value(base)} (one of "
+                              f"{PRESETS})")
         table = _merge(_preset_table(base), table)
     try:
         return Scenario.model_validate(table)
@@ -612,7 +613,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         return scenario_from_table(_preset_table(text), source=f"preset {text}")
     path = Path(text)
     if not path.is_file():
-        raise ConfigError(f"no preset or scenario file named {text!r} (presets: "
+        raise ConfigError(f"no preset or scenario file named {shown_value(text, 200)} (presets: "
                           f"{', '.join(PRESETS)})")
     try:
         table = toml_loads(read_settings_text(path))

@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         print(f"sisa {args.command}: terminated", file=sys.stderr)
         return 143
     except SisaError as exc:
-        print(f"sisa {args.command}: error: {exc}", file=sys.stderr)
+        print(f"sisa {args.command}: error: {_cut(str(exc))}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `sisa ... | head`: the reader left, that is fine
         sys.stderr.close()
@@ -144,6 +144,13 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         _command[0] = None
         if on_term is not None:
             signal.signal(signal.SIGTERM, on_term)
+
+
+MAX_ERROR_CHARS = 2000  # an error line, whatever a message quotes (its inputs are cut already)
+
+
+def _cut(text: str) -> str:
+    return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 1] + "…"
 
 
 def _raise_terminated(_sig: int, _frame: FrameType | None) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from sisa.core.errors import shown_value
+from sisa.core.errors import shown_text, shown_value
 
 ARCSEC_RAD = np.pi / (180.0 * 3600.0)
 R_NOMINAL_C_TO_B = np.diag([1.0, -1.0, -1.0])
@@ -149,6 +149,8 @@ def first_non_finite(value: Any, where: str = "") -> str | None:
 
 
 # pydantic's range errors: NaN fails every bound, and says so as "should be less than ..."
+MAX_KEY_SHOWN = 80  # characters of a field's name in a message (a key may be a megabyte)
+MAX_REASON_SHOWN = 300  # ... of what is wrong with it
 _BOUND_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal"})
 
 
@@ -157,17 +159,18 @@ def validation_text(exc: ValidationError) -> str:
     wrong, the value given, and how many more problems there are."""
     err = exc.errors()[0]
     where = toml_location(err["loc"])
-    if "\n" in where:  # a quoted TOML key may hold a newline: keep the message one line
-        where = repr(where)
     more = f" (and {exc.error_count() - 1} more)" if exc.error_count() > 1 else ""
     if err["type"] == "extra_forbidden":
-        return f"unknown field {where!r}{more}"
+        return f"unknown field {shown_value(where, MAX_KEY_SHOWN)}{more}"
+    # a quoted TOML key may hold a newline, or be a megabyte long: one line, cut
+    where = shown_text(where, MAX_KEY_SHOWN)
     msg = str(err["msg"]).removeprefix("Value error, ")
     got = err.get("input")
     if err["type"] in _BOUND_ERRORS and isinstance(got, float) and not math.isfinite(got):
         msg = "must be a finite number (not NaN or infinity)"
     elif not isinstance(got, dict):
         msg += f" (got {shown_value(got)})"
+    msg = shown_text(msg, MAX_REASON_SHOWN)  # (a validator's own words may quote the input)
     return f"{where}: {msg}{more}" if where else f"{msg}{more}"
 
 

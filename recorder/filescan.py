@@ -49,6 +49,7 @@ from recorder.writer import (
     MESSAGE_ENCODING,
     TOPIC_SCHEMAS,
 )
+from sisa.core.errors import shown_text
 
 
 class FileScan:
@@ -338,5 +339,5 @@ class FileScan:
         return self._summary
 
     def _problem(self, text: str) -> None:
-        if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:
-            self.fstats.problems.append(text)
+        if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:  # (a parser's words may quote the
+            self.fstats.problems.append(shown_text(text, 300))  # file: escaped, cut)

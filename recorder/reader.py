@@ -280,7 +280,7 @@ def read_messages(path_or_paths: Paths, cls: type[M], topic: Topic | str | None 
     for channel, msg in reader.raw():
         if channel.schema_name != cls.schema_name or (topic is not None and channel.topic != topic):
             continue
-        where = f"{reader.stats.files[-1].path}: {channel.topic}"
+        where = f"{reader.stats.files[-1].path}: {shown_text(channel.topic, 60)}"
         obj = decoders.decode(channel, msg.data)
         if obj is None:
             raise DecodeError(f"{where}: message at log time {msg.log_time} is not "

@@ -19,6 +19,10 @@ from sisa.core.errors import InputError, shown_text
 if TYPE_CHECKING:
     from recorder.stats import FileStats, Gap, LogStats
 
+# a topic, schema or stream name from the file, in a table: shown escaped (a crafted log's
+# names held terminal escapes: a title set, a clear-screen, line breaks) and cut
+NAME_CHARS = 60
+
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "log", "inspect and recover flight logs (MCAP)",
@@ -216,7 +220,8 @@ def _topic_table(stats: LogStats) -> list[str]:
         t = stats.topics[topic]
         first_s, last_s = ((t.first_ns - stats.start_ns) / 1e9, (t.last_ns - stats.start_ns) / 1e9)
         lines.append(
-            f"{topic:<20} {t.schema_name:<22} {t.count:>9} {t.rate_hz:>9.2f} {first_s:>9.3f} "
+            f"{shown_text(topic, NAME_CHARS):<20} {shown_text(t.schema_name, NAME_CHARS):<22} "
+            f"{t.count:>9} {t.rate_hz:>9.2f} {first_s:>9.3f} "
             f"{last_s:>9.3f} {t.usual_interval_ns / 1e6:>9.3f} {_count(t.gap_count):>5} "
             f"{t.lost_by_sequence:>5}")
     return lines
@@ -239,7 +244,7 @@ def _health_lines(stats: LogStats) -> list[str]:
         widths = [max(8, len(h)) for h in HEADINGS]
         lines.append(f"  {'stream':<8} {'messages':>9} "
                      + " ".join(f"{h:>{w}}" for h, w in zip(HEADINGS, widths, strict=True)))
-        lines += [f"  {t.stream:<8} {t.messages:>9} "
+        lines += [f"  {shown_text(t.stream, NAME_CHARS):<8} {t.messages:>9} "
                   + " ".join(f"{t.counts[c]:>{w}}" for c, w in zip(COUNTERS, widths, strict=True))
                   for t in streams]
         lines += [f"  {t.stream} refused by reason: "
@@ -265,6 +270,7 @@ def _gap_lines(stats: LogStats, limit: int) -> list[str]:
              f"(largest {len(gaps)}; none counted on the sync unit's forwarded pulses, silent "
              "by design)"]
     for g in gaps:
-        lines.append(f"  {g.topic:<20} at +{(g.start_ns - stats.start_ns) / 1e9:.3f} s: "
+        at_s = (g.start_ns - stats.start_ns) / 1e9
+        lines.append(f"  {shown_text(g.topic, NAME_CHARS):<20} at +{at_s:.3f} s: "
                      f"{g.duration_ns / 1e9:.3f} s (usual {g.usual_ns / 1e9:.4f} s)")
     return lines

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import heapq
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final, TextIO
@@ -40,7 +39,7 @@ from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import write_whole
 
 I64 = npt.NDArray[np.int64]
 U16 = npt.NDArray[np.uint16]
@@ -160,10 +159,8 @@ class BilSegmentWriter:
             self._write_header()
 
     def _write_header(self) -> None:
-        tmp = partial_path(self.hdr_path)
-        tmp.write_text(envi_header(self.pixels, self.lines, self.bands, self.segment,
-                                   self.lines_csv_path.name), encoding="utf-8")
-        os.replace(tmp, self.hdr_path)
+        write_whole(self.hdr_path, envi_header(self.pixels, self.lines, self.bands,
+                                               self.segment, self.lines_csv_path.name))
 
 
 def envi_header(pixels: int, lines: int, bands: int, segment: int, lines_csv: str) -> str:

@@ -29,7 +29,7 @@ from recorder.writer import (
     refuse_existing,
 )
 from sisa.core.errors import InputError, RecorderError, shown_text
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import create_partial
 
 
 @dataclass(frozen=True)
@@ -116,10 +116,11 @@ def recover(in_path: Path | str, out_path: Path | str, *, drop_undecodable: bool
     except OSError as exc:  # a name longer than the file system takes
         raise InputError(f"{out}: cannot be used as a name: {exc.strerror or exc}") from None
     reader = LogReader(src)  # InputError if missing or not MCAP
-    tmp = partial_path(out)
     dropped: Counter[str] = Counter()
+    tmp: Path | None = None
     try:
-        with open(tmp, "xb") as fh:
+        tmp, fd = create_partial(out)
+        with os.fdopen(fd, "wb") as fh:
             copier = _Copier(fh)
             check = MessageCheck()
             for channel, msg in reader.raw():
@@ -137,8 +138,9 @@ def recover(in_path: Path | str, out_path: Path | str, *, drop_undecodable: bool
     except OSError as exc:
         raise RecorderError(f"cannot write {out}: {exc.strerror or exc}") from exc
     finally:
-        with contextlib.suppress(OSError):  # (none was made if its name was refused)
-            tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
     fsync_dir(out.parent)
     return _report(src, out, reader.stats, dropped if drop_undecodable else None)
 

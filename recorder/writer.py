@@ -55,7 +55,7 @@ from recorder.messages import (
     json_schema,
 )
 from sisa.core.errors import ConfigError, EncodeError, InputError, RecorderError
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import create_partial, open_new_file
 
 RECORDER_ID: Final = f"sisa-recorder/{sisa.__version__}"
 MESSAGE_ENCODING: Final = "json"
@@ -262,8 +262,9 @@ def location_fix(fix: GpsFix) -> bytes:
 # --- one file of the recording ------------------------------------------------------------------
 
 def _open_new(path: Path) -> BinaryIO:
-    """Create `path`, failing if it exists (O_EXCL): a recording is never overwritten."""
-    return open(path, "xb")
+    """Create `path`, failing if it exists (O_EXCL, no link followed): a recording is never
+    overwritten (tests put a failing disk here)."""
+    return os.fdopen(open_new_file(path), "wb")
 
 
 def link_new(tmp: Path, path: Path, refusal: str) -> None:
@@ -357,9 +358,8 @@ class _Part:
         """A new file that appears under its name only with its header and metadata on disk
         (written to a hidden file, fsync'd, then hard-linked, which never replaces a file): a
         power cut while a part is started leaves no file that is not MCAP."""
-        tmp = partial_path(path, f"-{uuid.uuid4().hex[:8]}")
         try:
-            fh = _open_new(tmp)
+            tmp, fh = create_partial(path, _open_new)
         except OSError as exc:
             raise InputError(f"cannot create {path}: {exc.strerror or exc}") from None
         try:

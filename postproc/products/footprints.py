@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +22,7 @@ from pyproj import Geod, Transformer
 
 from postproc.products.igm import IgmSource, iter_igm_blocks, projected_crs
 from sisa.core.errors import InputError
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import write_whole
 
 F64 = npt.NDArray[np.float64]
 
@@ -184,9 +183,7 @@ def write_footprints_geojson(path: Path, features: Sequence[Mapping[str, Any]]) 
             raise InputError(f"{path}: not a GeoJSON Feature: {str(f)[:80]}")
     doc = {"type": "FeatureCollection", "features": [_json_safe(dict(f)) for f in features]}
     path = Path(path)
-    tmp = partial_path(path)
-    tmp.write_text(json.dumps(doc, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_whole(path, json.dumps(doc, allow_nan=False) + "\n")
 
 
 def _json_safe(value: Any) -> Any:

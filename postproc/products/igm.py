@@ -31,7 +31,7 @@ from rasterio.enums import WktVersion
 from rasterio.errors import CRSError, NotGeoreferencedWarning, RasterioIOError
 
 from sisa.core.errors import InputError
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import create_partial, write_whole
 
 F64 = npt.NDArray[np.float64]
 
@@ -271,8 +271,9 @@ def commit_envi(tmp_data: Path, data: Path, header_text: str) -> None:
     header, which no reader takes for a complete product.
     """
     hdr = data.with_suffix(".hdr")
-    tmp_hdr = partial_path(hdr)
-    tmp_hdr.write_text(header_text, encoding="ascii")
+    tmp_hdr, fd = create_partial(hdr)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(header_text.encode("ascii"))
     hdr.unlink(missing_ok=True)
     replace_file(tmp_data, data)
     os.replace(tmp_hdr, hdr)
@@ -324,8 +325,8 @@ class IgmWriter:
         self.path = Path(f"{stem}.bil")
         if not self.path.parent.is_dir():
             raise InputError(f"{self.path.parent}: no such folder")
-        self._tmp = partial_path(self.path)
-        self._fh: BinaryIO | None = self._tmp.open("wb")
+        self._tmp, fd = create_partial(self.path)
+        self._fh: BinaryIO | None = os.fdopen(fd, "wb")
         self._next = 0
 
     def __enter__(self) -> IgmWriter:
@@ -507,9 +508,7 @@ def write_geolocation_vrt(vrt_path: Path, image_path: Path, igm_path: Path, epsg
     for b in range(image.bands):
         _vrt_band(root, image, b, _relative(image_path, vrt_path))
     ET.indent(root)
-    tmp = partial_path(vrt_path)
-    tmp.write_bytes(ET.tostring(root, encoding="utf-8", xml_declaration=False) + b"\n")
-    os.replace(tmp, vrt_path)
+    write_whole(vrt_path, ET.tostring(root, encoding="utf-8", xml_declaration=False) + b"\n")
 
 
 def band_labels(raw: EnviRaster) -> list[str]:

@@ -53,7 +53,7 @@ from postproc.products.igm import (
     replace_file,
 )
 from sisa.core.errors import InputError
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import create_partial
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
@@ -687,8 +687,8 @@ class TiffWriter:
             raise InputError(f"GeoTIFF compression {compress!r}: use one of "
                              f"{', '.join(TIFF_COMPRESSIONS)}")
         self.path = Path(path)
-        self._tmp = partial_path(self.path)
-        os.close(exclusive_fd(self._tmp))  # ours: GDAL then opens it by name, no link between
+        self._tmp, fd = create_partial(self.path)  # its name taken (GDAL then writes it by its
+        os.close(fd)  # path)
         kind = np.dtype(raw.dtype.name).kind
         packing: dict[str, Any] = {"compress": compress}
         if compress != "none":
@@ -769,13 +769,6 @@ class TiffWriter:
             self._tmp.unlink(missing_ok=True)
 
 
-def exclusive_fd(tmp: Path) -> int:
-    """A new file at the scratch name `tmp`, created exclusively and never through a link: a
-    leftover of a dead process (or a link planted there) is removed, not written through."""
-    tmp.unlink(missing_ok=True)
-    return os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644)
-
-
 class GltWriter:
     """The GLT as ENVI BIL int32 (band 1 sample, band 2 line, 1-based), written tile by tile
     into a zero-filled file (0 = no input pixel) and renamed into place by `close()`."""
@@ -783,8 +776,8 @@ class GltWriter:
     def __init__(self, stem: Path, grid: OrthoGrid, image_name: str, ortho_name: str) -> None:
         self.path, self.grid = Path(f"{stem}.bil"), grid
         self.image_name, self.ortho_name = image_name, ortho_name
-        self._tmp = partial_path(self.path)
-        self._fd: int | None = exclusive_fd(self._tmp)
+        self._tmp, fd = create_partial(self.path)
+        self._fd: int | None = fd
         try:
             os.ftruncate(self._fd, grid.height * 2 * grid.width * 4)
         except OSError as exc:  # EFBIG: a grid beyond what the file system holds

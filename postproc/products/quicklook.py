@@ -25,7 +25,7 @@ from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 from rasterio.windows import from_bounds
 
 from sisa.core.errors import InputError
-from sisa.core.outdir import partial_path
+from sisa.core.outdir import create_partial
 
 U8 = npt.NDArray[np.uint8]
 
@@ -142,7 +142,8 @@ def write_quicklook(src: Path, png: Path, *, max_size_px: int = MAX_SIZE_PX) -> 
 
 
 def _write_png(png: Path, rgba: U8) -> None:
-    tmp = partial_path(png)
+    tmp, fd = create_partial(png)  # its name taken (GDAL then writes it by its path)
+    os.close(fd)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.Env(GDAL_PAM_ENABLED="NO"), rasterio.open(

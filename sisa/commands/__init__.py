@@ -141,14 +141,11 @@ def write_endpoints(path: Path, endpoints: dict[str, str]) -> None:
     """Written whole (a temporary file renamed), so a script polling for it never reads half."""
     import json
 
-    from sisa.core.outdir import partial_path
+    from sisa.core.outdir import write_whole
 
-    tmp = partial_path(path)
     try:
-        tmp.write_text(json.dumps(endpoints, indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
+        write_whole(path, json.dumps(endpoints, indent=2) + "\n")
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 

@@ -1,17 +1,26 @@
-"""Output folders that appear whole or not at all, and never replace an existing one."""
+"""Output folders and files that appear whole or not at all, and never replace an existing
+one; the hidden names they are made under are created exclusively and never through a link."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any, TypeVar, overload
 
 from sisa.core.errors import InputError, RecorderError
 
+T = TypeVar("T")
 SCRATCH_NAME_CHARS = 200  # of the output's name in its scratch name (names: 255 bytes)
+# a new file, created: it must not exist (no file, no symlink: a link planted under the name
+# makes the open fail instead of writing where it points), and a link is never followed
+_NEW_FILE_FLAGS = os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+_NEW_FILE_TRIES = 8
 
 
 def partial_path(final: Path, tag: str = "") -> Path:
@@ -19,6 +28,50 @@ def partial_path(final: Path, tag: str = "") -> Path:
     last rename is atomic), this process's (`tag` to tell several apart), and short enough
     for any name the file system takes for `final`."""
     return final.with_name(f".{final.name[:SCRATCH_NAME_CHARS]}.partial-{os.getpid()}{tag}")
+
+
+def open_new_file(path: Path) -> int:
+    """Create `path`, which must not exist (nor be a link, dangling or not): a descriptor open
+    for reading and writing. FileExistsError if the name is taken."""
+    return os.open(path, _NEW_FILE_FLAGS, 0o644)
+
+
+@overload
+def create_partial(final: Path) -> tuple[Path, int]: ...
+
+
+@overload
+def create_partial(final: Path, opener: Callable[[Path], T]) -> tuple[Path, T]: ...
+
+
+def create_partial(final: Path, opener: Callable[[Path], Any] = open_new_file
+                   ) -> tuple[Path, Any]:
+    """A new, empty hidden file beside `final` to write it under: (its path, what `opener`
+    gave for it: by default a descriptor open for reading and writing). Its name
+    (`partial_path`'s, with a random part) cannot be guessed beforehand, and it is created
+    exclusively without following a link (`open_new_file`), so nobody sharing the folder can
+    aim a symlink planted under it at another file. OSError if it cannot be made."""
+    for _ in range(_NEW_FILE_TRIES):
+        path = partial_path(final, f"-{secrets.token_hex(4)}")
+        try:
+            return path, opener(path)
+        except FileExistsError:  # (a name already taken, by chance or not: another one)
+            continue
+    raise FileExistsError(errno.EEXIST, "no free name for a partial file", str(final))
+
+
+def write_whole(final: Path, data: bytes | str, encoding: str = "utf-8") -> None:
+    """Write `final` whole: into a new partial file (`create_partial`), renamed into place
+    once written; on failure nothing is left. OSError as the write or the rename gives it."""
+    tmp, fd = create_partial(final)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data.encode(encoding) if isinstance(data, str) else data)
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def name_taken(path: Path, what: str = "") -> bool:

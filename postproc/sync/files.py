@@ -135,9 +135,33 @@ def read_scanner_lines(folder: Path) -> LineTable:
         if not 0 <= segment <= SEGMENT_MAX:
             raise InputError(f"{path}: segment {segment} outside 0..{SEGMENT_MAX}, what a frame "
                              "header holds")
-        tables.append(_read_lines_csv(path, segment))
+        table = _read_lines_csv(path, segment)
+        _check_against_image(path, path.with_name(f"{m.group(0)[:-len('.lines.csv')]}.bil"),
+                             table.line.size)
+        tables.append(table)
     return LineTable(*(np.concatenate([getattr(t, f) for t in tables])
                        for f in ("segment", "line", "frame_counter")))
+
+
+def _check_against_image(lines_csv: Path, image: Path, rows: int) -> None:
+    """A lines file that lists more lines than its image holds (its header's count, or the
+    whole lines of a file longer than its header says) does not belong to it: InputError (it
+    was timed, and every line past the image flagged). One that lists fewer, as after a
+    recording cut short, is said by `unlisted_line_notes`; an image whose header cannot be read
+    is named there too, and not judged here."""
+    from postproc.igm import EnviRaster
+
+    if not image.is_file():
+        return
+    try:
+        raster = EnviRaster.open(image)
+    except InputError:
+        return
+    holds = max(raster.lines, raster.header_lines)
+    if rows > holds:
+        raise InputError(f"{lines_csv}: lists {rows} lines, but its image {image.name} holds "
+                         f"{holds}: a lines file that does not match its image (of another "
+                         "segment or recording?)")
 
 
 def scanner_images(folder: Path) -> list[Path]:

@@ -71,3 +71,53 @@ def test_a_segment_image_that_is_no_file_is_named_for_what_it_is(tmp_path: Path)
         segment_image(tmp_path, 1)
     (tmp_path / "segment_002.bil").write_bytes(b"")
     assert segment_image(tmp_path, 2) == tmp_path / "segment_002.bil"
+
+
+def _segment(folder: Path, image_lines: int, listed: int) -> None:
+    """segment_000: a 4-pixel, 2-band uint16 BIL of `image_lines` lines, and a lines file
+    listing `listed`."""
+    from emulators.scanner import envi_header
+
+    (folder / "segment_000.bil").write_bytes(bytes(image_lines * 2 * 4 * 2))
+    (folder / "segment_000.hdr").write_text(envi_header(4, image_lines, 2, 0,
+                                                        "segment_000.lines.csv"))
+    rows = "".join(f"{i},{i + 7}\n" for i in range(listed))
+    (folder / "segment_000.lines.csv").write_text(f"line_index,frame_counter\n{rows}")
+
+
+def test_a_lines_file_longer_than_its_image_is_an_input_error(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`sisa sync` took a lines file of 1 M rows more than its BIL: exit 0, 999 926 lines
+    flagged. The rows past the image cannot be its lines: the file is not this image's."""
+    from sisa.cli import main
+    from tests.recorder import write_sample_log
+
+    scanner = tmp_path / "scanner"
+    scanner.mkdir()
+    _segment(scanner, 5, 5)
+    assert read_scanner_lines(scanner).line.size == 5
+    _segment(scanner, 5, 6)
+    with pytest.raises(InputError, match=r"segment_000\.lines\.csv: lists 6 lines, but its "
+                       r"image segment_000\.bil holds 5: a lines file that does not match"):
+        read_scanner_lines(scanner)
+    _segment(scanner, 5, 200_005)
+    flight = tmp_path / "flight.mcap"
+    write_sample_log(flight)
+    assert main(["sync", str(flight), "--scanner", str(scanner), "--out",
+                 str(tmp_path / "sync")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "lists 200005 lines, but its image segment_000.bil holds 5" in err
+    assert not (tmp_path / "sync").exists()
+
+
+def test_a_lines_file_shorter_than_its_image_is_still_timed_and_said(tmp_path: Path) -> None:
+    """A recording cut short: the lines it lists are timed, the rest said (unchanged)."""
+    from postproc.syncio import unlisted_line_notes
+
+    _segment(tmp_path, 5, 3)
+    table = read_scanner_lines(tmp_path)
+    assert table.line.size == 3
+    assert unlisted_line_notes(tmp_path, table.segment, table.line, "timed") == [
+        f"{tmp_path / 'segment_000.bil'}: its lines file lists 3 of its 5 lines: the other 2 "
+        "have no frame counter: not timed"]

@@ -149,7 +149,7 @@ def _check_against_image(lines_csv: Path, image: Path, rows: int) -> None:
     was timed, and every line past the image flagged). One that lists fewer, as after a
     recording cut short, is said by `unlisted_line_notes`; an image whose header cannot be read
     is named there too, and not judged here."""
-    from postproc.igm import EnviRaster
+    from postproc.products.igm import EnviRaster
 
     if not image.is_file():
         return

@@ -113,7 +113,7 @@ def test_a_lines_file_longer_than_its_image_is_an_input_error(
 
 def test_a_lines_file_shorter_than_its_image_is_still_timed_and_said(tmp_path: Path) -> None:
     """A recording cut short: the lines it lists are timed, the rest said (unchanged)."""
-    from postproc.syncio import unlisted_line_notes
+    from postproc.sync.files import unlisted_line_notes
 
     _segment(tmp_path, 5, 3)
     table = read_scanner_lines(tmp_path)

@@ -58,6 +58,7 @@ def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
     "INS records flagged: ambiguous 320", `georef` "0 usable INS records": they say why."""
     from postproc.georef import NAV_WANTED, merged_wanted, nav_from_columns
     from postproc.sync import WANTED, sync_input_from_columns, synchronise
+    from postproc.sync.report import AMBIGUOUS_HINT
     from recorder.columns import read_topics
     from sisa.core.errors import InputError
 
@@ -65,9 +66,8 @@ def _no_mode1_pattern_is_explained(flight: Path, tmp_path: Path) -> None:
                            str(tmp_path / "sync")], capture_output=True, text=True, timeout=120)
     assert done.returncode == 3, done.stderr  # finished, with losses: no INS record timed
     assert "INS records 0/" in done.stdout
-    hint = ("no pulse was singled out as its GPS second; the mode-1 pattern does that, mode-2 "
-            "trains alone do not: record a register period (15 s with 4 bits) with the scanner "
-            "off (docs/sync.md, 'The whole-second ambiguity')")
+    hint = AMBIGUOUS_HINT
+    assert "record a register period (15 s with 4 bits) with the scanner off" in hint
     assert f" ambiguous: {hint}\n" in done.stderr, done.stderr
     cols = read_topics(flight, merged_wanted(WANTED, NAV_WANTED))
     ins = synchronise(sync_input_from_columns(cols)).ins

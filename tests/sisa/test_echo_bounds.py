@@ -61,6 +61,8 @@ def test_a_long_key_in_a_sensor_file_is_cut(tmp_path: Path,
     sensor = tmp_path / "long.toml"
     sensor.write_text('name = "x"\n[mounting]\n"' + "k" * LONG + '" = [1, 2, 3]\n')
     (tmp_path / "scanner").mkdir()
+    for name in ("flight.mcap", "d.tif"):  # there: the sensor file is what is wrong
+        (tmp_path / name).write_bytes(b"")
     err = _error(capsys, ["georef", str(tmp_path / "flight.mcap"), "--scanner",
                           str(tmp_path / "scanner"), "--dem", str(tmp_path / "d.tif"),
                           "--sensor", str(sensor), "--out", str(tmp_path / "g")])

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -251,7 +252,9 @@ def test_the_sisa_entry_point_itself_says_one_line(inputs: Path) -> None:
 
 def test_a_log_that_does_not_match_its_schema_names_the_file_and_topic(
         inputs: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """A damaged but readable log: the error says which file and which topic."""
+    """A damaged but readable log: the message that does not decode is skipped, never fatal
+    (issue 39, item 4), and a warning names the file, the topic and why; the error then says
+    what the log lacks, naming the file."""
     from mcap.writer import CompressionType, Writer
 
     from recorder.writer import SCHEMAS
@@ -266,9 +269,13 @@ def test_a_log_that_does_not_match_its_schema_names_the_file_and_topic(
         writer.add_message(channel, 1, b'{"t_host_ns": 1, "counter": 1e400}', 1)
         writer.finish()
     before = _tree(inputs)
-    code = main(["sync", str(path), "--out", str(inputs / "sync")])
+    from recorder.stats import DamagedLogWarning
+
+    with pytest.warns(DamagedLogWarning, match=f"^{re.escape(str(path))}: 1 message that does "
+                      "not decode skipped: /ins/record at log time 1: "):
+        code = main(["sync", str(path), "--out", str(inputs / "sync")])
     captured = capsys.readouterr()
-    _check(code, captured.out, captured.err, "sync", [str(path), "/ins/record"])
+    _check(code, captured.out, captured.err, "sync", [str(path), "no INS records"])
     assert _tree(inputs) == before
 
 

@@ -24,7 +24,7 @@ def _tool(folder: Path, name: str, body: str) -> None:
 
 def _machine(tmp_path: Path, *, uid: int, apt: bool) -> tuple[dict[str, str], Path]:
     """A PATH with bash and a Python that has its headers and venv, and nothing else the
-    project needs: no C compiler, gpsd, node, npm or gdalwarp (and no sudo)."""
+    project needs: no C compiler, gpsd, node, npm, gdalwarp or chromium (and no sudo)."""
     bin_ = tmp_path / "bin"
     bin_.mkdir()
     (bin_ / "bash").symlink_to("/bin/bash")
@@ -46,7 +46,7 @@ def test_without_root_it_says_what_is_missing_and_how_to_install_it(tmp_path: Pa
     done = _deps(env, "test")
     assert done.returncode == 1
     packages = ["gcc", *([] if HOST_GPSD else ["gpsd"]), "gpsd-clients", "nodejs", "npm",
-                "gdal-bin"]
+                "gdal-bin", "chromium"]
     assert f"  sudo apt-get install -y {' '.join(packages)}\n" in done.stderr
     assert "deps: missing on this machine:\n" in done.stderr
     assert "  - gdalwarp (the reference ortho) (Debian package gdal-bin)\n" in done.stderr

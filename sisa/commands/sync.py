@@ -24,6 +24,7 @@ from sisa.commands import (
     say_warning,
 )
 from sisa.commands.progress import progress
+from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -71,7 +72,10 @@ def _run(args: argparse.Namespace) -> int:
         cols = read_topics(flight, {**SYNC_WANTED, **HEALTH_WANTED})
         recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
         bar.step("synchronising")
-        result = synchronise(sync_input_from_columns(cols), lines)
+        try:
+            result = synchronise(sync_input_from_columns(cols), lines)
+        except InputError as exc:  # what the log lacks: named by the log
+            raise InputError(f"{flight[0]}: {exc}") from None
         bar.step("writing the tables")
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}

@@ -26,6 +26,7 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 from tests.fuzz import Fuzzer, Tally, run_fuzzer  # noqa: E402
 from tests.fuzz.test_fuzz_codecs import FUZZERS as CODEC_FUZZERS  # noqa: E402
 from tests.fuzz.test_fuzz_files import FUZZERS as FILE_FUZZERS  # noqa: E402
+from tests.fuzz.test_fuzz_inputs import FUZZERS as INPUT_FUZZERS  # noqa: E402
 
 
 def soak_settings(examples: int) -> settings:
@@ -52,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", nargs="*", default=None, metavar="PREFIX",
                         help="only fuzzers whose name starts with one of these")
     args = parser.parse_args(argv)
-    fuzzers = [f for f in (*CODEC_FUZZERS, *FILE_FUZZERS)
+    fuzzers = [f for f in (*CODEC_FUZZERS, *FILE_FUZZERS, *INPUT_FUZZERS)
                if not args.only or any(f.name.startswith(p) for p in args.only)]
     if not fuzzers:
         parser.error("no fuzzer matches --only")

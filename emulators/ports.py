@@ -112,13 +112,22 @@ class SlcanAdapter:
         self.port.close()
 
 
+MAX_PEERS_NAMED = 4  # refused pulse-link connections named (all are counted)
+
+
 class PulseEndpoint:
     """Loopback TCP server carrying edges: device outputs go to the connected client; edges the
     client sends (the sync unit's pulses) are handed to `on_edge` from the receiving thread.
 
     Sequence numbers belong to the link, not to the devices: the endpoint numbers what it sends
     per line, so a receiver can count edges lost in transport (a spurious pulse on a real wire
-    is indistinguishable from a true one, and is numbered like one)."""
+    is indistinguishable from a true one, and is numbered like one).
+
+    The link has no authentication (a bench on loopback, like gpsd's port): one client at a
+    time. A connection made while a client is connected is closed at once, unread, and counted
+    and named (`clients_refused`, `refused_peers`): an edge another local process sends cannot
+    reach the devices, and one queued behind the recorder's connection cannot take its place
+    when the recorder reconnects."""
 
     def __init__(self, on_edge: Callable[[Edge], None], port: int = 0) -> None:
         self._server = socket.create_server((LOOPBACK, port))
@@ -130,6 +139,8 @@ class PulseEndpoint:
         self._stop = threading.Event()
         self.decoder = EdgeStreamDecoder(ErrorPolicy.COUNT)
         self.edges_dropped = 0  # produced while no client was connected
+        self.clients_refused = 0  # connections made while a client was connected
+        self.refused_peers: list[str] = []  # the first few of them, "HOST:PORT"
         self._seq: dict[int, int] = {}
         self._thread = threading.Thread(target=self._serve, name="pulses", daemon=True)
         self._thread.start()
@@ -148,19 +159,51 @@ class PulseEndpoint:
             self.edges_dropped += 1
 
     def _serve(self) -> None:
+        """Accept connections for as long as the endpoint is open: the first becomes the
+        client (read in a thread of its own), any other while it is connected is refused."""
         while not self._stop.is_set():
             try:
-                conn, _ = self._server.accept()
+                conn, peer = self._server.accept()
             except TimeoutError:
                 continue
             except OSError:
                 return
+            with self._lock:
+                busy = self._client is not None
+                if not busy:
+                    self._client = conn
+            if busy:
+                self._refuse(conn, peer)
+                continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lock:
-                self._client = conn
+            threading.Thread(target=self._serve_client, args=(conn,), name="pulses-client",
+                             daemon=True).start()
+
+    def refused_note(self) -> str | None:
+        """The connections refused while a client was connected, in words (None: none): said,
+        since any local process could have made them."""
+        n = self.clients_refused
+        if not n:
+            return None
+        more = ", ..." if n > len(self.refused_peers) else ""
+        return (f"{n} connection{'s' if n != 1 else ''} to the pulse link {self.address} "
+                f"refused while a client was connected (from {', '.join(self.refused_peers)}"
+                f"{more}): the link takes one client, and nothing they sent was read")
+
+    def _refuse(self, conn: socket.socket, peer: tuple[str, int]) -> None:
+        self.clients_refused += 1
+        if len(self.refused_peers) < MAX_PEERS_NAMED:
+            self.refused_peers.append(f"{peer[0]}:{peer[1]}")
+        conn.close()
+
+    def _serve_client(self, conn: socket.socket) -> None:
+        try:
             self._receive(conn)
+        finally:
             with self._lock:
-                self._client = None
+                if self._client is conn:
+                    self._client = None
+            conn.close()
 
     def _receive(self, conn: socket.socket) -> None:
         conn.settimeout(0.1)

@@ -350,6 +350,7 @@ class _Part:
     mcap: Writer
     add_message: AddMessage
     channels: dict[tuple[Topic, str], int] = field(default_factory=dict)
+    schemas: dict[str, int] = field(default_factory=dict)  # schema name → its one id
     first_log_ns: int | None = None
     dirty: bool = False
 
@@ -384,13 +385,29 @@ class _Part:
         key = (topic, schema_name)
         channel_id = self.channels.get(key)
         if channel_id is None:
-            # a schema is written with each channel's first chunk, so that a damaged chunk
-            # loses only its own messages (a schema shared with an earlier chunk would go too)
-            schema_id = self.mcap.register_schema(schema_name, SCHEMA_ENCODING,
-                                                  SCHEMA_BYTES[schema_name])
+            schema_id = self._schema(schema_name)
             channel_id = self.mcap.register_channel(str(topic), MESSAGE_ENCODING, schema_id)
             self.channels[key] = channel_id
         return channel_id
+
+    def _schema(self, name: str) -> int:
+        """The schema's one id in this file, its record written again with the first chunk of
+        every channel that uses it (the same id, identical bytes, as MCAP allows): a damaged
+        chunk then loses only its own messages, never a later channel's schema. (Registered
+        anew for each channel, the file held identical schemas under several ids.)"""
+        schema_id = self.schemas.get(name)
+        if schema_id is None:
+            schema_id = int(self.mcap.register_schema(name, SCHEMA_ENCODING, SCHEMA_BYTES[name]))
+            self.schemas[name] = schema_id
+            return schema_id
+        try:
+            schema = self.mcap._Writer__schemas[schema_id]  # type: ignore[attr-defined]
+            chunk = self.mcap._Writer__chunk_builder  # type: ignore[attr-defined]
+        except AttributeError:  # a version of mcap without that state: a new id, as before
+            return int(self.mcap.register_schema(name, SCHEMA_ENCODING, SCHEMA_BYTES[name]))
+        if chunk is not None:
+            chunk.add_schema(schema)
+        return schema_id
 
     def add(self, channel_id: int, log_ns: int, data: bytes, sequence: int) -> None:
         if self.first_log_ns is None:

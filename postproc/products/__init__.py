@@ -28,10 +28,11 @@ from postproc.products.ortho import (
     orthorectify,
 )
 from postproc.products.quicklook import RgbView, read_rgb, write_quicklook
+from postproc.products.resample import Resampling
 
 __all__ = [
     "TIFF_BLOCK", "CutShortWarning", "EnviRaster", "IgmWriter", "OrthoGrid", "Progress",
-    "RgbView",
+    "Resampling", "RgbView",
     "SwathIndex", "common_lines", "footprint_feature", "igm_bounds", "igm_epsg",
     "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify", "read_rgb",
     "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",

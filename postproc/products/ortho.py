@@ -1,4 +1,6 @@
-"""Orthorectification by nearest pixel centre: the ortho GeoTIFF and its GLT (ENVI).
+"""Orthorectification by nearest pixel centre: the ortho GeoTIFF and its GLT (ENVI). On request
+the GeoTIFF holds the image interpolated (bilinear, cubic) at each cell centre's position in it
+instead, from the same nearest pixel (postproc.products.resample); the GLT does not change.
 
 For every cell of a north-up grid, the input pixel whose ground position (IGM, pixel centre) is
 nearest to the cell centre. Every quad of 2×2 neighbouring pixels is rasterised onto the grid as
@@ -52,6 +54,7 @@ from postproc.products.igm import (
     projected_crs,
     replace_file,
 )
+from postproc.products.resample import Resampling, fractional_offsets, interpolate
 from sisa.core.errors import InputError
 from sisa.core.outdir import create_partial
 
@@ -916,7 +919,8 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
                  out_tif: Path, glt_stem: Path | None, *, tile_cells: int | None = None,
                  compress: str = "deflate", workers: int = WORKERS,
                  progress: Progress | None = None, on_total: Progress | None = None,
-                 empty_ok: bool = True, bands: Sequence[int] | None = None) -> OrthoResult:
+                 empty_ok: bool = True, bands: Sequence[int] | None = None,
+                 resampling: Resampling = Resampling.NEAREST) -> OrthoResult:
     """Write `out_tif` (every band of `image`, its data type, nodata outside the swath) and,
     unless `glt_stem` is None, `<glt_stem>.bil/.hdr`; each appears only when complete. `igm`:
     the IGM file, or its SwathIndex when the caller built one for the grid's bounds (one pass
@@ -927,7 +931,10 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     (the windows to map), `progress` how many of them each finished window held. Without
     `empty_ok`, a grid on which no cell is filled is an InputError, nothing written. Positions
     far from the rest of the IGM (SwathIndex.far) are mapped as none, with a warning.
-    `bands`: the image's bands (0-based) the GeoTIFF holds, in this order (default: all)."""
+    `bands`: the image's bands (0-based) the GeoTIFF holds, in this order (default: all).
+    `resampling`: the nearest pixel (default), or the image interpolated bilinearly or by
+    cubic convolution at the cell centre's fractional image position (the GLT stays the
+    nearest pixel's; postproc.products.resample)."""
     out_tif = Path(out_tif)
     glt_files = () if glt_stem is None else (Path(f"{glt_stem}.bil"), Path(f"{glt_stem}.hdr"))
     for path in (out_tif, *glt_files):  # found at the end: a traceback beside finished products
@@ -949,6 +956,10 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
     nodata = output_nodata(raw)
     desc = (f"SISA ortho of {raw.path.name}: each cell holds the input pixel whose "
             "pixel-centre ground position (IGM) is nearest to the cell centre")
+    if resampling is not Resampling.NEAREST:
+        desc = (f"SISA ortho of {raw.path.name}: each cell holds the image interpolated "
+                f"({resampling.value}) at the cell centre's position in the image, from the "
+                "IGM's pixel-centre ground positions")
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
         if bands is not None and not all(0 <= b < raw.bands for b in bands):
             raise InputError(f"{raw.path}: bands {', '.join(str(b + 1) for b in bands)}: the "
@@ -960,7 +971,7 @@ def orthorectify(igm: Path | SwathIndex, image: Path | EnviRaster, grid: OrthoGr
                 glt = GltWriter(Path(glt_stem), grid, raw.path.name, out_tif.name)
             filled, infill, dist_sum, dist_max = _ortho_windows(
                 index, raw, grid, nodata, tif, glt, tile_cells, max(int(workers), 1),
-                progress, on_total)
+                progress, on_total, resampling)
             if filled == 0 and not empty_ok:
                 raise _nothing_filled(index, grid)
             tif.close()
@@ -999,7 +1010,8 @@ def _window_arrays(out: Scratch, raw: EnviRaster, rows: int, cols: int
 
 
 def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
-                 part: tuple[int, int, int, int], work: SimpleQueue[Scratch], out: Scratch
+                 part: tuple[int, int, int, int], work: SimpleQueue[Scratch], out: Scratch,
+                 resampling: Resampling = Resampling.NEAREST
                  ) -> tuple[npt.NDArray[Any], B, I32, tuple[int, int, float, float]] | None:
     """A window's values for the GeoTIFF, its filled cells, its GLT and GLT figures (see
     _glt_values), in `out`'s arrays; None if no cell is filled. The arrays it works in are
@@ -1014,15 +1026,57 @@ def _make_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: fl
             return None
         data.fill(nodata)
         gather_pixels(raw, ch.line, ch.pixel, ok, nodata, sc, into=data)
+        if resampling is not Resampling.NEAREST:
+            _resample_window(index, raw, grid, row0, col0, ch, ok, data, resampling)
         figures = _glt_values(ch.line, ch.pixel, ch.inside, ch.d2_cells, values)
     finally:
         work.put(sc)
     return data, ok, values, figures
 
 
+def _cells_of(raster: EnviRaster, line: I64, pixel: I64, scratch: Scratch) -> npt.NDArray[Any]:
+    """(bands, n): the raster's values at (line, pixel), every cell inside it."""
+    out = np.empty((raster.bands, 1, line.size), raster.dtype.newbyteorder("="))
+    return gather_pixels(raster, line[None, :], pixel[None, :], np.ones((1, line.size), bool),
+                         0.0, scratch, into=out)[:, 0, :]
+
+
+def _resample_window(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, row0: int,
+                     col0: int, ch: TileChoice, ok: B, data: npt.NDArray[Any],
+                     method: Resampling) -> None:
+    """Replace the nearest pixel's value of the filled cells by the image interpolated at the
+    cell centre's fractional image position, where that can be done (postproc.products.resample);
+    the GLT keeps the nearest pixel."""
+    rows, cols = ok.shape
+    cells = np.flatnonzero(ok.ravel())
+    line0 = ch.line.ravel()[cells].astype(np.int64)
+    pix0 = ch.pixel.ravel()[cells].astype(np.int64)
+    n_lines, n_pixels = index.raster.lines, index.raster.pixels
+    igm_scratch, raw_scratch = Scratch(), Scratch()
+
+    def ground(line: I64, pixel: I64) -> F64:
+        return _cells_of(index.raster, line, pixel, igm_scratch)[:2].astype(np.float64)
+
+    s_plus, s_minus = np.minimum(pix0 + 1, n_pixels - 1), np.maximum(pix0 - 1, 0)
+    l_plus, l_minus = np.minimum(line0 + 1, n_lines - 1), np.maximum(line0 - 1, 0)
+    row, col = np.divmod(cells, cols)
+    centre_xy = np.stack([grid.centre_x_m(col0 + col), grid.centre_y_m(row0 + row)])
+    ds, dl, usable = fractional_offsets(
+        ground(line0, pix0), ground(line0, s_plus), ground(line0, s_minus),
+        ground(l_plus, pix0), ground(l_minus, pix0), (s_plus - s_minus).astype(np.float64),
+        (l_plus - l_minus).astype(np.float64), centre_xy)
+    values, interpolated = interpolate(
+        method, line0 + dl, pix0 + ds, raw.lines, raw.pixels,
+        lambda line, pixel: _cells_of(raw, line, pixel, raw_scratch), raw.nodata, data.dtype)
+    take = usable & interpolated
+    flat = np.reshape(data, (data.shape[0], rows * cols), copy=False)
+    flat[:, cells[take]] = values[:, take]
+
+
 def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: float,
                    tif: TiffWriter, glt: GltWriter | None, tile_cells: int | None,
-                   workers: int, progress: Progress | None, on_total: Progress | None
+                   workers: int, progress: Progress | None, on_total: Progress | None,
+                   resampling: Resampling = Resampling.NEAREST
                    ) -> tuple[int, int, float, float]:
     """Every window, `workers` at a time (the kernels release the GIL), handed to the
     GeoTIFF writer in order; (filled, infill, sum and max of the distances in metres)."""
@@ -1054,7 +1108,7 @@ def _ortho_windows(index: SwathIndex, raw: EnviRaster, grid: OrthoGrid, nodata: 
             if part is not None:
                 sc = free.pop()
                 running.append((part, sc, pool.submit(
-                    _make_window, index, raw, grid, nodata, part, work, sc)))
+                    _make_window, index, raw, grid, nodata, part, work, sc, resampling)))
 
         for _ in range(workers):
             start()

@@ -270,7 +270,11 @@ def _run(args: argparse.Namespace) -> int:
     print(f"emulate: {runner.outputs} outputs in {time.monotonic() - started:.1f} s; "
           f"latest emission {runner.late_ns_max / 1e6:.2f} ms behind schedule; "
           f"truth in {args.out / 'truth'}", flush=True)
+    refused = bridge.pulses.refused_note()
+    if refused is not None:
+        say_warning("emulate", refused)
     return 0
+
 
 
 FAST_FORWARD = "fast-forward to --start"

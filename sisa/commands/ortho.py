@@ -1,4 +1,5 @@
-"""`sisa ortho`: map an image onto a grid from its IGM, each cell from the nearest pixel centre.
+"""`sisa ortho`: map an image onto a grid from its IGM, each cell from the nearest pixel centre
+(or interpolated there: --resampling bilinear or cubic).
 
 OUT.tif            every band of the image on the grid, its data type, nodata outside the swath
 OUT_glt.bil/.hdr   ENVI GLT: for every cell the 1-based input sample and line (0: none);
@@ -25,6 +26,7 @@ from sisa.core.outdir import refuse_existing
 # postproc.products.ortho.TIFF_COMPRESSIONS, named here so `sisa --help` needs no GDAL
 # (a test checks)
 COMPRESSIONS = ("deflate", "zstd", "lzw", "none")
+RESAMPLINGS = ("nearest", "bilinear", "cubic")  # postproc.products.resample.Resampling
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -52,6 +54,11 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--bands", default=None, metavar="LIST",
                         help="the image's bands to map, 1-based, in the GeoTIFF's order, e.g. "
                              "4,3,2 (default: every band)")
+    parser.add_argument("--resampling", choices=RESAMPLINGS, default="nearest",
+                        help="nearest: the nearest pixel's value (default, radiometry "
+                             "untouched); bilinear (2x2 pixels) or cubic (4x4, cubic "
+                             "convolution): the image interpolated at the cell centre's "
+                             "position in it; the GLT stays the nearest pixel")
     parser.add_argument("--no-glt", action="store_true",
                         help="the GeoTIFF alone, without the GLT (a sparse file of 8 bytes a "
                              "cell: 0.7 GB for a 20 000-line strip at 1 m)")
@@ -64,6 +71,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.products import (
         EnviRaster,
         OrthoGrid,
+        Resampling,
         SwathIndex,
         common_lines,
         igm_epsg,
@@ -109,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
     with progress("ortho", "ortho", unit="cells") as bar:
         res = orthorectify(index, image, grid, out, glt, compress=args.compress,
                            progress=bar.advance, on_total=bar.set_total, empty_ok=False,
-                           bands=bands)
+                           bands=bands, resampling=Resampling(args.resampling))
     ortho_s = time.perf_counter() - t0
     print(f"{out}: {res.cells_filled} of {res.cells} cells filled ({grid.width} x "
           f"{grid.height} of {cell_m:g} m, EPSG:{epsg}), mean distance to the pixel centre "

@@ -29,6 +29,7 @@ from sisa.commands import (
     check_endpoints_path,
     check_port,
     flight_parts,
+    say_warning,
     write_endpoints,
 )
 from sisa.core.errors import ConfigError, InputError
@@ -183,6 +184,9 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         ports.close()
     print(player.summary(), flush=True)
+    refused = ports.pulses.refused_note() if ports.pulses is not None else None
+    if refused is not None:
+        say_warning("replay", refused)
     return 0
 
 
@@ -223,6 +227,8 @@ class _EdgeLink(Protocol):
 
     address: str
     edges_dropped: int
+
+    def refused_note(self) -> str | None: ...
 
     @property
     def has_client(self) -> bool: ...

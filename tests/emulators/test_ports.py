@@ -101,3 +101,54 @@ def test_can_target_refuses_udp_multicast_and_bad_forms():
         CanTarget.parse("udp_multicast:224.0.0.1")
     with pytest.raises(ConfigError, match="INTERFACE:CHANNEL"):
         CanTarget.parse("virtual")
+
+
+def _wait(condition, timeout_s: float = 2.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def test_a_second_client_of_the_pulse_link_is_refused_and_named():
+    """Any local process could connect to the pulse link (no authentication) and send edges to
+    the devices; it waited in the backlog behind the recorder and took the link when the
+    recorder reconnected (issue 39, item 8). Refused at once, unread, counted and named."""
+    received = []
+    endpoint = PulseEndpoint(received.append)
+    host, port = endpoint.address.removeprefix("tcp://").split(":")
+    try:
+        with socket.create_connection((host, int(port)), timeout=2.0) as first:
+            _wait(lambda: endpoint._client is not None)
+            with socket.create_connection((host, int(port)), timeout=2.0) as intruder:
+                peer = "{}:{}".format(*intruder.getsockname())
+                intruder.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 0, 1_000_000_000)))
+                intruder.settimeout(2.0)
+                assert intruder.recv(100) == b""  # closed by the endpoint
+            _wait(lambda: endpoint.clients_refused == 1)
+            first.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 0, 2_000_000_000)))
+            _wait(lambda: bool(received))
+        assert received == [Edge(PulseLine.INS_SYNC, 0, 2_000_000_000)]  # the client's only
+        assert endpoint.clients_refused == 1
+        assert endpoint.refused_peers == [peer]
+        note = endpoint.refused_note()
+        assert note is not None
+        assert peer in note
+        assert endpoint.address in note
+        # the first client gone, the next one is served
+        _wait(lambda: endpoint._client is None)
+        with socket.create_connection((host, int(port)), timeout=2.0) as again:
+            _wait(lambda: endpoint._client is not None)
+            again.sendall(encode_edge(Edge(PulseLine.INS_SYNC, 1, 3_000_000_000)))
+            _wait(lambda: len(received) == 2)
+        assert received[-1] == Edge(PulseLine.INS_SYNC, 1, 3_000_000_000)
+        assert endpoint.clients_refused == 1
+    finally:
+        endpoint.close()
+
+
+def test_a_pulse_link_without_intruders_says_nothing():
+    endpoint = PulseEndpoint(lambda _e: None)
+    try:
+        assert endpoint.refused_note() is None
+    finally:
+        endpoint.close()

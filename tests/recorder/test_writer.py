@@ -64,6 +64,34 @@ def test_every_topic_has_a_channel_with_its_json_schema(tmp_path):
             assert json.loads(schema.data) == json_schema(cls)
 
 
+def test_each_schema_has_one_id_and_rides_with_each_channels_first_chunk(tmp_path):
+    """Registered anew for each channel, `sisa.PulseEdge` and `sisa.RawBytes` were stored as
+    two identical schemas under two ids each (issue 33, item 10). One id per schema; its record
+    is written again (same id, same bytes) in the first chunk of every channel that uses it,
+    so that a damaged chunk loses only its own messages."""
+    from mcap.records import Channel, Schema
+    from mcap.stream_reader import StreamReader
+
+    path = tmp_path / "f.mcap"
+    _write_samples(path)
+    with path.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+    assert summary is not None
+    names = [s.name for s in summary.schemas.values()]
+    assert len(names) == len(set(names)), names
+    shared = {s.id for s in summary.schemas.values()
+              if sum(c.schema_id == s.id for c in summary.channels.values()) > 1}
+    assert shared  # raw bytes of two ports, edges of two directions
+    seen: dict[int, Schema] = {}
+    with path.open("rb") as fh:
+        for record in StreamReader(fh, skip_magic=False, emit_chunks=False).records:
+            if isinstance(record, Schema):
+                assert seen.setdefault(record.id, record) == record  # duplicates identical
+            elif isinstance(record, Channel):
+                assert record.schema_id in seen  # its schema came before it
+    assert set(seen) == set(summary.schemas)
+
+
 def test_every_schema_requires_what_every_message_holds(tmp_path):
     """Issue 33, item 10: foxglove.LocationFix's schema had no `required` list. (A schema shared
     by several topics is still written with each channel's first chunk: written once, a damaged

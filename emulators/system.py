@@ -87,7 +87,7 @@ class EmulatedSystem:
     def write_truth(self, folder: Path) -> None:
         """Every truth table into `folder`, each whole or not at all. On a disk error (a full
         disk) every table is still tried, and one RecorderError names the first file that
-        failed, the cause, and the tables not written (those written are whole)."""
+        failed, the cause, the tables not written and those written (whole)."""
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -105,7 +105,8 @@ class EmulatedSystem:
                     first = (folder / f"{table.name}.csv", exc)
         if first is not None:
             path, cause = first
+            written = [t.name for t in tables if t.name not in failed]
             raise RecorderError(
                 f"cannot write {path}: {cause.strerror or cause}: {len(failed)} of "
                 f"{len(tables)} truth tables not written ({', '.join(failed)})"
-                + ("" if len(failed) == len(tables) else "; the others are whole")) from cause
+                + (f"; written whole: {', '.join(written)}" if written else "")) from cause

@@ -13,6 +13,7 @@ import contextlib
 import csv
 import os
 import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -180,3 +181,48 @@ def test_truth_tables_are_whole_or_absent(leave_pages: int, tmp_path: Path) -> N
         # a table written after a failed write goes on at its end, spilled rows and all
         tables[1].append(i=40_000, x=1.0)
         assert tables[1].column("i").tolist() == list(range(40_001))
+
+
+# --- sisa emulate -----------------------------------------------------------------------------
+
+# 21 s of flight before strip 0 (no warning: `sisa sync` has its scanner-off pulses), then the
+# strip at 4x: a line a page, 250 pages a second, fill a 3 MB disk within seconds
+FILLING_RUN = ["--preset", "bench", "--start", "325", "--duration", "60", "--speed", "4"]
+
+
+def check_run_after_disk_full(out: Path, err: str, command: str, shown: Path) -> str:
+    """One error line naming a file of `shown` (the run as the user named it) and the cause;
+    the scanner's segments consistent and readable; each truth table whole or absent; no
+    partial file. The line."""
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    line = lines[0]
+    assert line.startswith(f"sisa {command}: error: cannot write {shown}/"), line
+    assert NO_SPACE in line
+    assert not partial_names(out.parent), partial_names(out.parent)
+    recorded = 0
+    for bil in sorted((out / "scanner").glob("segment_*.bil")):
+        recorded += check_segment(bil)
+    if recorded:
+        assert read_scanner_lines(out / "scanner").line.size == recorded
+    for table in sorted((out / "truth").glob("*.csv")):
+        columns = read_truth_csv(table)  # whole: its header counts its rows
+        if table.stem == "frames":  # the truth of what the scanner recorded, no more
+            assert int((columns["line_index"] >= 0).sum()) == recorded
+    return line
+
+
+def test_sisa_emulate_on_a_full_disk_exits_with_one_line(tmp_path: Path) -> None:
+    """The scanner's BIL fills a 3 MB tmpfs: were three chained ENOSPC tracebacks, a header,
+    BIL and lines file that disagreed (764 / 765 / 765 lines) and a 0-byte truth table."""
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        out = disk / "run"
+        done = subprocess.run([sys.executable, "-m", "sisa.cli", "emulate", *FILLING_RUN,
+                               "--out", str(out), "--quiet"],
+                              capture_output=True, text=True, timeout=300, cwd=ROOT)
+        assert done.returncode == 2, done.stderr
+        line = check_run_after_disk_full(out, done.stderr, "emulate", out)
+        assert f"cannot write {out}/scanner/segment_000." in line
+        assert check_segment(out / "scanner" / "segment_000.bil") > 100  # seconds of it kept
+        assert "; truth: cannot write " in line or "the truth tables are whole in " in line
+        assert " outputs in " not in done.stdout  # no summary: it failed

@@ -6,6 +6,7 @@ a fault never changes what another device does.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from enum import IntEnum
 from pathlib import Path
@@ -87,7 +88,9 @@ class EmulatedSystem:
     def write_truth(self, folder: Path) -> None:
         """Every truth table into `folder`, each whole or not at all. On a disk error (a full
         disk) every table is still tried, and one RecorderError names the first file that
-        failed, the cause, the tables not written and those written (whole)."""
+        failed, the cause, the tables not written and those written (whole); a folder made
+        here for none is removed."""
+        made = not folder.exists()
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -106,6 +109,9 @@ class EmulatedSystem:
         if first is not None:
             path, cause = first
             written = [t.name for t in tables if t.name not in failed]
+            if made and not written:  # no empty folder where the truth should be
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
             raise RecorderError(
                 f"cannot write {path}: {cause.strerror or cause}: {len(failed)} of "
                 f"{len(tables)} truth tables not written ({', '.join(failed)})"

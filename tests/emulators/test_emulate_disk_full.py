@@ -14,6 +14,7 @@ import csv
 import os
 import subprocess
 import sys
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,6 +27,9 @@ from emulators.system import EmulatedSystem
 from emulators.truth import TruthTable, read_truth_csv
 from postproc.products import EnviRaster
 from postproc.sync import read_scanner_lines
+from recorder.columns import read_columns
+from recorder.messages import Topic
+from recorder.stats import DamagedLogWarning
 from sisa.core.errors import RecorderError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -192,14 +196,13 @@ def test_truth_tables_are_whole_or_absent(leave_pages: int, tmp_path: Path) -> N
 FILLING_RUN = ["--preset", "bench", "--start", "325", "--duration", "60", "--speed", "4"]
 
 
-def check_run_after_disk_full(out: Path, err: str, command: str, shown: Path) -> str:
-    """One error line naming a file of `shown` (the run as the user named it) and the cause;
-    the scanner's segments consistent and readable; each truth table whole or absent; no
-    partial file. The line."""
+def check_run_after_disk_full(out: Path, err: str) -> str:
+    """One error line naming a file of the run and the cause; the scanner's segments
+    consistent and readable; each truth table whole or absent; no partial file. The line."""
     lines = err.splitlines()
     assert len(lines) == 1, err
     line = lines[0]
-    assert line.startswith(f"sisa {command}: error: cannot write {shown}/"), line
+    assert f"cannot write {out}/" in line
     assert NO_SPACE in line
     assert not partial_names(out.parent), partial_names(out.parent)
     recorded = 0
@@ -223,8 +226,35 @@ def test_sisa_emulate_on_a_full_disk_exits_with_one_line(tmp_path: Path) -> None
                                "--out", str(out), "--quiet"],
                               capture_output=True, text=True, timeout=300, cwd=ROOT)
         assert done.returncode == 2, done.stderr
-        line = check_run_after_disk_full(out, done.stderr, "emulate", out)
-        assert f"cannot write {out}/scanner/segment_000." in line
+        line = check_run_after_disk_full(out, done.stderr)
+        assert line.startswith(f"sisa emulate: error: cannot write {out}/scanner/segment_000."), \
+            line
         assert check_segment(out / "scanner" / "segment_000.bil") > 100  # seconds of it kept
         assert "; truth: cannot write " in line or "the truth tables are whole in " in line
         assert " outputs in " not in done.stdout  # no summary: it failed
+
+
+# --- sisa bench -------------------------------------------------------------------------------
+
+def test_sisa_bench_on_a_full_disk_exits_with_one_line(tmp_path: Path) -> None:
+    """The emulator's scanner fills the disk the recorder writes to as well: each child's
+    error was its own line, the emulator's three tracebacks, then the bench's `sisa emulate
+    exited 1, sisa record exited 2`. Now one line, the children's words in it; the run so far
+    kept (the recorder had begun its flight log), every file in it whole or consistent."""
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        out = disk / "run"
+        done = subprocess.run([sys.executable, "-m", "sisa.cli", "bench", *FILLING_RUN,
+                               "--out", str(out)],
+                              capture_output=True, text=True, timeout=300, cwd=ROOT)
+        assert done.returncode == 2, done.stderr
+        line = check_run_after_disk_full(out, done.stderr)
+        assert line.startswith("sisa bench: error: sisa "), line
+        assert line.endswith(f"; the run so far is in {out}"), line
+        assert "exited" not in line  # each child said why, in its own words
+        assert ".partial" not in line  # the files named where they are kept
+        assert sorted(p.name for p in disk.iterdir()) == ["run"]
+        assert not (out / "emulator").exists()
+        assert (out / "flight.mcap").is_file()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DamagedLogWarning)  # cut by the full disk
+            assert len(read_columns(out / "flight.mcap", Topic.INS_RECORD)["counter"]) > 100

@@ -345,9 +345,10 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
     """(the recorder, the emulator) once ended. Once `sisa emulate --hold` says the scenario is
     over (or that it stopped on an error: a full disk), give the recorder `drain_s` for what is
     still in flight, stop it, then the emulator: the recorder ends on a stop, not on its
-    devices going away (no disconnects logged, and no wait for it to give them up). If the recorder ends first (it failed), the emulator is
-    stopped at once rather than left to play out the scenario; if the emulator ends without
-    holding (it failed), the recorder, which would wait for its devices, is stopped."""
+    devices going away (no disconnects logged, and no wait for it to give them up). If the
+    recorder ends first (it failed), the emulator is stopped at once rather than left to play
+    out the scenario; if the emulator ends without holding (it failed), the recorder, which
+    would wait for its devices, is stopped."""
     assert emu.stdout is not None
     held = threading.Event()
 

@@ -22,11 +22,14 @@ What it does, and why:
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import heapq
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final, TextIO
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -39,6 +42,7 @@ from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
+from sisa.core.errors import RecorderError
 from sisa.core.outdir import write_whole
 
 I64 = npt.NDArray[np.int64]
@@ -110,7 +114,12 @@ class BilSegmentWriter:
     little-endian, band-interleaved by line), `segment_NNN.hdr` (ENVI) and
     `segment_NNN.lines.csv` (frame counter of every line). Lines are appended in blocks and
     the header is rewritten (atomically) after each, so an interrupted recording stays
-    readable up to its last block."""
+    readable up to its last block.
+
+    A disk error (a full disk: ENOSPC; EIO, EFBIG) puts the segment back as its last whole
+    block left it: the BIL and the lines file are cut to the lines the header names, so the
+    three agree; a segment that could not be started is removed. Its files are closed and one
+    RecorderError names the file and the cause; every later append raises it again."""
 
     def __init__(self, folder: Path, segment: int, pixels: int, bands: int,
                  frame_counter_bits: int) -> None:
@@ -118,12 +127,23 @@ class BilSegmentWriter:
         self.segment = segment
         self.pixels = pixels
         self.bands = bands
-        self.lines = 0
-        self._bil = open(self.bil_path, "wb")  # noqa: SIM115 - kept open across blocks
-        self._csv: TextIO = open(self.lines_csv_path, "w", encoding="utf-8")  # noqa: SIM115
-        self._csv.write(_lines_csv_doc(self.bil_path.name, frame_counter_bits))
-        self._csv.write("line_index,frame_counter\n")
-        self._write_header()
+        self.lines = 0  # what the header says: the lines the three files agree on
+        self._csv_bytes = 0  # the lines file's size with those lines
+        self._error: RecorderError | None = None
+        self._bil = self._csv = -1
+        where = self.bil_path
+        try:
+            self._bil = _open_for_writing(where)
+            where = self.lines_csv_path
+            self._csv = _open_for_writing(where)
+            head = (_lines_csv_doc(self.bil_path.name, frame_counter_bits)
+                    + "line_index,frame_counter\n").encode("utf-8")
+            _write_all(self._csv, head)
+            self._csv_bytes = len(head)
+            where = self.hdr_path
+            self._write_header(0)
+        except OSError as exc:
+            raise self._fail(where, exc) from exc
 
     @property
     def bil_path(self) -> Path:
@@ -137,30 +157,90 @@ class BilSegmentWriter:
     def lines_csv_path(self) -> Path:
         return self.stem.with_suffix(".lines.csv")
 
+    @property
+    def line_bytes(self) -> int:
+        return self.pixels * self.bands * 2
+
     def append(self, dn: U16, frame_counters: npt.ArrayLike) -> None:
-        """Lines (lines, bands, pixels) and the frame counter of each."""
+        """Lines (lines, bands, pixels) and the frame counter of each: in the three files
+        together, or (a disk error: RecorderError) in none of them."""
+        if self._error is not None:
+            raise self._error
+        if self._bil < 0:
+            raise ValueError(f"{self.stem.name}: the segment is closed")
         counters = np.asarray(frame_counters, dtype=np.int64)
         if dn.shape != (counters.size, self.bands, self.pixels):
             raise ValueError(f"expected ({counters.size}, {self.bands}, {self.pixels}) lines, "
                              f"got {dn.shape}")
-        self._bil.write(np.ascontiguousarray(dn, dtype="<u2").tobytes())
         index = np.arange(self.lines, self.lines + counters.size)
-        self._csv.write("".join(f"{i},{c}\n" for i, c in zip(index.tolist(), counters.tolist(),
-                                                              strict=True)))
-        self._bil.flush()
-        self._csv.flush()
+        rows = "".join(f"{i},{c}\n" for i, c in zip(index.tolist(), counters.tolist(),
+                                                    strict=True)).encode("utf-8")
+        where = self.bil_path
+        try:
+            _write_all(self._bil, np.ascontiguousarray(dn, dtype="<u2").tobytes())
+            where = self.lines_csv_path
+            _write_all(self._csv, rows)
+            where = self.hdr_path
+            self._write_header(self.lines + counters.size)  # the commit
+        except OSError as exc:
+            raise self._fail(where, exc) from exc
         self.lines += counters.size
-        self._write_header()
+        self._csv_bytes += len(rows)
 
     def close(self) -> None:
-        if not self._bil.closed:
-            self._bil.close()
-            self._csv.close()
-            self._write_header()
+        """Close the files (the header is current: rewritten after every block)."""
+        self._close_files()
 
-    def _write_header(self) -> None:
-        write_whole(self.hdr_path, envi_header(self.pixels, self.lines, self.bands,
-                                               self.segment, self.lines_csv_path.name))
+    def _fail(self, where: Path, exc: OSError) -> RecorderError:
+        """Cut the BIL and the lines file back to the lines the header names (cutting needs
+        no room), or remove the segment if it has none (an ENVI file of no line is not a
+        raster), close them, and keep the one error."""
+        with contextlib.suppress(OSError):
+            os.ftruncate(self._bil, self.lines * self.line_bytes)
+        with contextlib.suppress(OSError):
+            os.ftruncate(self._csv, self._csv_bytes)
+        self._close_files()
+        if self.lines:
+            kept = (f"is kept up to its last whole block ({self.lines} lines: its .bil, .hdr "
+                    "and lines file agree)")
+        else:
+            for path in (self.bil_path, self.hdr_path, self.lines_csv_path):
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            kept = "is removed (no line of it was written)"
+        self._error = RecorderError(f"cannot write {where}: {_reason(exc)}; the scanner's "
+                                    f"recording segment {self.stem.name} {kept}")
+        return self._error
+
+    def _close_files(self) -> None:
+        for fd in (self._bil, self._csv):
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._bil = self._csv = -1
+
+    def _write_header(self, lines: int) -> None:
+        write_whole(self.hdr_path, envi_header(self.pixels, lines, self.bands, self.segment,
+                                               self.lines_csv_path.name))
+
+
+def _open_for_writing(path: Path) -> int:
+    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """All of `data`, or OSError (a write that took part of it is followed by one that fails:
+    what reached the file is then cut away by the caller)."""
+    view = memoryview(data)
+    while view:
+        written = os.write(fd, view)
+        if written <= 0:  # (not for a regular file; never loop on it)
+            raise OSError(errno.EIO, os.strerror(errno.EIO))
+        view = view[written:]
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
 
 
 def envi_header(pixels: int, lines: int, bands: int, segment: int, lines_csv: str) -> str:

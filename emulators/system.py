@@ -6,6 +6,7 @@ a fault never changes what another device does.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from enum import IntEnum
 from pathlib import Path
@@ -23,6 +24,7 @@ from emulators.scenario import Scenario
 from emulators.terrain import Scene, Terrain
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import TruthTable
+from sisa.core.errors import RecorderError
 
 
 class Stream(IntEnum):
@@ -84,6 +86,33 @@ class EmulatedSystem:
         return [*self.gps.tables, *self.ins.tables, *self.scanner.tables, self.faults]
 
     def write_truth(self, folder: Path) -> None:
-        folder.mkdir(parents=True, exist_ok=True)
-        for table in self.truth_tables():
-            table.write_csv(folder)
+        """Every truth table into `folder`, each whole or not at all. On a disk error (a full
+        disk) every table is still tried, and one RecorderError names the first file that
+        failed, the cause, the tables not written and those written (whole); a folder made
+        here for none is removed."""
+        made = not folder.exists()
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RecorderError(f"cannot create {folder}: {exc.strerror or exc}: no truth "
+                                "table written") from exc
+        tables = self.truth_tables()
+        failed: list[str] = []
+        first: tuple[Path, OSError] | None = None
+        for table in tables:
+            try:
+                table.write_csv(folder)
+            except OSError as exc:
+                failed.append(table.name)
+                if first is None:
+                    first = (folder / f"{table.name}.csv", exc)
+        if first is not None:
+            path, cause = first
+            written = [t.name for t in tables if t.name not in failed]
+            if made and not written:  # no empty folder where the truth should be
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+            raise RecorderError(
+                f"cannot write {path}: {cause.strerror or cause}: {len(failed)} of "
+                f"{len(tables)} truth tables not written ({', '.join(failed)})"
+                + (f"; written whole: {', '.join(written)}" if written else "")) from cause

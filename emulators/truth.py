@@ -8,7 +8,9 @@ run do.
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import os
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -18,6 +20,7 @@ from typing import IO, Any, Final
 import numpy as np
 
 from sisa.core.errors import InputError
+from sisa.core.outdir import create_partial
 
 SPILL_ROWS: Final = 100_000  # rows held in memory per table before they go to a temporary file
 ROWS_MARK: Final = "# rows: "  # in the commented header: a table cut short is told by its count
@@ -79,21 +82,35 @@ class TruthTable:
             return read_truth_csv(self.write_csv(Path(tmp)))
 
     def write_csv(self, folder: Path) -> Path:
+        """`folder/NAME.csv`, written whole: under a partial name, renamed once complete; on
+        failure (a full disk) nothing is left of it. OSError as the write gives it."""
         path = Path(folder) / f"{self.name}.csv"
-        with path.open("w", newline="", encoding="utf-8") as fh:
-            fh.write(f"# {self.description}\n")
-            fh.write(f"{ROWS_MARK}{len(self)}\n")
-            for col, meaning in self.columns.items():
-                fh.write(f"# {col}: {meaning}\n")
-            writer = csv.writer(fh)
-            writer.writerow(list(self.columns))
-            if self._spill is not None:
-                self._spill.flush()
-                self._spill.seek(0)
-                shutil.copyfileobj(self._spill, fh)
-                self._spill.seek(0, 2)
-            writer.writerows(zip(*self._data.values(), strict=True))
+        tmp, fd = create_partial(path)
+        try:
+            with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
+                self._write_rows(fh)
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise
         return path
+
+    def _write_rows(self, fh: IO[str]) -> None:
+        fh.write(f"# {self.description}\n")
+        fh.write(f"{ROWS_MARK}{len(self)}\n")
+        for col, meaning in self.columns.items():
+            fh.write(f"# {col}: {meaning}\n")
+        writer = csv.writer(fh)
+        writer.writerow(list(self.columns))
+        if self._spill is not None:
+            self._spill.flush()
+            self._spill.seek(0)
+            try:
+                shutil.copyfileobj(self._spill, fh)
+            finally:  # later rows go on at its end, whatever happened here
+                self._spill.seek(0, 2)
+        writer.writerows(zip(*self._data.values(), strict=True))
 
 
 def read_truth_csv(path: Path) -> dict[str, np.ndarray[Any, Any]]:

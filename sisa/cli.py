@@ -18,7 +18,7 @@ from types import FrameType
 from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
-from sisa.commands import Terminated, warning_line
+from sisa.commands import Terminated, say_error, warning_line
 from sisa.core.errors import InputError, SisaError
 
 Handler = Callable[[argparse.Namespace], int]
@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         print(f"sisa {args.command}: terminated", file=sys.stderr)
         return 143
     except SisaError as exc:
-        print(f"sisa {args.command}: error: {_cut(str(exc))}", file=sys.stderr)
+        say_error(f"sisa {args.command}: error: {_cut(str(exc))}")
         return 2
     except BrokenPipeError:  # `sisa ... | head`: the reader left, that is fine
         sys.stderr.close()

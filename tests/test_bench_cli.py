@@ -15,7 +15,14 @@ from emulators.truth import read_truth_csv
 from recorder.columns import read_columns
 from recorder.messages import Topic
 from recorder.stats import DamagedLogWarning
-from sisa.commands.bench import EMULATOR_LAG, late_edges_note, stop_after_hold
+from sisa.commands.bench import (
+    EMULATOR_LAG,
+    Ended,
+    ErrorLine,
+    failure,
+    late_edges_note,
+    stop_after_hold,
+)
 from sisa.commands.emulate import HELD_LINE
 
 SECONDS = 5
@@ -224,3 +231,28 @@ def test_late_edges_are_told_apart_by_the_emulators_own_lateness():
     assert "kept within 3.2 ms" in on_time
     assert "recorder's side" in on_time
     assert late_edges_note(rec.replace("26 late edges", "0 late edges"), 85.0, 20.0) is None
+
+
+def test_the_bench_says_its_childrens_errors_in_their_words_in_one_line():
+    """A full disk fails both children, often: the bench's one line holds both reasons."""
+    ok = Ended(0, "", "")
+    emu = Ended(2, "", "", "cannot write run/scanner/segment_000.bil: No space left on device")
+    rec = Ended(2, "", "", "cannot write run/flight.mcap: No space left on device")
+    assert failure(emu, ok, 9.0, stopped_early=False) == f"sisa emulate: {emu.error}"
+    assert failure(emu, rec, 9.0, stopped_early=False) == \
+        f"sisa emulate: {emu.error}; sisa record: {rec.error}"
+    assert failure(Ended(1, "", ""), rec, 9.0, stopped_early=False) == \
+        f"sisa emulate exited 1; sisa record: {rec.error}"
+
+
+def test_a_child_gives_its_error_line_to_the_bench_and_not_to_the_terminal(tmp_path):
+    with ErrorLine() as said:
+        proc = subprocess.Popen([sys.executable, "-m", "sisa.cli", "emulate", "--preset", "bench",
+                                 "--out", str(tmp_path / "emu"), "--speed", "-1"],
+                                stderr=subprocess.PIPE, text=True, pass_fds=said.pass_fds,
+                                env=said.env)
+        said.started()
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 2
+        assert err == ""
+        assert said.read() == "--speed must be positive"  # without its `sisa emulate: error: `

@@ -43,6 +43,24 @@ def say_warning(command: str, text: str) -> None:
     print(warning_line(command, text), end="", file=sys.stderr, flush=True)
 
 
+# A command run by another (`sisa bench`'s emulator and recorder) gives its one error line to
+# the descriptor this names, when set, instead of stderr: the parent says one line for the run.
+ERROR_FD_ENV = "SISA_ERROR_FD"
+
+
+def say_error(line: str) -> None:
+    """A command's error line (sisa.cli): to the descriptor in SISA_ERROR_FD if it takes it,
+    else to stderr."""
+    fd = os.environ.get(ERROR_FD_ENV, "")
+    if fd.isdigit():
+        try:
+            os.write(int(fd), f"{line}\n".encode("utf-8", "replace"))
+            return
+        except OSError:  # not open (a stale setting): stderr, as always
+            pass
+    print(line, file=sys.stderr)
+
+
 def flight_parts(files: Sequence[Path]) -> list[Path]:
     """`recorder.parts.flight_parts`, imported when a command uses it: building the parser
     (every command's first step, and all an argument error needs) imports no numpy."""

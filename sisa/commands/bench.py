@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 from sisa.commands import (
+    ERROR_FD_ENV,
     SubParsers,
     Terminated,
     add_command,
@@ -31,6 +32,7 @@ from sisa.commands import (
     scenario_from_args,
 )
 from sisa.commands.emulate import (
+    HELD_FAILED_LINE,
     HELD_LINE,
     add_span_args,
     check_span,
@@ -72,25 +74,84 @@ def _scenario_args(args: argparse.Namespace) -> list[str]:
     return ["--preset", args.preset]
 
 
-def wait_for_endpoints(path: Path, proc: subprocess.Popen[str]) -> dict[str, str]:
-    """The endpoints `sisa emulate --endpoints PATH` announces, once the file is written."""
+def wait_for_endpoints(path: Path, proc: subprocess.Popen[str],
+                       error: ErrorLine | None = None) -> dict[str, str]:
+    """The endpoints `sisa emulate --endpoints PATH` announces, once the file is written
+    (`error`: where the emulator says why it ended, if it does)."""
     deadline = time.monotonic() + ANNOUNCE_TIMEOUT_S
     while time.monotonic() < deadline:
         if path.exists() and path.stat().st_size:
             endpoints: dict[str, str] = json.loads(path.read_text())
             return endpoints
         if proc.poll() is not None:
-            raise SisaError(f"sisa emulate exited early with code {proc.returncode}")
+            why = error.read() if error is not None else ""
+            raise SisaError(f"sisa emulate: {why}" if why else
+                            f"sisa emulate exited early with code {proc.returncode}")
         time.sleep(0.05)
     raise SisaError("sisa emulate did not announce its ports in time")
 
 
 class Ended(NamedTuple):
-    """A child process that has ended: its exit code and what it last wrote to its pipes."""
+    """A child process that has ended: its exit code, what it last wrote to its pipes, and
+    its error line (without its `sisa CMD: error: `), if it said one."""
 
     code: int
     stdout: str
     stderr: str
+    error: str = ""
+
+
+class ErrorLine:
+    """The pipe a child gives its one error line to (SISA_ERROR_FD, sisa.commands.say_error),
+    instead of the terminal: the bench says one line for the run, theirs in it. A pipe, not a
+    file: it takes the line on a full disk too."""
+
+    PREFIX = re.compile(r"^sisa \S+: error: ")
+
+    def __init__(self) -> None:
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._r, False)
+        self._text: str | None = None
+
+    def __enter__(self) -> ErrorLine:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+    @property
+    def pass_fds(self) -> tuple[int]:
+        """For subprocess.Popen: the write end, to the child..."""
+        return (self._w,)
+
+    @property
+    def env(self) -> dict[str, str]:
+        """... and where it is."""
+        return {**os.environ, ERROR_FD_ENV: str(self._w)}
+
+    def started(self) -> None:
+        """The child has its copy of the write end: the bench's goes (the line ends with
+        the child)."""
+        if self._w >= 0:
+            os.close(self._w)
+            self._w = -1
+
+    def read(self) -> str:
+        """The child's error line once it has ended ("" if it said none), read once."""
+        if self._text is None:
+            chunks = []
+            with contextlib.suppress(BlockingIOError):
+                while chunk := os.read(self._r, 65536):
+                    chunks.append(chunk)
+            self._text = self.PREFIX.sub("", b"".join(chunks).decode("utf-8", "replace")
+                                         .strip())
+        return self._text
+
+    def close(self) -> None:
+        self.started()
+        if self._r >= 0:
+            os.close(self._r)
+            self._r = -1
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -114,7 +175,8 @@ def _run(args: argparse.Namespace) -> int:
         say_warning("bench", warning)
     sisa = [sys.executable, "-m", "sisa.cli"]
     stopped: KeyboardInterrupt | None = None  # Ctrl-C or SIGTERM, at whatever moment
-    with staged_output_dir(args.out, force=args.force) as run:
+    with (staged_output_dir(args.out, force=args.force) as run, ErrorLine() as emu_error,
+          ErrorLine() as rec_error):
         endpoints_file = run / "endpoints.json"
         emu_cmd = [*sisa, "emulate", *_scenario_args(args), "--out", str(run / "emulator"),
                    "--speed", str(args.speed), "--start", str(args.start),
@@ -132,20 +194,24 @@ def _run(args: argparse.Namespace) -> int:
         try:
             (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
             emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True,
-                                   process_group=0)  # see STOPPED_STARTING
+                                   process_group=0,  # see STOPPED_STARTING
+                                   pass_fds=emu_error.pass_fds, env=emu_error.env)
+            emu_error.started()
             with progress("bench", "starting: DEM, ground points, emulator") as bar:
                 # the DEM and ground points, as `sisa simulate` writes them, while the
                 # emulator starts
                 write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
                 bar.step("starting: waiting for the emulator's ports")
-                ep = wait_for_endpoints(endpoints_file, emu)
+                ep = wait_for_endpoints(endpoints_file, emu, emu_error)
             rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                     "--gps", ep["gps"], "--scanner", ep["scanner"],
                                     "--ins", ep["ins"], "--pulses", ep["pulses"],
                                     "--out", str(run / "flight.mcap"),
                                     "--shown-as", str(args.out / "flight.mcap")],
                                    stdout=subprocess.PIPE, text=True,
-                                   process_group=0)
+                                   process_group=0,
+                                   pass_fds=rec_error.pass_fds, env=rec_error.env)
+            rec_error.started()
             rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
         except KeyboardInterrupt as exc:
             stopped = exc
@@ -160,6 +226,19 @@ def _run(args: argparse.Namespace) -> int:
                 _stop(rec, ask=True)
             if emu is not None:
                 _stop(emu, ask=True)
+
+        def shown(text: str) -> str:  # the run's files where they are kept
+            return text.replace(str(run / "emulator"), str(args.out)).replace(str(run),
+                                                                               str(args.out))
+
+        if emu_end is not None:
+            emu_end = emu_end._replace(error=shown(emu_error.read()))
+        if rec_end is not None:
+            rec_end = rec_end._replace(error=shown(rec_error.read()))
+        if stopped is not None:  # their errors as they said them, beside the stop
+            for name, end in (("emulate", emu_end), ("record", rec_end)):
+                if end is not None and end.error:
+                    print(f"sisa {name}: error: {end.error}", file=sys.stderr)
         if stopped is not None and not (run / "flight.mcap").exists():
             print("sisa bench: stopped before the recorder had begun its flight log: nothing "
                   "recorded, nothing kept", file=sys.stderr)
@@ -168,8 +247,9 @@ def _run(args: argparse.Namespace) -> int:
         assert emu_end is not None
         failed = None if stopped is not None else failure(emu_end, rec_end, real_s,
                                                           stopped_early=False)
-        if failed and not (run / "flight.mcap").exists():
-            raise SisaError(failed)  # nothing recorded: nothing to keep
+        if failed and not (run / "flight.mcap").exists():  # nothing recorded: nothing kept
+            raise SisaError(f"{failed}; nothing was kept (sisa record had not begun its "
+                            "flight log)")
         for part in ("scanner", "truth"):
             if (run / "emulator" / part).exists():
                 os.replace(run / "emulator" / part, run / part)
@@ -223,6 +303,11 @@ def failure(emu_end: Ended, rec_end: Ended, real_s: float, *, stopped_early: boo
     """What went wrong with the two children, if anything, in the words of the bench."""
     if emu_end.code == 0 and rec_end.code == 0:
         return None
+    if emu_end.error or rec_end.error:  # (a full disk: both, often) in their words
+        return "; ".join(f"sisa {name}: {end.error}" if end.error else
+                         f"sisa {name} exited {end.code}"
+                         for name, end in (("emulate", emu_end), ("record", rec_end))
+                         if end.code != 0)
     if not stopped_early and emu_end.code == 0 and rec_end.code in STOPPED_STARTING:
         # the scenario ended and the recorder was asked to stop, as always, but it was still
         # starting up: "sisa record exited 130" said nothing of why
@@ -258,11 +343,12 @@ def _real_seconds(traj: TruthTrajectory, args: argparse.Namespace) -> float:
 def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drain_s: float
                     ) -> tuple[Ended, Ended]:
     """(the recorder, the emulator) once ended. Once `sisa emulate --hold` says the scenario is
-    over, give the recorder `drain_s` for what is still in flight, stop it, then the emulator:
-    the recorder ends on a stop, not on its devices going away (no disconnects logged, and no
-    wait for it to give them up). If the recorder ends first (it failed), the emulator is
-    stopped at once rather than left to play out the scenario; if the emulator ends without
-    holding (it failed), the recorder, which would wait for its devices, is stopped."""
+    over (or that it stopped on an error: a full disk), give the recorder `drain_s` for what is
+    still in flight, stop it, then the emulator: the recorder ends on a stop, not on its
+    devices going away (no disconnects logged, and no wait for it to give them up). If the
+    recorder ends first (it failed), the emulator is stopped at once rather than left to play
+    out the scenario; if the emulator ends without holding (it failed), the recorder, which
+    would wait for its devices, is stopped."""
     assert emu.stdout is not None
     held = threading.Event()
 
@@ -273,7 +359,7 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
 
     watcher = threading.Thread(target=stop_emulator_if_recorder_ends, daemon=True)
     watcher.start()
-    if any(line.rstrip("\n") == HELD_LINE for line in emu.stdout):
+    if any(line.rstrip("\n") in (HELD_LINE, HELD_FAILED_LINE) for line in emu.stdout):
         held.set()
         time.sleep(drain_s)
         return _stop(rec, ask=True), _stop(emu, ask=True)

@@ -24,7 +24,7 @@ from sisa.commands import (
     write_endpoints,
 )
 from sisa.commands.progress import Progress, progress
-from sisa.core.errors import InputError
+from sisa.core.errors import InputError, RecorderError
 from sisa.core.outdir import name_taken
 
 if TYPE_CHECKING:
@@ -36,6 +36,10 @@ if TYPE_CHECKING:
 
 MIN_SPEED = 0.001  # --speed: slower flies a minute of the scenario in more than 16 hours
 HELD_LINE = "emulate: the scenario is over; every port held open, silent, until Ctrl-C"
+# with --hold, after a disk error: the ports stay until Ctrl-C as well, so that a recorder on
+# them is stopped before its devices go away; then the error
+HELD_FAILED_LINE = ("emulate: stopped on an error, said at the end; every port held open, "
+                    "silent, until Ctrl-C")
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -62,9 +66,9 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     # sisa bench runs this with its own name on the progress lines
     parser.add_argument("--progress-as", default="emulate", help=argparse.SUPPRESS)
     parser.add_argument("--hold", action="store_true",
-                        help="at the end of the scenario (or --duration), keep every port "
-                             "open and silent until Ctrl-C, so that a recorder on them can be "
-                             "stopped before its devices go away")
+                        help="at the end of the scenario (or --duration), or on a disk "
+                             "error, keep every port open and silent until Ctrl-C, so that a "
+                             "recorder on them can be stopped before its devices go away")
     parser.add_argument("--gpsd", action="store_true",
                         help="also start gpsd (if installed) on a copy of the GPS port, "
                              "listening on loopback, and print how to connect")
@@ -253,20 +257,34 @@ def _run(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration * 1e9 < system.traj.t_end_ns - start:
         until = start + int(args.duration * 1e9)
     started = time.monotonic()
+    failed: RecorderError | None = None  # the scanner's recording, on a full disk
+    truth_failed: RecorderError | None = None
     try:
-        with progress(args.progress_as, quiet=args.quiet, refresh_hz=2) as bar:
-            bar.follow(_follow(bar, runner, system.traj.t_start_ns, start,
-                               until or system.traj.t_end_ns))
-            runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
-        if args.hold and not stop.is_set():
-            print(HELD_LINE, flush=True)
+        try:
+            with progress(args.progress_as, quiet=args.quiet, refresh_hz=2) as bar:
+                bar.follow(_follow(bar, runner, system.traj.t_start_ns, start,
+                                   until or system.traj.t_end_ns))
+                runner.run(until_ns=until, should_stop=stop.is_set, skip_until_ns=start)
+        except RecorderError as exc:  # the devices stopped (and the scanner closed its files)
+            failed = exc
+        if args.hold and not stop.is_set():  # a recorder on the ports is stopped first
+            print(HELD_LINE if failed is None else HELD_FAILED_LINE, flush=True)
             while not stop.wait(0.5):  # a bare wait() would defer the signal handler
                 pass
     finally:
         if gpsd is not None:
             gpsd.stop()
         bridge.close()
-        system.write_truth(args.out / "truth")
+        try:
+            system.write_truth(args.out / "truth")
+        except RecorderError as exc:
+            truth_failed = exc
+    if failed is not None:
+        truth = (f"truth: {truth_failed}" if truth_failed is not None else
+                 f"the truth tables are whole in {args.out / 'truth'}")
+        raise RecorderError(f"{failed}; {truth}") from failed
+    if truth_failed is not None:
+        raise truth_failed
     print(f"emulate: {runner.outputs} outputs in {time.monotonic() - started:.1f} s; "
           f"latest emission {runner.late_ns_max / 1e6:.2f} ms behind schedule; "
           f"truth in {args.out / 'truth'}", flush=True)

@@ -24,7 +24,9 @@ class EncodeError(SisaError, ValueError):
 
 
 class RecorderError(SisaError):
-    """Writing the flight log failed (operation phase); what was on disk stays readable."""
+    """Writing a recording failed (operation phase): the flight log, or what an emulator records
+    beside it (the scanner's own recording, the truth tables); what was on disk stays
+    readable."""
 
 
 class DecodeError(SisaError):

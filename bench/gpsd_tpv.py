@@ -37,7 +37,8 @@ def main(argv: list[str] | None = None) -> int:
                         default=ROOT / "tests" / "acquisition" / "gpsd_corpus")
     parser.add_argument("--show", type=int, default=2, help="examples shown per exception")
     args = parser.parse_args(argv)
-    logs = sorted(args.folder.glob("*.log"))
+    logs = [log for log in sorted(args.folder.glob("*.log"))
+            if (log.parent / f"{log.name}.chk").exists()]
     tally = tally_folder(args.folder)
     print(f"{len(logs)} log(s) in {args.folder}")
     print(f"{'type':4} " + " ".join(f"{c:>14}" for c in COLUMNS) + f" {'equal/matched':>14}")

@@ -553,8 +553,10 @@ def _report(model: GpsdModel, tpv: dict[str, Any]) -> None:
 
 
 def files(folder: Path) -> list[tuple[str, bytes, str]]:
-    return [(log.name, log.read_bytes(), log.with_suffix(".log.chk").read_text("latin-1"))
-            for log in sorted(folder.glob("*.log"))]
+    """(name, log, gpsd's .chk) of the logs of a folder that have their .chk."""
+    pairs = [(log, log.parent / f"{log.name}.chk") for log in sorted(folder.glob("*.log"))]
+    return [(log.name, log.read_bytes(), chk.read_text("latin-1"))
+            for log, chk in pairs if chk.exists()]
 
 
 # --- verdicts ----------------------------------------------------------------------------------

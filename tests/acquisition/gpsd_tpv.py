@@ -191,7 +191,6 @@ class Sentence:
     compared: dict[str, list[tuple[Any, Any, bool]]] = field(default_factory=dict)
     # field ("*": all) -> why gpsd states it in no TPV
     unreported: dict[str, str] = field(default_factory=dict)
-    set_by_gpsd: set[str] = field(default_factory=set)  # the fields gpsd took from it
     our_time: str | None = None  # ours, as gpsd prints a time (with the date we give a GGA)
     dated_by_void_rmc: bool = False  # (a GGA) the date we gave it came from an RMC of status V
 
@@ -315,8 +314,6 @@ class GpsdModel:
             _lost(old, f"{name} replaced by a later {source.what} of the cycle before any TPV",
                   name)
         self.fix[name] = source
-        if source.sentence is not None:
-            source.sentence.set_by_gpsd.add(name)
 
     def _time(self, source: _Source) -> None:
         self._set("time", source)

@@ -67,14 +67,16 @@ EXCEPTIONS: dict[str, dict[str, int]] = {
         "mr-350p.log": 1, "pharos-360.log": 1, "tcp-test.log": 1, "tcp-torture.log": 1,
         "ublox-lea-4h.log": 2, "ublox-lea-4s.log": 2, "udp-test.log": 1, "venus634lp.log": 1},
     # `$GPGGA,,,,,,0,00,99.99,,,,,,`, `$GPRMC,,V,,,,,,,,,,N`, `$GPZDA,,,,,,`: no time, no
-    # position; gpsd sets its time to 0 (no "time" in the TPV), we decode the nulls
+    # position; gpsd takes nothing of them (of the first two it zeroes its date: no "time" in
+    # the TPV), we decode the nulls
     Verdict.NULL: {"april6_2019.log": 1, "bt451.log": 12, "ericsson-gru04.log": 1},
     # the GP-320FW after a cold boot: void RMCs dated 1999-08-22 (its week-rollover bug) then
     # a GGA; gpsd keeps the date of an earlier valid sentence (2019-04-07), we take the
     # receiver's last RMC date as it is (status V included): one GGA 1024 weeks apart
     Verdict.VOID_RMC_DATE: {"gp-320fw-2019-04-07-coldboot.log": 1},
-    # a TCP feed is not in gpsd's regression mode: gpsd_utc_resolve() moves a date before 2017
-    # with a leap second count of 18 on by 1024 weeks (2007-12-23 -> 2027-08-08); we keep the
+    # outside its regression mode (which a log's `# Date:` comment turns on; this log is fed
+    # over TCP) gpsd_utc_resolve() takes a date before 2017 beside a leap second count of 18
+    # for a week rollover and moves it on 1024 weeks (2007-12-23 -> 2027-08-08); we keep the
     # receiver's date
     Verdict.WEEK_ROLLOVER: {"tcp-torture.log": 1},
 }

@@ -25,9 +25,13 @@ field by field, each field holding the value of the last sentence of the cycle t
   computed once a cycle, on the first altitude (a later GGA of the cycle changes altMSL only);
   `alt` is altMSL (deprecated). Heights printed only in mode ≥ 2.
 
-Ours: the messages NmeaStreamDecoder yields for the whole log. A GGA's date is the one our
-acquisition gives it: the day putting it nearest the last RMC or ZDA date and time we decoded
-(`gps_ns_from_utc_time_of_day`, which the runner's fix logging mirrors).
+Ours: the messages NmeaStreamDecoder yields for the whole log. A GGA's date is the day that
+puts it nearest the last RMC or ZDA date and time we decoded (acquisition.nmea's
+`gps_ns_from_utc_time_of_day`). The runner's fix logging has a rule of its own (the last
+RMC/ZDA date, a day on when that puts the fix 12 h before the last one): the same date for
+every GGA of gpsd's 198 logs but 8 of gp-320fw-2019-04-07-coldboot, where the receiver's void
+RMCs jump from 2010 to 1999 and the runner's rule adds a day (1999-08-23); only one of those
+8 does gpsd state (VOID_RMC_DATE, which it would be either way).
 
 A GGA/RMC/ZDA is *standard-valid* (`standard_defect`, our reading of NMEA 0183 versions 2.0
 to 4.11, without any decoder): checksum right; the field count of a version (GGA 14, RMC 11 for
@@ -435,8 +439,8 @@ def _iso_ms(date: dt.date, time_of_day_ns: int) -> str:
 
 @dataclass
 class OurDates:
-    """The date our acquisition gives each GGA: the day that puts it nearest the last RMC or
-    ZDA date and time decoded (UTC throughout: no leap seconds enter)."""
+    """The date we give each GGA: the day that puts it nearest the last RMC or ZDA date and
+    time decoded (UTC throughout: no leap seconds enter)."""
 
     last_dated_ns: int | None = None
     from_void_rmc: bool = False

@@ -30,8 +30,10 @@ puts it nearest the last RMC or ZDA date and time we decoded (acquisition.nmea's
 `gps_ns_from_utc_time_of_day`). The runner's fix logging has a rule of its own (the last
 RMC/ZDA date, a day on when that puts the fix 12 h before the last one): the same date for
 every GGA of gpsd's 198 logs but 8 of gp-320fw-2019-04-07-coldboot, where the receiver's void
-RMCs jump from 2010 to 1999 and the runner's rule adds a day (1999-08-23); only one of those
-8 does gpsd state (VOID_RMC_DATE, which it would be either way).
+RMCs jump back from 2010 to 1999 and the runner's rule adds a day (1999-08-23). gpsd states 7
+of those 8: 6 on 1999-08-22 as we date them here (the runner would log them a day late), and
+the VOID_RMC_DATE one. The runner's rule also dates a GGA a day late when it comes after the
+next day's RMC/ZDA (a receiver whose ZDA runs ahead, as ac12's does, at midnight).
 
 A GGA/RMC/ZDA is *standard-valid* (`standard_defect`, our reading of NMEA 0183 versions 2.0
 to 4.11, without any decoder): checksum right; the field count of a version (GGA 14, RMC 11 for

@@ -25,15 +25,13 @@ field by field, each field holding the value of the last sentence of the cycle t
   computed once a cycle, on the first altitude (a later GGA of the cycle changes altMSL only);
   `alt` is altMSL (deprecated). Heights printed only in mode ≥ 2.
 
-Ours: the messages NmeaStreamDecoder yields for the whole log. A GGA's date is the day that
-puts it nearest the last RMC or ZDA date and time we decoded (acquisition.nmea's
-`gps_ns_from_utc_time_of_day`). The runner's fix logging has a rule of its own (the last
-RMC/ZDA date, a day on when that puts the fix 12 h before the last one): the same date for
-every GGA of gpsd's 198 logs but 8 of gp-320fw-2019-04-07-coldboot, where the receiver's void
-RMCs jump back from 2010 to 1999 and the runner's rule adds a day (1999-08-23). gpsd states 7
-of those 8: 6 on 1999-08-22 as we date them here (the runner would log them a day late), and
-the VOID_RMC_DATE one. The runner's rule also dates a GGA a day late when it comes after the
-next day's RMC/ZDA (a receiver whose ZDA runs ahead, as ac12's does, at midnight).
+Ours: the messages NmeaStreamDecoder yields for the whole log. A GGA's date is the one the
+runner logs its fix with: the day nearest the receiver's last RMC/ZDA date and time or the
+last fix, whichever came last (acquisition.nmea's `gps_ns_from_utc_time_of_day`). The runner's
+earlier rule (the last date, a day on when that put the fix 12 h before the last one) logged
+6 GGAs of gp-320fw-2019-04-07-coldboot that gpsd states a day late (the receiver's void RMCs
+jump back from 2010 to 1999), and at midnight every fix of a receiver whose ZDA runs ahead of
+its GGA (as ac12's does).
 
 A GGA/RMC/ZDA is *standard-valid* (`standard_defect`, our reading of NMEA 0183 versions 2.0
 to 4.11, without any decoder): checksum right; the field count of a version (GGA 14, RMC 11 for
@@ -441,8 +439,9 @@ def _iso_ms(date: dt.date, time_of_day_ns: int) -> str:
 
 @dataclass
 class OurDates:
-    """The date we give each GGA: the day that puts it nearest the last RMC or ZDA date and
-    time decoded (UTC throughout: no leap seconds enter)."""
+    """The date the runner gives each GGA: the day that puts it nearest the last RMC or ZDA
+    date and time decoded, or the last GGA with time and position, whichever came last (UTC
+    throughout: no leap seconds enter)."""
 
     last_dated_ns: int | None = None
     from_void_rmc: bool = False
@@ -464,6 +463,8 @@ class OurDates:
         if self.last_dated_ns is None:
             return None
         instant = gps_ns_from_utc_time_of_day(tod, 0, self.last_dated_ns)
+        if getattr(message, "lat_deg", None) is not None:
+            self.last_dated_ns = instant  # a fix the runner logs
         days, tod = divmod(instant, NS_PER_DAY)
         return _iso_ms(GPS_EPOCH.date() + dt.timedelta(days=days), tod)
 

@@ -28,6 +28,7 @@ from acquisition.nmea import (
     Zda,
     gps_ns_from_time_of_week,
     gps_ns_from_utc,
+    gps_ns_from_utc_time_of_day,
 )
 from acquisition.pulses import EDGE_SIZE, EDGE_TIME_LIMIT_NS, Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
@@ -54,6 +55,7 @@ GATE_DELAY_NS = 1_000  # the box's input → output propagation
 # (edges on one link come in time order; a restart that goes back less holds forwards back
 # for less than this)
 TIMELINE_RESTART_NS = NS_PER_S
+NOON_NS = 12 * 3600 * NS_PER_S  # the instant a date stands for when it comes without a time
 
 
 @dataclass
@@ -161,6 +163,8 @@ class Acquisition:
         self._utc_date: dt.date | None = None
         self._undated_tags: list[tuple[int, PashrPtt | PashrTtt]] = []
         self._last_fix_gps_ns: int | None = None
+        # the GGA's day: the one nearest the receiver's last dated instant (RMC/ZDA) or last fix
+        self._dating_gps_ns: int | None = None
         self._gga_seen = False  # GNS fixes are logged only from a receiver that sends no GGA
         self._last_in: dict[PulseLine, tuple[int, int]] = {}  # line → (board_ns, t_edge_ns)
         self._next_health_ns: int | None = None
@@ -187,13 +191,16 @@ class Acquisition:
     def _on_gps(self, t_host_ns: int, msg: object) -> None:
         if isinstance(msg, Rmc | Zda) and msg.utc_date is not None:
             self._utc_date = msg.utc_date
+            time_of_day = msg.utc_time_of_day_ns
+            self._dating_gps_ns = gps_ns_from_utc(
+                msg.utc_date, NOON_NS if time_of_day is None else time_of_day, self.config.leap_s)
             self._flush_undated_tags()
         if isinstance(msg, Gga):
             self._gga_seen = True
         if isinstance(msg, Gga) or (isinstance(msg, Gns) and not self._gga_seen):
-            if (self._utc_date is not None and msg.utc_time_of_day_ns is not None
+            if (self._dating_gps_ns is not None and msg.utc_time_of_day_ns is not None
                     and msg.lat_deg is not None and msg.lon_deg is not None):
-                self._log_fix(t_host_ns, msg, msg.utc_time_of_day_ns, self._utc_date)
+                self._log_fix(t_host_ns, msg, msg.utc_time_of_day_ns, self._dating_gps_ns)
         elif isinstance(msg, PashrPtt | PashrTtt):
             if self._utc_date is None and len(self._undated_tags) < MAX_UNDATED_TAGS:
                 self._undated_tags.append((t_host_ns, msg))  # its week from the receiver's date
@@ -237,13 +244,15 @@ class Acquisition:
             self._apply(self.filter.on_gps_time(second, t_host_ns))
 
     def _log_fix(self, t_host_ns: int, fix: Gga | Gns, utc_time_of_day_ns: int,
-                 utc_date: dt.date) -> None:
+                 near_gps_ns: int) -> None:
         """A GGA (or GNS) with time and position: quality 0 if the receiver left it null (GNS
-        has none: its best mode indicator stands for it), satellites -1 if null."""
-        t_gps = gps_ns_from_utc(utc_date, utc_time_of_day_ns, self.config.leap_s)
-        if self._last_fix_gps_ns is not None and t_gps < self._last_fix_gps_ns - 43_200 * NS_PER_S:
-            t_gps += 86_400 * NS_PER_S  # GGA after midnight before the next RMC/ZDA date
-        self._last_fix_gps_ns = t_gps
+        has none: its best mode indicator stands for it), satellites -1 if null. Its day is the
+        one nearest the receiver's last RMC/ZDA or the last fix, whichever came last: a GGA after
+        midnight before the next date, and one that comes after the next day's ZDA (a receiver
+        whose ZDA runs ahead), both keep their day. (The last date plus a day when the fix fell
+        12 h before the last one put the second a day late, and every fix after it.)"""
+        t_gps = gps_ns_from_utc_time_of_day(utc_time_of_day_ns, self.config.leap_s, near_gps_ns)
+        self._last_fix_gps_ns = self._dating_gps_ns = t_gps
         height = fix.height_ellipsoidal_m
         quality = fix.quality if fix.quality is not None else FixQuality.INVALID
         self.log(GpsFix(t_host_ns, t_gps, fix.lat_deg or 0.0, fix.lon_deg or 0.0,
@@ -260,7 +269,7 @@ class Acquisition:
         if self._last_fix_gps_ns is not None:
             return self._last_fix_gps_ns
         if self._utc_date is not None:
-            return gps_ns_from_utc(self._utc_date, 12 * 3600 * NS_PER_S, self.config.leap_s)
+            return gps_ns_from_utc(self._utc_date, NOON_NS, self.config.leap_s)
         return gps_ns_from_unix_ns(t_host_ns, self.config.leap_s)
 
     def on_scanner_bytes(self, t_host_ns: int, data: bytes) -> None:

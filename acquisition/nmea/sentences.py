@@ -29,6 +29,7 @@ from acquisition.nmea.wire import (
     Hemisphere,
     Integer,
     Signed,
+    SignOrNull,
     TimeOfDay,
     WithUnit,
 )
@@ -195,8 +196,8 @@ RMC_SPEC = SentenceSpec(SentenceKind.RMC, (SentenceKind.RMC.value,), Rmc, (
     Field("course_true_deg", Blankable(ANGLE), Unit.DEGREE),
     Field("utc_date", Blankable(DateDdMmYy())),
     Field("magnetic_variation_deg",
-          Blankable(Signed(FixedPoint(decimals=1, maximum=180.0, signed=False),
-                           Hemisphere.EAST, Hemisphere.WEST)), Unit.DEGREE),
+          SignOrNull(Signed(FixedPoint(decimals=1, maximum=180.0, signed=False),
+                            Hemisphere.EAST, Hemisphere.WEST)), Unit.DEGREE),
     Field("mode", Blankable(EnumToken(ModeIndicator)), since=NmeaVersion.V2_3),
     Field("nav_status", Blankable(EnumToken(NavStatus)), since=NmeaVersion.V4_1),
 ))

@@ -273,6 +273,34 @@ class Signed(WireFormat[float]):
 
 
 @dataclass(frozen=True)
+class SignOrNull(WireFormat[float | None]):
+    """A `Signed` value that may be null, read as null when its letter is neither of its two
+    (nor empty), the rest of the sentence kept. Receivers that write RMC's 11 fields of NMEA
+    2.0 with 2.3's mode indicator where the magnetic variation's E/W belongs (SiRF III
+    `...,181207,0,A`, Saab R4 `...,010611,,A`) lost their whole RMC, date and position with it,
+    to a variation nobody uses; gpsd reads them. A number with an empty letter (`3.1,`: which
+    sign?) is still refused."""
+
+    inner: Signed
+
+    @property
+    def width(self) -> int:
+        return self.inner.width
+
+    @property
+    def resolution(self) -> float:
+        return self.inner.resolution
+
+    def encode(self, value: float | None) -> tuple[str, ...]:
+        return Blankable(self.inner).encode(value)
+
+    def decode(self, tokens: Sequence[str]) -> float | None:
+        if tokens[1] not in ("", self.inner.positive, self.inner.negative):
+            return None
+        return Blankable(self.inner).decode(tokens)
+
+
+@dataclass(frozen=True)
 class DegreesMinutes(WireFormat[float]):
     """Signed degrees as `(d)ddmm.mmmmmmm` plus a hemisphere letter (two tokens). Written with
     the standard's leading zeros and `decimals` decimals of minutes; read with any."""

@@ -200,6 +200,30 @@ def test_textbook_rmc_of_nmea_2_0_with_magnetic_variation_and_no_mode():
                       magnetic_variation_deg=-3.1, mode=None, nav_status=None)
 
 
+def _sentence(body: str) -> bytes:
+    return b"$%s*%02X\r\n" % (body.encode(), checksum(body.encode()))
+
+
+@pytest.mark.parametrize(("body", "lat"), [
+    ("GPRMC,212632.000,A,4839.9411,N,00214.9065,E,0.00,,181207,0,A", 48 + 39.9411 / 60),  # SiRF
+    ("GPRMC,130722.00,A,5012.792600,N,00806.879600,W,0.5,2.5,010611,,A", 50 + 12.7926 / 60),
+])
+def test_an_rmc_with_a_mode_letter_where_the_variation_direction_belongs_keeps_the_rest(
+        body, lat):
+    """SiRF III and Saab R4 write RMC's 11 fields with 2.3's mode where the variation's E/W
+    belongs: the variation is null, date, time and position are read (gpsd reads them too;
+    refused, they left every GGA of such a receiver without a date)."""
+    rmc = decode_sentence(_sentence(body))
+    assert isinstance(rmc, Rmc)
+    assert rmc.magnetic_variation_deg is None
+    assert rmc.mode is None
+    assert rmc.utc_date is not None
+    assert rmc.lat_deg == pytest.approx(lat)
+    with pytest.raises(DecodeError):  # a variation without its sign letter: which sign?
+        decode_sentence(_sentence("GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,"
+                                  "003.1,"))
+
+
 @pytest.mark.parametrize("message", SAMPLES, ids=lambda m: type(m).__name__)
 def test_every_sentence_is_framed_with_a_checksum_and_crlf(message):
     raw = encode(message)

@@ -234,3 +234,30 @@ def test_the_policy_raise_names_the_reason() -> None:
         decoder.feed(_without_checksum(CORPUS_LINES[3]))
     assert getattr(err.value, "reason", None) == Refusal.NO_CHECKSUM
     assert err.value.offset == 0
+
+
+def _sentence(body: str) -> bytes:
+    return b"$%s*%02X\r\n" % (body.encode(), checksum(body.encode()))
+
+
+def _gga(clock: str) -> bytes:
+    return _sentence(f"GPGGA,{clock},4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,")
+
+
+def test_fixes_keep_their_day_across_midnight_when_the_date_runs_ahead_or_behind() -> None:
+    """A receiver whose ZDA runs a second ahead of its GGA (gpsd's ac12 log) gives the next
+    day's date before the day's last GGA; a receiver without ZDA gives none until its next
+    RMC. Each fix keeps its own day (the last date + a day when the fix fell 12 h before the
+    last one logged the first case a day late, and every fix after it)."""
+    data = b"".join([
+        _sentence("GPZDA,235959.00,31,12,2025,00,00"), _gga("235958.00"),
+        _sentence("GPZDA,000000.00,01,01,2026,00,00"), _gga("235959.00"),
+        _sentence("GPZDA,000001.00,01,01,2026,00,00"), _gga("000000.00"),
+        _gga("000001.00"),  # no ZDA before it
+    ])
+    first = parse_gps_datetime("2025-12-31T23:59:58") + LEAP_S * NS_PER_S
+    assert [f.t_gps_ns for f in _fixes(_acquire(data))] == [first + k * NS_PER_S
+                                                            for k in range(4)]
+    rmc_dated = _sentence("GPRMC,235959.00,A,4807.038,N,01131.000,E,0.0,0.0,311225,,,A")
+    late = _fixes(_acquire(rmc_dated + _gga("235959.00") + _gga("000000.00")))
+    assert [f.t_gps_ns for f in late] == [first + NS_PER_S, first + 2 * NS_PER_S]

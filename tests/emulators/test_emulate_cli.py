@@ -127,6 +127,33 @@ def test_gpsd_serves_the_emulated_receiver_and_stops_with_it(tmp_path):
         socket.create_connection((host, int(port)), timeout=1).close()
 
 
+def test_gpsd_reports_3d_fixes_from_the_ublox_profile(tmp_path):
+    """Issue 34: gpsd, an independent reader, on the u-blox F9P profile's port (NMEA 4.1 from
+    talker GN with UBX-TIM-TP and UBX-TIM-TM2 between the sentences) reports 3-D fixes at the
+    emulated position, as it does for a real F9P."""
+    scenario = tmp_path / "ublox.toml"
+    scenario.write_text('base = "bench"\n[gps]\nreceiver = "ublox_f9p"\n', encoding="utf-8")
+    endpoints_file = tmp_path / "endpoints.json"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "emulate", "--scenario", str(scenario), "--out",
+         str(tmp_path / "run"), "--start", "70", "--duration", "60", "--no-images", "--gpsd",
+         "--endpoints", str(endpoints_file)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ep = _wait_for(endpoints_file)
+        piped = subprocess.run(["gpspipe", "-w", "-x", "8", ep["gpsd"]], capture_output=True,
+                               text=True, timeout=30, check=False).stdout
+        proc.send_signal(signal.SIGINT)
+    finally:
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    reports = [json.loads(line) for line in piped.splitlines()]
+    tpv = [r for r in reports if r.get("class") == "TPV" and r.get("mode") == 3]
+    assert len(tpv) >= 3, piped
+    assert all(abs(r["lat"] - 41.56) < 0.05 and abs(r["lon"] - 2.0) < 0.5 for r in tpv), tpv
+    assert all("altHAE" in r or "alt" in r for r in tpv)
+
+
 def test_gpsd_missing_is_one_line_and_nothing_made(tmp_path, monkeypatch, capsys):
     from sisa.cli import main
     from sisa.wiring import gpsd

@@ -145,7 +145,7 @@ def test_gpsd_reports_3d_fixes_from_the_ublox_profile(tmp_path):
                                text=True, timeout=30, check=False).stdout
         proc.send_signal(signal.SIGINT)
     finally:
-        out, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
     reports = [json.loads(line) for line in piped.splitlines()]
     tpv = [r for r in reports if r.get("class") == "TPV" and r.get("mode") == 3]

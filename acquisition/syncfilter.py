@@ -948,16 +948,19 @@ def _split_periods(intervals: deque[int], grid: _Grid) -> bool:
     confirms it; so when the longer reading needs no more faults (lost + spurious ppf) than
     the grid's own, there is no grid."""
     times = list(itertools.accumulate(intervals, initial=0))
-    faults = _faults(times, grid)
-    return any(_faults(times, _Grid(m * grid.period_ns, m * grid.tolerance_ns)) <= faults
+    faults = _faults(times, grid, len(times))
+    return any(_faults(times, _Grid(m * grid.period_ns, m * grid.tolerance_ns), faults) <= faults
                for m in SPLIT_READINGS)
 
 
-def _faults(times: list[int], grid: _Grid) -> int:
+def _faults(times: list[int], grid: _Grid, limit: int) -> int:
     """Lost plus spurious ppf if these ppf times are a scanner on this grid: walked from each
-    of the first few ppf (those before it counted spurious), the fewest."""
-    best = len(times)
+    of the first few ppf (those before it counted spurious), the fewest; counting stops past
+    `limit` (the result is then limit + 1)."""
+    best = limit + 1
     for start in range(min(FAULT_WALK_STARTS, len(times))):
+        if start >= best:
+            break
         faults, ref = start, times[start]
         for t in times[start + 1:]:
             k = grid.steps(t - ref)
@@ -965,6 +968,8 @@ def _faults(times: list[int], grid: _Grid) -> int:
                 faults += 1  # off the grid: spurious
             else:
                 faults, ref = faults + k - 1, t  # k − 1 lost
+            if faults >= best:
+                break
         best = min(best, faults)
     return best
 

@@ -45,7 +45,11 @@ Design choices, and why:
   tolerance from their scatter (≥ 10 µs, ≤ interval_tolerance). An interval of about k periods
   means k − 1 lost ppf; a ppf off the grid is spurious and is skipped when counting frames. This
   assumes lost and spurious ppf are a minority: every other ppf lost would look like a scanner at
-  half the rate.
+  half the rate. A spurious ppf splits one line period into two short intervals, so a few of
+  them early in a stretch can outvote the true intervals; a grid is therefore also read at 2
+  and 3 times its period, and if that reading needs no more lost + spurious ppf, there is no
+  grid (yet): a grid too short would put a spurious ppf on it, and a header's counter would
+  then confirm it.
 - Headers come late, may be lost, and their counter wraps. A header is matched to a ppf of the
   current stretch after the last matched one, with its host time in the latency window (half the
   header's own integration time + [header_latency_min_ns, header_latency_max_ns]). Among the ppf
@@ -74,6 +78,7 @@ are the output edge (input + GATE_DELAY_NS).
 from __future__ import annotations
 
 import bisect
+import itertools
 import statistics
 from collections import deque
 from dataclasses import dataclass
@@ -92,6 +97,8 @@ MIN_PERIOD_SAMPLES: Final = 3  # fewer intervals: no period estimate, so no infe
 GRID_FLOOR_NS: Final = 10_000  # an interval within this of the period is regular, whatever the MAD
 MAD_TO_SIGMA: Final = 1.4826
 NEIGHBOURS: Final = 3  # ppf each side that tell a spurious header-matched ppf
+SPLIT_READINGS: Final = (2, 3)  # a grid is also read at these multiples of its period
+FAULT_WALK_STARTS: Final = 3  # ppf a grid walk may start from (the first may be spurious)
 SECOND_TOLERANCE_NS: Final = 1_000_000  # "whole seconds apart" on the board: 1 ms + 100 ppm
 SECOND_TOLERANCE_PPM: Final = 100.0
 PPS_LOCK_EDGES: Final = 4  # edges a whole board period apart within half the gate: locked
@@ -483,7 +490,8 @@ class _FrameRun:
             return None
         period = float(statistics.median(inliers))
         mad = float(statistics.median(abs(i - period) for i in inliers))
-        return _Grid(period, min(max(8 * MAD_TO_SIGMA * mad, GRID_FLOOR_NS), limit))
+        grid = _Grid(period, min(max(8 * MAD_TO_SIGMA * mad, GRID_FLOOR_NS), limit))
+        return None if _split_periods(self.intervals, grid) else grid
 
     def steps_between(self, first: int, last: int) -> int | None:
         """Line periods from frame `first` to frame `last` (first ≤ last), lost ppf included and
@@ -929,6 +937,41 @@ class SyncFilter:
                                         f.gps_second_ns, f.frame_counter,
                                         str(f.counter_source))))
         return logs
+
+
+def _split_periods(intervals: deque[int], grid: _Grid) -> bool:
+    """Could these ppf as well be a scanner at SPLIT_READINGS times the grid's period, some of
+    whose line periods spurious ppf split? One spurious ppf makes two short intervals of one
+    line period, so a few of them early in a stretch can outvote the true intervals (ppf 0, 8,
+    16, 32, 48, 64, 72, 80 ms: 8 ms with three lost, or 16 ms with two spurious). A grid too
+    short puts a spurious ppf on it and counts it as a frame, and a header's counter then
+    confirms it; so when the longer reading needs no more faults (lost + spurious ppf) than
+    the grid's own, there is no grid."""
+    times = list(itertools.accumulate(intervals, initial=0))
+    faults = _faults(times, grid, len(times))
+    return any(_faults(times, _Grid(m * grid.period_ns, m * grid.tolerance_ns), faults) <= faults
+               for m in SPLIT_READINGS)
+
+
+def _faults(times: list[int], grid: _Grid, limit: int) -> int:
+    """Lost plus spurious ppf if these ppf times are a scanner on this grid: walked from each
+    of the first few ppf (those before it counted spurious), the fewest; counting stops past
+    `limit` (the result is then limit + 1)."""
+    best = limit + 1
+    for start in range(min(FAULT_WALK_STARTS, len(times))):
+        if start >= best:
+            break
+        faults, ref = start, times[start]
+        for t in times[start + 1:]:
+            k = grid.steps(t - ref)
+            if k is None:
+                faults += 1  # off the grid: spurious
+            else:
+                faults, ref = faults + k - 1, t  # k − 1 lost
+            if faults >= best:
+                break
+        best = min(best, faults)
+    return best
 
 
 def _nearest(values: list[int], want: float) -> int:

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from acquisition.nmea import first_checked_sentence
+from acquisition.novatel import first_novatel_log
 from acquisition.scanner_header import first_header
 from acquisition.slcan_bulk import parse_frame_line
 from acquisition.ubx import first_ubx_frame
@@ -203,13 +204,16 @@ class StreamProof:
 
 
 def first_gps_message(data: bytes) -> int:
-    """The first whole NMEA sentence or UBX frame whose checksum holds, or −1."""
-    found = [i for i in (first_checked_sentence(data), first_ubx_frame(data)) if i >= 0]
+    """The first whole NMEA sentence, UBX frame or NovAtel ASCII log whose checksum holds,
+    or −1."""
+    found = [i for i in (first_checked_sentence(data), first_ubx_frame(data),
+                         first_novatel_log(data)) if i >= 0]
     return min(found, default=-1)
 
 
 def gps_proof() -> StreamProof:
-    return StreamProof(first_gps_message, "one NMEA sentence or UBX frame whose checksum holds")
+    return StreamProof(first_gps_message, "one NMEA sentence, UBX frame or NovAtel log whose "
+                       "checksum holds")
 
 
 def scanner_proof() -> StreamProof:

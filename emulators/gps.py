@@ -8,6 +8,10 @@ Outputs, on the emulation timeline:
   first-order Gauss–Markov error (σ and τ from the scenario: code ~1 m, phase ~3–5 cm);
 - `$PASHR,TTT` for every accepted pulse on the event input, tagged at the pulse's own time.
 
+Other receivers (`gps.receiver`, docs/protocols.md) send the same fixes and tags in their own
+words: a u-blox F9P NMEA 4.1 with UBX-TIM-TP after each PPS and UBX-TIM-TM2 per event; a NovAtel
+OEM7 ASCII logs only: BESTPOSA per fix epoch, TIMEA after each PPS, MARK1TIMEA per event.
+
 Maximum event rate, the way the receiver enforces it: after an accepted event the input is blind
 for 0.98 / max_event_rate_hz (a dead time that re-arms just before the next period, so pulses one
 period apart ± jitter are all tagged); a pulse in the dead time is ignored (no TTT) and written to

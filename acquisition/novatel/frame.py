@@ -198,14 +198,22 @@ def split_frame(raw: bytes) -> tuple[LogHeader, list[str]]:
     return header, split_fields(data)
 
 
+_HEADER_NUMBERS = re.compile(r"[0-9]{1,5},[0-9]{1,3}(?:\.[0-9])?,[^,]*,[0-9]{1,5},[^,]*,"
+                             r"[0-9a-fA-F]{1,8},[0-9a-fA-F]{1,4},[0-9]{1,5}")
+
+
 def _parse_header(parts: list[str]) -> LogHeader:
     name, port, seq, idle, status, week, seconds, rx, reserved, version = parts
-    if not _NAME.fullmatch(name[:-1]):
-        raise ValueError(f"log name {name[:80]!r}")
+    if not _NAME.fullmatch(name[:-1]) or not _NAME.fullmatch(port):
+        raise ValueError(f"log name {name[:80]!r} or port {port[:80]!r}")
+    if not _HEADER_NUMBERS.fullmatch(",".join(parts[2:])):
+        raise ValueError(f"a header number that is none: {','.join(parts[2:])[:120]!r}")
     seconds_ns = parse_seconds(seconds)
     week_n = int(week)
     if not (0 <= seconds_ns < NS_PER_WEEK and 0 <= week_n <= 0xFFFF):
         raise ValueError(f"time {week},{seconds}")
+    if int(seq) > 0xFFFF or float(idle) > 100.0 or int(version) > 0xFFFF:
+        raise ValueError(f"sequence {seq}, idle {idle} % or version {version} out of range")
     return LogHeader(name[:-1], port, int(seq), float(idle), TimeStatus(status), week_n,
                      seconds_ns, int(rx, 16), int(reserved, 16), int(version))
 

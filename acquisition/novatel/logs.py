@@ -129,8 +129,14 @@ class Wire:
     read: Callable[[str], Any]
 
 
+_INTEGER = re.compile(r"-?[0-9]{1,12}")
+_DECIMAL = re.compile(r"[-+]?[0-9]{1,12}(?:\.[0-9]*)?(?:[eE][-+]?[0-9]{1,3})?")
+
+
 def _int(low: int, high: int) -> Wire:
     def read(text: str) -> int:
+        if not _INTEGER.fullmatch(text):
+            raise ValueError(f"{text[:80]!r} is no integer")
         value = int(text)
         if not low <= value <= high:
             raise ValueError(f"{value} out of {low}..{high}")
@@ -145,9 +151,12 @@ def _int(low: int, high: int) -> Wire:
 
 
 def _finite(text: str) -> float:
+    """A decimal number as the receiver writes one (no inf, nan, spaces or underscores)."""
+    if not _DECIMAL.fullmatch(text):
+        raise ValueError(f"{text[:80]!r} is no decimal number")
     value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"{text!r} is not finite")
+    if not math.isfinite(value):  # an exponent past a double's range
+        raise ValueError(f"{text[:80]!r} is not finite")
     return value
 
 

@@ -179,6 +179,13 @@ def test_bad_values_are_refused_both_ways_by_reason() -> None:
     assert reason(resealed(_body(good).replace(week_seconds, b"604800.000000000"))) == \
         NovatelRefusal.FIELD_VALUE
     assert reason(resealed(_body(good).replace(b";", b","))) == NovatelRefusal.MALFORMED
+    # numbers as a receiver writes them: no nan, inf, spaces, signs or underscores Python takes
+    for old, new in ((b",-18.000000000,", b",nan,"), (b",-18.000000000,", b",-1_8.0,"),
+                     (b";2423,", b"; 2423,"),
+                     (b",80.0,", b",inf,"), (b",80.0,", b",180.0,"), (b",0,80", b",+0,80")):
+        assert old in _body(good)
+        assert reason(resealed(_body(good).replace(old, new, 1))) == \
+            NovatelRefusal.FIELD_VALUE, new
     assert reason(good[:-12] + b"\r\n") == NovatelRefusal.MALFORMED
 
 

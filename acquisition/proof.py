@@ -10,12 +10,12 @@ takes its old name. So a reconnecting reader
   USB port), and
 - whatever the path, holds the port *on probation* (`ProbePort`): it reads, records nothing,
   writes nothing and leaves a pty's settings alone, until the device speaks its protocol
-  (`StreamProof`: one whole message whose checksum holds: an NMEA sentence or a UBX frame for
-  the GPS, a frame header with its CRC for the scanner; `SlcanProof` for a CAN adapter,
-  below). A port that sends something else is given up (`Verdict.rejected`, said why) and
-  that device node (`DeviceInstance`) is never opened again: a replugged device, or a pty
-  allocated afresh, is a new node. A silent port stays on probation (a scanner that is idle
-  sends no header until it records).
+  (`StreamProof`: one whole message whose checksum holds: an NMEA sentence, a UBX frame or a
+  NovAtel ASCII log for the GPS, a frame header with its CRC for the scanner; `SlcanProof` for
+  a CAN adapter, below). A port that sends something else is given up (`Verdict.rejected`,
+  said why) and that device node (`DeviceInstance`) is never opened again: a replugged
+  device, or a pty allocated afresh, is a new node. A silent port stays on probation (a
+  scanner that is idle sends no header until it records).
 
 What probation cannot avoid: while it listens, what the other program's user types is read by
 the recorder instead of by that program (it is neither recorded nor shown), for at most

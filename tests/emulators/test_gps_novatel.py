@@ -6,6 +6,7 @@ the scenario's serial load counts the longest logs we write."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from acquisition.novatel import (
     time_for_pps,
 )
 from acquisition.pulses import Edge, PulseLine
+from acquisition.runner import NOVATEL_QUALITY
 from emulators.faults import fault_table
 from emulators.gps import GpsReceiver
 from emulators.runtime import Output, Port, Runner
@@ -38,6 +40,7 @@ from emulators.scenario import (
     scenario_from_table,
 )
 from emulators.trajectory import TruthTrajectory
+from emulators.truth import read_truth_csv
 from sisa.core.timescale import NS_PER_S, NS_PER_WEEK
 from tests.emulators.test_gps import EventSource, _run
 from tests.emulators.test_gps_ublox import _events
@@ -137,3 +140,24 @@ def test_the_serial_load_counts_the_logs() -> None:
     assert per_s == pytest.approx(scn.gps.nmea_rate_hz * BESTPOS_BYTES + TIME_LOG_BYTES
                                   + gps_event_rate_hz(scn) * MARK_BYTES)
     assert load < 0.7
+
+
+def test_an_outage_sends_no_time_log_and_fixes_without_a_solution(tmp_path: Path) -> None:
+    _, traj, gps, stream, _ = _run({**NOVATEL, "faults": {"pps_outages": [
+        {"at_s": 100, "duration_s": 20}]}})
+    msgs = [d.message for d in NmeaNovatelStreamDecoder(ErrorPolicy.RAISE).feed(stream)]
+    fixes = [m for m in msgs if isinstance(m, BestPos)]
+    table = read_truth_csv(gps.fixes.write_csv(tmp_path))
+    assert [m.header.gps_ns for m in fixes] == table["t_gps_ns"].tolist()
+    # the acquisition's quality of each BESTPOS is the truth's (GGA's) quality of that fix
+    ours = [int(NOVATEL_QUALITY[m.position_type]) if m.solution_status
+            is SolutionStatus.SOL_COMPUTED else 0 for m in fixes]
+    assert ours == table["quality"].tolist()
+    lost = [m for m in fixes if m.solution_status is SolutionStatus.INSUFFICIENT_OBS]
+    assert 15 <= len(lost) <= 21
+    assert {m.position_type for m in lost} == {PositionType.NONE}
+    seconds = [m.pps_gps_ns for m in msgs if isinstance(m, TimeLog)]
+    assert seconds == gps.pps.column("t_second_gps_ns").tolist()
+    start = traj.t_start_ns
+    assert len([s for s in seconds if start + 100 * NS_PER_S <= s < start + 120 * NS_PER_S]) <= 1
+    assert not [s for s in seconds if start + 101 * NS_PER_S <= s < start + 119 * NS_PER_S]

@@ -59,7 +59,7 @@ from acquisition.novatel import (
     PositionType,
     SolutionStatus,
     encode_log,
-    header_from_gps_ns,
+    log_header,
     mark1time_from_gps_ns,
     time_for_pps,
 )
@@ -301,7 +301,7 @@ class GpsReceiver(Device):
         gps = self.scn.gps
         phase = gps.solution is GpsSolution.PHASE
         kind = PositionType.NARROW_INT if phase else PositionType.PSRDIFF
-        return BestPos(header_from_gps_ns("BESTPOS", epoch),
+        return BestPos(log_header("BESTPOS", epoch),
                        SolutionStatus.INSUFFICIENT_OBS if lost else SolutionStatus.SOL_COMPUTED,
                        PositionType.NONE if lost else kind, lat, lon,
                        h - gps.geoid_separation_m, gps.geoid_separation_m, "WGS84",

@@ -36,6 +36,7 @@ from acquisition.novatel.logs import (
     UtcStatus,
     decode_log,
     encode_log,
+    log_header,
     log_name,
     mark1time_from_gps_ns,
     time_for_pps,
@@ -49,6 +50,6 @@ __all__ = [
     "NmeaNovatelStreamDecoder", "NovatelFramer", "NovatelLog", "NovatelRefusal",
     "PositionType", "SolutionStatus", "TimeLog", "TimeStatus", "UnknownLog", "UtcStatus",
     "crc32_novatel", "crc32_reference", "decode_log", "encode_frame", "encode_log",
-    "first_novatel_log", "header_from_gps_ns", "log_name", "mark1time_from_gps_ns",
+    "first_novatel_log", "header_from_gps_ns", "log_header", "log_name", "mark1time_from_gps_ns",
     "time_for_pps", "time_is_fine",
 ]

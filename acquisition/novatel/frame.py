@@ -15,8 +15,10 @@ on bytes. Facts from NovAtel's public OEM7 Commands and Logs reference, in our o
   sequence number (counting down to 0 over logs of one epoch that belong together), the
   receiver's idle time in % (one decimal), the time status (how well the receiver knows GPS
   time: FINESTEERING when its clock is steered to it), the GPS week and seconds of week (3
-  decimals) of the log, the receiver status word (8 hex digits), a reserved 4-hex-digit word,
-  and the receiver's software build number.
+  decimals) of the log, the receiver status word (8 hex digits), a 4-hex-digit word the
+  reference calls reserved (NovAtel's own decoder SDK, EDIE, reads it as a CRC of the log's
+  definition: 9924 for TIME, 292e for MARK1TIME, cdba for BESTPOS, as in NovAtel's examples;
+  the emulator writes those), and the receiver's software build number.
 """
 
 from __future__ import annotations
@@ -122,7 +124,7 @@ class LogHeader:
     week: int = 0
     seconds_ns: int = 0  # of week, whole ms
     receiver_status: int = 0
-    reserved: int = 0
+    definition_crc: int = 0  # the header's "reserved" word
     version: int = 16809
 
     @property
@@ -134,7 +136,7 @@ class LogHeader:
         for label, value, top in (("sequence", self.sequence, 0xFFFF),
                                   ("week", self.week, 0xFFFF),
                                   ("receiver status", self.receiver_status, 0xFFFFFFFF),
-                                  ("reserved", self.reserved, 0xFFFF),
+                                  ("reserved", self.definition_crc, 0xFFFF),
                                   ("version", self.version, 0xFFFF)):
             if not 0 <= value <= top:
                 raise EncodeError(f"NovAtel header {label} {value} out of 0..{top}")
@@ -145,7 +147,7 @@ class LogHeader:
         return (f"{self.name}A,{self.port},{self.sequence},{self.idle_pct:.1f},"
                 f"{self.time_status.value},{self.week},"
                 f"{format_seconds(self.seconds_ns, 3)},{self.receiver_status:08x},"
-                f"{self.reserved:04x},{self.version}")
+                f"{self.definition_crc:04x},{self.version}")
 
 
 _NAME = re.compile(r"[A-Z0-9_]{1,32}")

@@ -165,7 +165,9 @@ def _fixed(decimals: int) -> Wire:
 
 
 def _sci(digits: int) -> Wire:
-    return Wire(lambda v: f"{v:.{digits}e}", _finite)
+    """Scientific notation, a zero in fixed notation (as NovAtel's examples and its decoder SDK
+    write a clock offset: -1.398163614e-08, 0.000000000)."""
+    return Wire(lambda v: f"{v:.{digits}e}" if v else f"{0.0:.{digits}f}", _finite)
 
 
 def _seconds(decimals: int) -> Wire:
@@ -406,16 +408,26 @@ def time_is_fine(header: LogHeader) -> bool:
 # ---------------------------------------------------------------------------------------------
 # Logs from GPS instants (the emulator's side).
 
+# the header's reserved word as NovAtel's receivers fill it for our logs (the definition's CRC)
+DEFINITION_CRC = {"MARK1TIME": 0x292E, "MARKTIME": 0x292E, "MARK2TIME": 0x861E, "TIME": 0x9924,
+                  "BESTPOS": 0xCDBA}
+
+
+def log_header(name: str, t_gps_ns: int) -> LogHeader:
+    """The header the emulated receiver writes for log `name` at `t_gps_ns`."""
+    return header_from_gps_ns(name, t_gps_ns, definition_crc=DEFINITION_CRC.get(name, 0))
+
+
 def mark1time_from_gps_ns(t_gps_ns: int, offset_std_s: float, leap_s: int) -> MarkTime:
     """MARK1TIME of a pulse at `t_gps_ns` (the receiver's clock steered: offset 0)."""
     week, seconds_ns = divmod(t_gps_ns, NS_PER_WEEK)
-    return MarkTime(header_from_gps_ns("MARK1TIME", t_gps_ns), week, seconds_ns, 0.0,
+    return MarkTime(log_header("MARK1TIME", t_gps_ns), week, seconds_ns, 0.0,
                     offset_std_s, float(-leap_s), ClockStatus.VALID)
 
 
 def time_for_pps(second_gps_ns: int, offset_std_s: float, leap_s: int) -> TimeLog:
     """TIME logged on the second `second_gps_ns` (the PPS's second), with its UTC."""
     utc = utc_datetime_from_gps_ns(second_gps_ns, leap_s)
-    return TimeLog(header_from_gps_ns("TIME", second_gps_ns), ClockStatus.VALID, 0.0,
+    return TimeLog(log_header("TIME", second_gps_ns), ClockStatus.VALID, 0.0,
                    offset_std_s, float(-leap_s), utc.year, utc.month, utc.day, utc.hour,
                    utc.minute, utc.second * 1000 + utc.microsecond // 1000, UtcStatus.VALID)

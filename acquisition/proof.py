@@ -10,12 +10,12 @@ takes its old name. So a reconnecting reader
   USB port), and
 - whatever the path, holds the port *on probation* (`ProbePort`): it reads, records nothing,
   writes nothing and leaves a pty's settings alone, until the device speaks its protocol
-  (`StreamProof`: one whole message whose checksum holds: an NMEA sentence or a UBX frame for
-  the GPS, a frame header with its CRC for the scanner; `SlcanProof` for a CAN adapter,
-  below). A port that sends something else is given up (`Verdict.rejected`, said why) and
-  that device node (`DeviceInstance`) is never opened again: a replugged device, or a pty
-  allocated afresh, is a new node. A silent port stays on probation (a scanner that is idle
-  sends no header until it records).
+  (`StreamProof`: one whole message whose checksum holds: an NMEA sentence, a UBX frame or a
+  NovAtel ASCII log for the GPS, a frame header with its CRC for the scanner; `SlcanProof` for
+  a CAN adapter, below). A port that sends something else is given up (`Verdict.rejected`,
+  said why) and that device node (`DeviceInstance`) is never opened again: a replugged
+  device, or a pty allocated afresh, is a new node. A silent port stays on probation (a
+  scanner that is idle sends no header until it records).
 
 What probation cannot avoid: while it listens, what the other program's user types is read by
 the recorder instead of by that program (it is neither recorded nor shown), for at most
@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from acquisition.nmea import first_checked_sentence
+from acquisition.novatel import first_novatel_log
 from acquisition.scanner_header import first_header
 from acquisition.slcan_bulk import parse_frame_line
 from acquisition.ubx import first_ubx_frame
@@ -203,13 +204,16 @@ class StreamProof:
 
 
 def first_gps_message(data: bytes) -> int:
-    """The first whole NMEA sentence or UBX frame whose checksum holds, or −1."""
-    found = [i for i in (first_checked_sentence(data), first_ubx_frame(data)) if i >= 0]
+    """The first whole NMEA sentence, UBX frame or NovAtel ASCII log whose checksum holds,
+    or −1."""
+    found = [i for i in (first_checked_sentence(data), first_ubx_frame(data),
+                         first_novatel_log(data)) if i >= 0]
     return min(found, default=-1)
 
 
 def gps_proof() -> StreamProof:
-    return StreamProof(first_gps_message, "one NMEA sentence or UBX frame whose checksum holds")
+    return StreamProof(first_gps_message, "one NMEA sentence, UBX frame or NovAtel log whose "
+                       "checksum holds")
 
 
 def scanner_proof() -> StreamProof:

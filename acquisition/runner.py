@@ -30,6 +30,16 @@ from acquisition.nmea import (
     gps_ns_from_utc,
     gps_ns_from_utc_time_of_day,
 )
+from acquisition.novatel import (
+    BestPos,
+    ClockStatus,
+    MarkTime,
+    NmeaNovatelStreamDecoder,
+    PositionType,
+    SolutionStatus,
+    TimeLog,
+    time_is_fine,
+)
 from acquisition.pulses import EDGE_SIZE, EDGE_TIME_LIMIT_NS, Edge, PulseLine
 from acquisition.scanner_header import HeaderStreamDecoder
 from acquisition.syncfilter import Forward, Log, Mode, SyncFilter, SyncFilterConfig
@@ -111,6 +121,7 @@ class AcquisitionConfig:
     read_interval_ns: int = 0  # real time: devices read on this clock (LiveSources), 0: at once
     accept_nmea_without_checksum: bool = False  # else such sentences are refused and counted
     gps_ubx: bool = False  # the receiver interleaves UBX frames with its NMEA (u-blox)
+    gps_novatel: bool = False  # the receiver sends NovAtel ASCII logs (and maybe NMEA) (OEM7)
 
 
 def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
@@ -125,6 +136,8 @@ def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
         events_hz = 2 ** (sync.lfsr_bits - 1) / (2 ** sync.lfsr_bits - 1)
     else:
         events_hz = 0.0
+    if config.gps_novatel:  # BESTPOS per epoch, TIME per second, MARK1TIME per event
+        return config.nmea_rate_hz + 1 + events_hz
     return config.nmea_rate_hz * 2 + 2 + events_hz
 
 
@@ -145,7 +158,8 @@ class Acquisition:
         self.filter = SyncFilter(config.sync, session=0, board_ns=self.board.start_count_ns,
                                  t_host_ns=0)  # replaced by the first event's times in _start
         self._started = False
-        decoder = NmeaUbxStreamDecoder if config.gps_ubx else NmeaStreamDecoder
+        decoder = (NmeaNovatelStreamDecoder if config.gps_novatel
+                   else NmeaUbxStreamDecoder if config.gps_ubx else NmeaStreamDecoder)
         self.gps = decoder(ErrorPolicy.COUNT,
                            accept_missing_checksum=config.accept_nmea_without_checksum)
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
@@ -216,6 +230,36 @@ class Acquisition:
             utc = msg.time_base == TimeBase.UTC
             t_gps = msg.rising_gps_ns + (self._leap_ns if utc else 0)
             self._time_tag(t_host_ns, False, t_gps % NS_PER_WEEK, t_gps)
+        elif isinstance(msg, BestPos | TimeLog | MarkTime):
+            self._on_novatel(t_host_ns, msg)
+
+    def _on_novatel(self, t_host_ns: int, msg: BestPos | TimeLog | MarkTime) -> None:
+        """NovAtel logs: a fix of BESTPOS; a PTT of TIME (logged on the second, the second of
+        the PPS just sent); a TTT of MARK1TIME. Times are complete (week and seconds) and in
+        GPS time; a time log from a receiver that does not know GPS time finely (its time
+        status), or whose clock model is not valid, is not used."""
+        if isinstance(msg, BestPos):
+            self._log_novatel_fix(t_host_ns, msg)
+        elif not time_is_fine(msg.header):
+            return
+        elif isinstance(msg, TimeLog) and msg.clock_status is ClockStatus.VALID:
+            t_gps = msg.pps_gps_ns
+            self._time_tag(t_host_ns, True, t_gps % NS_PER_WEEK, t_gps)
+        elif isinstance(msg, MarkTime) and msg.status is ClockStatus.VALID \
+                and msg.header.name != "MARK2TIME":  # the event input the sync unit drives
+            t_gps = msg.gps_ns
+            self._time_tag(t_host_ns, False, t_gps % NS_PER_WEEK, t_gps)
+
+    def _log_novatel_fix(self, t_host_ns: int, pos: BestPos) -> None:
+        """BESTPOS as a fix: its epoch from the header, height ellipsoidal (MSL height +
+        undulation), GGA's quality for its position type (0 unless a solution was computed),
+        the satellites used; it states no HDOP."""
+        quality = (NOVATEL_QUALITY.get(pos.position_type, FixQuality.INVALID)
+                   if pos.solution_status is SolutionStatus.SOL_COMPUTED else FixQuality.INVALID)
+        t_gps = pos.header.gps_ns
+        self._last_fix_gps_ns = t_gps
+        self.log(GpsFix(t_host_ns, t_gps, pos.lat_deg, pos.lon_deg, pos.height_ellipsoidal_m,
+                        int(quality), pos.svs_used, float("nan")), None)
 
     def _flush_undated_tags(self) -> None:
         """The time tags held for the receiver's date, in order (with the host clock's guess of
@@ -516,6 +560,21 @@ class Acquisition:
         self._next_health_ns = t_host_ns
         self._health(t_host_ns)
 
+
+# GGA's fix quality for NovAtel's position types (the others: 0)
+NOVATEL_QUALITY: dict[PositionType, FixQuality] = {
+    PositionType.SINGLE: FixQuality.GPS,
+    PositionType.PSRDIFF: FixQuality.DGPS,
+    PositionType.WAAS: FixQuality.DGPS,
+    PositionType.NARROW_INT: FixQuality.RTK_FIXED,
+    PositionType.WIDE_INT: FixQuality.RTK_FIXED,
+    PositionType.L1_INT: FixQuality.RTK_FIXED,
+    PositionType.NARROW_FLOAT: FixQuality.RTK_FLOAT,
+    PositionType.L1_FLOAT: FixQuality.RTK_FLOAT,
+    PositionType.PPP: FixQuality.RTK_FLOAT,
+    PositionType.PROPAGATED: FixQuality.ESTIMATED,
+    PositionType.FIXEDPOS: FixQuality.MANUAL,
+}
 
 # Time tags held for the receiver's date (an RMC or ZDA, which follows within the second):
 # a receiver that sends no date has its tags' week from the host clock after these

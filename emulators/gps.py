@@ -8,6 +8,10 @@ Outputs, on the emulation timeline:
   first-order Gauss–Markov error (σ and τ from the scenario: code ~1 m, phase ~3–5 cm);
 - `$PASHR,TTT` for every accepted pulse on the event input, tagged at the pulse's own time.
 
+Other receivers (`gps.receiver`, docs/protocols.md) send the same fixes and tags in their own
+words: a u-blox F9P NMEA 4.1 with UBX-TIM-TP after each PPS and UBX-TIM-TM2 per event; a NovAtel
+OEM7 ASCII logs only: BESTPOSA per fix epoch, TIMEA after each PPS, MARK1TIMEA per event.
+
 Maximum event rate, the way the receiver enforces it: after an accepted event the input is blind
 for 0.98 / max_event_rate_hz (a dead time that re-arms just before the next period, so pulses one
 period apart ± jitter are all tagged); a pulse in the dead time is ignored (no TTT) and written to
@@ -48,6 +52,16 @@ from acquisition.nmea import (
     rmc_from_fix,
     ttt_from_gps_ns,
     zda_from_gps_ns,
+)
+from acquisition.novatel import (
+    BestPos,
+    NovatelLog,
+    PositionType,
+    SolutionStatus,
+    encode_log,
+    log_header,
+    mark1time_from_gps_ns,
+    time_for_pps,
 )
 from acquisition.pulses import Edge, PulseLine
 from acquisition.ubx import (
@@ -120,11 +134,13 @@ class GpsReceiver(Device):
         self.plane = LocalPlane.for_scenario(scn)
         self.tag_res_ns = scn.gps.event_tag_resolution_ns
         self.ublox = scn.gps.receiver is ReceiverModel.UBLOX_F9P
+        self.novatel = scn.gps.receiver is ReceiverModel.NOVATEL_OEM7
         # u-blox: NMEA 4.1 from a multi-constellation solution; Ashtech: NMEA 2.3, GPS alone
         self._talker = Talker.MULTI if self.ublox else Talker.GPS
         self._nmea_version = NmeaVersion.V4_1 if self.ublox else DEFAULT_VERSION
         self._edges_seen = 0  # u-blox: TIM-TM2's rising edge counter
         self._tm2_accuracy_ns = max(1, round(scn.gps.pps_jitter_ns))
+        self._clock_std_s = scn.gps.pps_jitter_ns * 1e-9  # NovAtel: the clock offset's σ
         # re-arms 2 % early, so pulses exactly one period apart (PPS ± jitter) all get tagged
         self.dead_time_ns = round(0.98 * NS_PER_S / scn.gps.max_event_rate_hz)
         self._outages = [(traj.t_start_ns + int(f.at_s * NS_PER_S),
@@ -192,6 +208,10 @@ class GpsReceiver(Device):
         if self.ublox:  # TIM-TP announces the next pulse; this one was announced on time
             self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge, ptt_gps_ns=second)
             self._send_at(second + PTT_LATENCY_NS, tim_tp_for_pulse(nxt))
+        elif self.novatel:  # TIME logged on the second: the second this pulse marks
+            self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge, ptt_gps_ns=second)
+            self._send_at(second + PTT_LATENCY_NS,
+                          time_for_pps(second, self._clock_std_s, self.scn.block.leap_seconds))
         else:
             self.pps.append(t_second_gps_ns=second, t_edge_gps_ns=t_edge,
                             ptt_gps_ns=self._rounded(t_edge))
@@ -213,26 +233,34 @@ class GpsReceiver(Device):
             self.events.append(t_edge_gps_ns=t, accepted=0, ttt_gps_ns=-1, reason="dead time")
             return
         self._armed_at_ns = t + self.dead_time_ns
-        tag = (tim_tm2_from_gps_ns(self._rounded(t), self._edges_seen, self._tm2_accuracy_ns)
-               if self.ublox else ttt_from_gps_ns(t))
+        tag: GpsMessage | NovatelLog
+        if self.ublox:
+            tag = tim_tm2_from_gps_ns(self._rounded(t), self._edges_seen, self._tm2_accuracy_ns)
+        elif self.novatel:
+            tag = mark1time_from_gps_ns(self._rounded(t), self._clock_std_s,
+                                        self.scn.block.leap_seconds)
+        else:
+            tag = ttt_from_gps_ns(t)
         self.events.append(t_edge_gps_ns=t, accepted=1, ttt_gps_ns=self._rounded(t), reason="")
         self._send_at(t + TTT_LATENCY_NS, tag)
 
     # --- NMEA ------------------------------------------------------------------------------
 
-    def _send(self, message: GpsMessage, t_ns: int) -> list[Output]:
+    def _send(self, message: GpsMessage | NovatelLog, t_ns: int) -> list[Output]:
         """On the wire now if the port is free; else queued until it is."""
         if self._uart_free_ns > t_ns:
             self._schedule.at(self._uart_free_ns, partial(self._send, message))
             return []
         if isinstance(message, UbxMessage):
             data = encode_ubx(message)
+        elif isinstance(message, NovatelLog):
+            data = encode_log(message)
         else:
             data = encode(message, self._nmea_version)
         self._uart_free_ns = t_ns + wire_time_ns(len(data), self.scn.gps.serial_baud)
         return [Output(t_ns, Port.GPS_SERIAL, data)]
 
-    def _send_at(self, t_ns: int, message: GpsMessage) -> None:
+    def _send_at(self, t_ns: int, message: GpsMessage | NovatelLog) -> None:
         self._schedule.at(t_ns, partial(self._send, message))
 
     def _nmea_epoch(self, t_ns: int) -> list[Output]:
@@ -248,6 +276,8 @@ class GpsReceiver(Device):
         # written past the flight's end, stamped with its end time (the epochs were clipped)
         self.fixes.append(t_gps_ns=epoch, error_n_m=err_n, error_e_m=err_e, error_d_m=err_d,
                           quality=int(quality))
+        if self.novatel:
+            return self._send(self._bestpos(epoch, lat, lon, h, lost), t_ns)
         mode = ModeIndicator.NOT_VALID if lost else self._mode
         gps = self.scn.gps
         gga = gga_from_fix(epoch, leap, lat, lon, h, gps.geoid_separation_m, quality, 9, 0.9)
@@ -264,6 +294,19 @@ class GpsReceiver(Device):
         for k, msg in enumerate(messages[1:], start=1):
             self._send_at(t_ns + k * SENTENCE_SPACING_NS, msg)
         return self._send(messages[0], t_ns)
+
+    def _bestpos(self, epoch: int, lat: float, lon: float, h: float, lost: bool) -> BestPos:
+        """BESTPOS of a fix: height above the receiver's geoid and its undulation, the
+        scenario's σ, the solution type of `gps.solution`; with lock lost no solution."""
+        gps = self.scn.gps
+        phase = gps.solution is GpsSolution.PHASE
+        kind = PositionType.NARROW_INT if phase else PositionType.PSRDIFF
+        return BestPos(log_header("BESTPOS", epoch),
+                       SolutionStatus.INSUFFICIENT_OBS if lost else SolutionStatus.SOL_COMPUTED,
+                       PositionType.NONE if lost else kind, lat, lon,
+                       h - gps.geoid_separation_m, gps.geoid_separation_m, "WGS84",
+                       gps.horizontal_sigma_m, gps.horizontal_sigma_m, gps.vertical_sigma_m,
+                       "0", 1.0, 0.0, 12, 9, 9, 9 if phase else 0, 0, 0, 0, 0x11 if phase else 0x01)
 
     @property
     def _quality(self) -> FixQuality:

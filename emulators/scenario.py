@@ -83,6 +83,8 @@ MAX_ATTITUDE_DRIFT_ARCSEC_PER_H = MAX_ATTITUDE_SIGMA_ARCSEC / MAX_FLIGHT_H  # 15
 # the serial port must carry them all (`gps_serial_load`). A port loaded past GPS_LINK_WARN_LOAD
 # queues sentences behind each other for long stretches; past 1, without end.
 GGA_BYTES, RMC_BYTES, ZDA_BYTES, TAG_BYTES = 88, 82, 38, 34  # the longest of each
+# NovAtel OEM7 ASCII logs as acquisition.novatel writes them (the longest of each)
+BESTPOS_BYTES, TIME_LOG_BYTES, MARK_BYTES = 256, 168, 160
 GPS_LINK_WARN_LOAD = 0.7
 
 
@@ -96,6 +98,7 @@ class ReceiverModel(StrEnum):
 
     ASHTECH_Z12 = "ashtech_z12"  # NMEA 2.3 (GP) + $PASHR,PTT / $PASHR,TTT time tags
     UBLOX_F9P = "ublox_f9p"  # NMEA 4.1 (GN) + UBX-TIM-TP / UBX-TIM-TM2 binary, one port
+    NOVATEL_OEM7 = "novatel_oem7"  # NovAtel ASCII logs: BESTPOSA, TIMEA, MARK1TIMEA
 
 
 class BlockSettings(StrictModel):
@@ -275,7 +278,8 @@ class GpsSettings(StrictModel):
 
     receiver: ReceiverModel = Field(
         ReceiverModel.ASHTECH_Z12, description="its protocol: ashtech_z12 (NMEA + $PASHR time "
-        "tags) or ublox_f9p (NMEA 4.1 + UBX-TIM-TP and UBX-TIM-TM2, interleaved)"
+        "tags), ublox_f9p (NMEA 4.1 + UBX-TIM-TP and UBX-TIM-TM2, interleaved) or "
+        "novatel_oem7 (NovAtel ASCII logs BESTPOSA, TIMEA and MARK1TIMEA)"
     )
     nmea_rate_hz: float = Field(1.0, gt=0, le=20)
     solution: GpsSolution = GpsSolution.PHASE
@@ -442,11 +446,20 @@ def gps_event_rate_hz(scn: Scenario) -> float:
 
 def gps_serial_load(scn: Scenario) -> tuple[float, float]:
     """(bytes a second the receiver's port must send, the fraction of its capacity): GGA and RMC
-    every epoch, ZDA and PTT every second, a TTT for every pulse on the event input."""
+    every epoch, ZDA and PTT every second, a TTT for every pulse on the event input (a NovAtel:
+    BESTPOS every epoch, TIME every second, MARK1TIME for every pulse)."""
     g = scn.gps
+    if g.receiver is ReceiverModel.NOVATEL_OEM7:
+        per_s = (g.nmea_rate_hz * BESTPOS_BYTES + TIME_LOG_BYTES
+                 + gps_event_rate_hz(scn) * MARK_BYTES)
+        return per_s, per_s / (g.serial_baud / 10.0)
     per_s = (g.nmea_rate_hz * (GGA_BYTES + RMC_BYTES) + min(g.nmea_rate_hz, 1.0) * ZDA_BYTES
              + TAG_BYTES + gps_event_rate_hz(scn) * TAG_BYTES)
     return per_s, per_s / (g.serial_baud / 10.0)
+
+
+def _tag_bytes(scn: Scenario) -> int:
+    return MARK_BYTES if scn.gps.receiver is ReceiverModel.NOVATEL_OEM7 else TAG_BYTES
 
 
 def _check_gps_link(scn: Scenario) -> None:
@@ -456,9 +469,9 @@ def _check_gps_link(scn: Scenario) -> None:
     raise ValueError(
         f"gps.serial_baud: {scn.gps.serial_baud} baud carries {scn.gps.serial_baud // 10} bytes "
         f"a second; the receiver would have to send {per_s:.0f} (fixes at gps.nmea_rate_hz, a "
-        f"{TAG_BYTES}-byte TTT for each of {gps_event_rate_hz(scn):.3g} forwarded pulses a "
-        "second): its tags would queue without end. A faster port, a larger sisa.one_of_n, or "
-        "a lower gps.max_event_rate_hz")
+        f"{_tag_bytes(scn)}-byte time tag for each of {gps_event_rate_hz(scn):.3g} forwarded "
+        "pulses a second): its tags would queue without end. A faster port, a larger "
+        "sisa.one_of_n, or a lower gps.max_event_rate_hz")
 
 
 def flight_duration_bound_s(scn: Scenario) -> dict[str, float]:

@@ -74,7 +74,8 @@ class RawCanFrames(LoggedMessage):
 
 @dataclass(frozen=True)
 class GpsFix(LoggedMessage):
-    """A decoded GGA (with the date from RMC/ZDA): the antenna position the receiver reported."""
+    """A decoded GGA (with the date from RMC/ZDA), or a NovAtel BESTPOS: the antenna position
+    the receiver reported."""
 
     topic: ClassVar[Topic] = Topic.GPS_FIX
     schema_name: ClassVar[str] = "sisa.GpsFix"
@@ -82,23 +83,24 @@ class GpsFix(LoggedMessage):
     t_gps_ns: int
     lat_deg: float
     lon_deg: float
-    height_m: float  # ellipsoidal: GGA altitude + geoid separation
-    quality: int
+    height_m: float  # ellipsoidal: GGA altitude + geoid separation (BESTPOS: + undulation)
+    quality: int  # GGA's (BESTPOS: of its position type, 0 unless a solution was computed)
     satellites: int
-    hdop: float
+    hdop: float  # NaN from BESTPOS (it states none)
 
 
 @dataclass(frozen=True)
 class GpsTimeTag(LoggedMessage):
-    """A receiver's time tag in GPS time: of its PPS (kind "PTT": Ashtech $PASHR,PTT, or
-    u-blox UBX-TIM-TP) or of a pulse on its event input ("TTT": $PASHR,TTT, UBX-TIM-TM2)."""
+    """A receiver's time tag in GPS time: of its PPS (kind "PTT": Ashtech $PASHR,PTT, u-blox
+    UBX-TIM-TP or NovAtel TIMEA) or of a pulse on its event input ("TTT": $PASHR,TTT,
+    UBX-TIM-TM2 or NovAtel MARK1TIMEA)."""
 
     topic: ClassVar[Topic] = Topic.GPS_TIME_TAG
     schema_name: ClassVar[str] = "sisa.GpsTimeTag"
     t_host_ns: int
     kind: str  # "PTT" | "TTT"
     gps_time_of_week_ns: int
-    t_gps_ns: int  # Ashtech: week of last fix, else receiver's date, else host; UBX: stated
+    t_gps_ns: int  # Ashtech: week of last fix, else receiver's date, else host; others: stated
 
 
 @dataclass(frozen=True)

@@ -33,12 +33,18 @@ class NmeaFramer:
     leads = bytes([SENTENCE_START])
     max_message_bytes = MAX_SENTENCE_BYTES
 
-    def __init__(self, *, accept_missing_checksum: bool = False) -> None:
+    def __init__(self, *, accept_missing_checksum: bool = False,
+                 other_starts: bytes = b"") -> None:
+        """`other_starts`: printable bytes that begin another text protocol's message on the
+        same stream (NovAtel's `#`): such a byte cuts a sentence short as a `$` does."""
         self.accept_missing_checksum = accept_missing_checksum
+        self._starts = bytes([SENTENCE_START]) + other_starts
+        self._stop = _SENTENCE_STOP if not other_starts else re.compile(
+            rb"[^\x20-\x7e]|[" + re.escape(self._starts) + rb"]")
 
     def cut(self, buffer: bytearray, start: int, at_end: bool) -> Cut:
         window_end = min(len(buffer), start + MAX_SENTENCE_BYTES)
-        stop = _SENTENCE_STOP.search(buffer, start + 1, window_end)
+        stop = self._stop.search(buffer, start + 1, window_end)
         if stop is None:
             if window_end - start >= MAX_SENTENCE_BYTES:
                 return Cut(Verdict.DAMAGED, MAX_SENTENCE_BYTES, Refusal.TOO_LONG,
@@ -54,8 +60,9 @@ class NmeaFramer:
             if at_end or at + 1 - start >= MAX_SENTENCE_BYTES:
                 return Cut(Verdict.WHOLE, at + 1 - start)  # an LF after it is filler
             return MORE  # an LF may follow
-        if byte == SENTENCE_START:
-            return Cut(_DAMAGED, at - start, _CUT_SHORT, "sentence cut short by a new '$'")
+        if byte in self._starts:
+            return Cut(_DAMAGED, at - start, _CUT_SHORT,
+                       f"sentence cut short by a new {chr(byte)!r}")
         return self._cut_by_byte(buffer, start, at, window_end, at_end)
 
     @staticmethod

@@ -31,7 +31,8 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
                              line_rate_hz=1e9 / line_period_ns,
                              read_interval_ns=round(scn.sisa.read_interval_ms * 1e6),
                              accept_nmea_without_checksum=scn.sisa.accept_nmea_without_checksum,
-                             gps_ubx=scn.gps.receiver is ReceiverModel.UBLOX_F9P)
+                             gps_ubx=scn.gps.receiver is ReceiverModel.UBLOX_F9P,
+                             gps_novatel=scn.gps.receiver is ReceiverModel.NOVATEL_OEM7)
 
 
 def recording_settings(config: AcquisitionConfig) -> dict[str, str]:

@@ -30,6 +30,9 @@ SHORT: dict[str, Any] = {
 }
 JUMPS = ({"at_s": 80.0, "jump_ms": 1000.0}, {"at_s": 170.0, "jump_ms": 0.05})
 LATE_JUMP = {"at_s": 226.0, "jump_ms": -0.4}  # in the last strip, 7.6 s before the log ends
+RECEIVER_FAULTS: dict[str, Any] = {"lost_pulse_fraction": 0.02, "spurious_pulse_rate_hz": 0.5,
+                                   "corrupt_byte_rate": 2e-4,
+                                   "pps_outages": [{"at_s": 100.0, "duration_s": 30.0}]}
 PROFILES: dict[str, dict[str, Any]] = {
     "lost_pulses_1pct": {"faults": {"lost_pulse_fraction": 0.01}},
     "lost_pulses_10pct": {"faults": {"lost_pulse_fraction": 0.10}},
@@ -57,6 +60,9 @@ PROFILES: dict[str, dict[str, Any]] = {
     # second) on a Z-12's 9600-baud port, 99 % loaded: its sentences queue up to 150 ms
     "tags_20hz_9600_baud": {"sisa": {"one_of_n": 3},
                             "gps": {"max_event_rate_hz": 25.0, "serial_baud": 9600}},
+    # issue 34: the receiver profiles (with faults: test_receiver_profile_with_faults)
+    "ublox_f9p": {"gps": {"receiver": "ublox_f9p"}},
+    "novatel_oem7": {"gps": {"receiver": "novatel_oem7"}},
 }
 NEAR_JUMP_S = 5.0  # records this close to a clock jump may be flagged (pulses ≤ 4 s apart)
 
@@ -95,6 +101,34 @@ def test_fault_profile(profile: str, seed: int, tmp_path: Path) -> None:
     else:
         assert not flagged.any()  # 100 % of the INS records
     _report_shows_the_fault(profile, res.report, tmp_path)
+
+
+@pytest.mark.parametrize("receiver", ["ashtech_z12", "ublox_f9p", "novatel_oem7"])
+def test_receiver_profile_with_faults(receiver: str, tmp_path: Path) -> None:
+    """Issue 34: each receiver profile with lost and spurious events, corrupt bytes on the
+    serial ports and a PPS outage: every INS record and scan line timed, 0 wrong tags. With
+    the images and their lines files: a header lost to a corrupt byte leaves a line whose
+    number only the scanner's lines file knows (the headers alone number lines by order)."""
+    from postproc.sync import read_scanner_lines
+
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 3, **SHORT},
+                                     {"gps": {"receiver": receiver}, "faults": RECEIVER_FAULTS,
+                                      "terrain": {"margin_m": 300.0, "control_points": 4,
+                                                  "check_points": 2}}))
+    simulate(scn, tmp_path, images=True)
+    faults = read_truth_csv(tmp_path / "truth" / "faults.csv")
+    kinds = set(faults["kind"].tolist())
+    assert {"corrupt_byte", "lost_pulse", "spurious_pulse", "pps_outage"} <= kinds
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp, read_scanner_lines(tmp_path / "scanner"))
+    e_ins = ok_errors_ns(res.ins.t_gps_ns, res.ins.status, ins_truth_ns(tmp_path, inp))
+    e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(tmp_path, res))
+    assert np.abs(e_ins).max() < WRONG_NS  # zero wrong tags
+    assert np.abs(e_line).max() < WRONG_NS
+    assert (res.ins.status == TimeStatus.OK).all()
+    assert (res.lines.status == TimeStatus.OK).all()
+    assert np.sqrt(np.mean(e_ins.astype(float) ** 2)) < 1_000  # RMS < 1 µs
+    assert np.sqrt(np.mean(e_line.astype(float) ** 2)) < 1_000
 
 
 def _every_forwarded_pulse_is_a_real_edge(run: Path) -> None:

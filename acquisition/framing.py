@@ -77,6 +77,34 @@ class Cut(NamedTuple):
 
 
 MORE = Cut(Verdict.MORE)
+_CR, _LF = 0x0D, 0x0A
+
+
+def cut_at_line_end(buffer: bytearray, start: int, at_end: bool, stop: re.Pattern[bytes],
+                    max_bytes: int, too_long: str) -> Cut | int:
+    """The verdict on a text message (an NMEA sentence, a NovAtel ASCII log) from
+    buffer[start] to the first byte `stop` finds after it: WHOLE up to its line end (LF, CR LF,
+    or a CR not followed by LF), MORE while the line may still come, DAMAGED (`too_long`) with
+    no line end within `max_bytes`; a stop byte that is no line end is returned as its index,
+    for the protocol to judge (a new message start, a byte no message holds)."""
+    window_end = min(len(buffer), start + max_bytes)
+    found = stop.search(buffer, start + 1, window_end)
+    if found is None:
+        if window_end - start >= max_bytes:
+            return Cut(Verdict.DAMAGED, max_bytes, too_long,
+                       f"no line end within {max_bytes} bytes", run_on=True)
+        return MORE
+    at = found.start()
+    byte = buffer[at]
+    if byte == _LF:
+        return Cut(Verdict.WHOLE, at + 1 - start)
+    if byte == _CR:
+        if at + 1 < len(buffer):
+            return Cut(Verdict.WHOLE, at + (2 if buffer[at + 1] == _LF else 1) - start)
+        if at_end or at + 1 - start >= max_bytes:
+            return Cut(Verdict.WHOLE, at + 1 - start)  # an LF after it is filler
+        return MORE  # an LF may follow
+    return at
 # members as module names: an Enum class's attribute lookup is slow enough to show in a loop
 # that runs once per byte of garbage
 _MORE, _WHOLE, _DAMAGED = Verdict.MORE, Verdict.WHOLE, Verdict.DAMAGED

@@ -14,7 +14,7 @@ import re
 from typing import Any
 
 from acquisition.codec import ErrorPolicy
-from acquisition.framing import MORE, Cut, StreamDecoder, Verdict
+from acquisition.framing import MORE, Cut, StreamDecoder, Verdict, cut_at_line_end
 from acquisition.nmea.codec import MAX_SENTENCE_BYTES, SENTENCE_START, decode_sentence
 from acquisition.nmea.sentences import NmeaMessage, message_kind
 from acquisition.nmea.tables import Refusal
@@ -43,23 +43,12 @@ class NmeaFramer:
             rb"[^\x20-\x7e]|[" + re.escape(self._starts) + rb"]")
 
     def cut(self, buffer: bytearray, start: int, at_end: bool) -> Cut:
-        window_end = min(len(buffer), start + MAX_SENTENCE_BYTES)
-        stop = self._stop.search(buffer, start + 1, window_end)
-        if stop is None:
-            if window_end - start >= MAX_SENTENCE_BYTES:
-                return Cut(Verdict.DAMAGED, MAX_SENTENCE_BYTES, Refusal.TOO_LONG,
-                           f"no line end within {MAX_SENTENCE_BYTES} bytes", run_on=True)
-            return MORE
-        at = stop.start()
+        at = cut_at_line_end(buffer, start, at_end, self._stop, MAX_SENTENCE_BYTES,
+                             Refusal.TOO_LONG)
+        if isinstance(at, Cut):
+            return at
         byte = buffer[at]
-        if byte == LF:
-            return Cut(_WHOLE, at + 1 - start)
-        if byte == CR:
-            if at + 1 < len(buffer):
-                return Cut(Verdict.WHOLE, at + (2 if buffer[at + 1] == LF else 1) - start)
-            if at_end or at + 1 - start >= MAX_SENTENCE_BYTES:
-                return Cut(Verdict.WHOLE, at + 1 - start)  # an LF after it is filler
-            return MORE  # an LF may follow
+        window_end = min(len(buffer), start + MAX_SENTENCE_BYTES)
         if byte in self._starts:
             return Cut(_DAMAGED, at - start, _CUT_SHORT,
                        f"sentence cut short by a new {chr(byte)!r}")

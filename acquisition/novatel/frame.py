@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from acquisition.codec import ErrorKind, RefusedError
-from acquisition.framing import MORE, Cut, Verdict
+from acquisition.framing import Cut, Verdict, cut_at_line_end
 from sisa.core.errors import EncodeError
 from sisa.core.timescale import NS_PER_S, NS_PER_WEEK
 
@@ -40,7 +40,6 @@ LINE_END = b"\r\n"
 MAX_LOG_BYTES = 4096  # a cap on what a log without line end can make the stream wait for
 HEADER_FIELDS = 10
 NS_PER_MS = 1_000_000
-CR, LF = LINE_END[0], LINE_END[1]
 
 
 class NovatelRefusal(StrEnum):
@@ -248,23 +247,11 @@ def cut_frame(buffer: bytearray, start: int, at_end: bool) -> Cut:
     to its line end (LF, CR LF, or a CR not followed by LF) is a log to decode; a new `#` or
     `$` or a byte no log holds before it cuts the log short there (the rest of its line, up to
     the next message start, is the same error)."""
-    window_end = min(len(buffer), start + MAX_LOG_BYTES)
-    stop = _LOG_STOP.search(buffer, start + 1, window_end)
-    if stop is None:
-        if window_end - start >= MAX_LOG_BYTES:
-            return Cut(Verdict.DAMAGED, MAX_LOG_BYTES, NovatelRefusal.TOO_LONG,
-                       f"no line end within {MAX_LOG_BYTES} bytes", run_on=True)
-        return MORE
-    at = stop.start()
+    at = cut_at_line_end(buffer, start, at_end, _LOG_STOP, MAX_LOG_BYTES,
+                         NovatelRefusal.TOO_LONG)
+    if isinstance(at, Cut):
+        return at
     byte = buffer[at]
-    if byte == LF:
-        return Cut(Verdict.WHOLE, at + 1 - start)
-    if byte == CR:
-        if at + 1 < len(buffer):
-            return Cut(Verdict.WHOLE, at + (2 if buffer[at + 1] == LF else 1) - start)
-        if at_end or at + 1 - start >= MAX_LOG_BYTES:
-            return Cut(Verdict.WHOLE, at + 1 - start)
-        return MORE  # an LF may follow
     if byte in b"#$":
         return Cut(Verdict.DAMAGED, at - start, NovatelRefusal.CUT_SHORT,
                    f"log cut short by a new {chr(byte)!r}")

@@ -52,7 +52,7 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy.stats import chi2
+from scipy.stats import binom, chi2
 
 from emulators.gps import antenna_fix_ecef_m, position_errors
 from emulators.ins import AttitudeErrors
@@ -294,15 +294,17 @@ def table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                             "mean_z": float(np.mean(z)),
                             "within_2": float(np.mean(np.abs(z) <= 2.0)),
                             "mean_sigma": float(np.mean(s)),
-                            "set_by_prior": bool(runs[0][name]["set_by_prior"])})
+                            "set_by_prior": int(sum(bool(r[name]["set_by_prior"])
+                                                    for r in runs))})
     return out
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
     print(f"\n{'GPS':<6}{'cfg':<4}{'parameter':<13}{'n':>4}{'RMS z':>8}{'mean z':>8}"
           f"{'|z|≤2':>7}{'mean σ':>11}")
-    for r in table(rows):
-        flag = "  set by the prior" if r["set_by_prior"] else ""
+    tab = table(rows)
+    for r in tab:
+        flag = f"  set by its prior ({r['set_by_prior']}/{r['n']})" if r["set_by_prior"] else ""
         print(f"{r['solution']:<6}{r['config']:<4}{r['parameter']:<13}{r['n']:>4}"
               f"{r['rms_z']:>8.2f}{r['mean_z']:>+8.2f}{100 * r['within_2']:>6.0f}%"
               f"{r['mean_sigma']:>11.4g}{flag}")
@@ -312,12 +314,39 @@ def print_table(rows: list[dict[str, Any]]) -> None:
             lo, hi = (math.sqrt(chi2.ppf(q, n) / n) for q in (0.025, 0.975))
             print(f"{solution}: {n} flights; honest σ give an RMS z within {lo:.2f}–{hi:.2f} "
                   "(95 %) per parameter")
+            acceptance(tab, solution, n)
             checks = [r["check_A"] for r in rows if r["solution"] == solution]
             for axis in ("along", "across"):
                 got = math.sqrt(np.mean([c[f"rms_{axis}_m"] ** 2 for c in checks]))
                 pred = math.sqrt(np.mean([c[f"predicted_rms_{axis}_m"] ** 2 for c in checks]))
                 print(f"  check points (A), {axis} track: pooled RMS {got:.2f} m, predicted "
                       f"{pred:.2f} m (ratio {got / pred:.2f})")
+
+
+RMS_Z_RANGE: Final = (0.8, 1.25)  # issue 32's acceptance, for every estimated parameter
+WITHIN_2_SHARE: Final = 0.95  # and the delay's |z| ≤ 2 share
+TWO_SIGMA: Final = 0.9545  # P(|z| ≤ 2) for honest (normal) z
+
+
+def acceptance(tab: list[dict[str, Any]], solution: str, n: int) -> None:
+    """Issue 32's acceptance for one GPS solution: RMS z of every parameter estimated in A, B
+    and C (A0 is the model without navigation, for comparison) within RMS_Z_RANGE, and the
+    delay's |z| ≤ 2 share at least WITHIN_2_SHARE; with the binomial range of that share which
+    honest σ give over n flights (it scatters by √(p(1 − p)/n))."""
+    mine = [r for r in tab if r["solution"] == solution and r["config"] != "A0"
+            and r["parameter"] not in LOOKS]
+    lo, hi = RMS_Z_RANGE
+    out = [f"{r['config']} {r['parameter']} {r['rms_z']:.2f}" for r in mine
+           if not lo <= r["rms_z"] <= hi]
+    print(f"  RMS z of every estimated parameter within {lo}–{hi}: "
+          + ("yes" if not out else "NO: " + ", ".join(out)))
+    k_lo, k_hi = binom.ppf([0.025, 0.975], n, TWO_SIGMA)
+    for r in mine:
+        if r["parameter"] == "time_delay":
+            ok = "yes" if r["within_2"] >= WITHIN_2_SHARE else "NO"
+            print(f"  delay ({r['config']}): |z| ≤ 2 in {100 * r['within_2']:.0f} % of flights, "
+                  f"≥ {100 * WITHIN_2_SHARE:.0f} %: {ok} (honest σ: {100 * k_lo / n:.0f}–"
+                  f"{100 * k_hi / n:.0f} % over {n} flights, 95 % of the time)")
 
 
 def main() -> None:

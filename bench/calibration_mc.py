@@ -117,16 +117,20 @@ class Flight:
     nav_rng_seed: int
 
 
-def scenario(k: int, solution: str) -> Scenario:
+def scenario(k: int, solution: str, ins_noise_arcsec: list[float] | None = None) -> Scenario:
     """Flight k's scenario: a 4-strip Garrotxa block with its own seed, and δx0 drawn from the
-    adjustment's prior."""
+    adjustment's prior; the INS attitude's white noise the scenario's unless given (the same
+    random draws either way: only their scale changes)."""
     x0 = float(np.random.default_rng([k, 32]).normal(0.0, PRIOR_X0_UM))
-    return scenario_from_table({
+    table: dict[str, Any] = {
         "base": "garrotxa", "seed": 32_000 + k,
         "block": {"name": f"mc{k:03d}", "strips": STRIPS},
         "terrain": {"control_points": CONTROL, "check_points": CHECK},
         "gps": {"solution": solution},
-        "scanner": {"delta_principal_point_um": [round(x0, 3), 64.52]}})
+        "scanner": {"delta_principal_point_um": [round(x0, 3), 64.52]}}
+    if ins_noise_arcsec is not None:
+        table["ins"] = {"attitude_noise_arcsec": ins_noise_arcsec}
+    return scenario_from_table(table)
 
 
 def _dem(terrain: Terrain) -> Dem:
@@ -149,8 +153,9 @@ def _segments(scn: Scenario, traj: TruthTrajectory, rng: np.random.Generator
     return out
 
 
-def build_flight(k: int, solution: str) -> Flight:
-    scn = scenario(k, solution)
+def build_flight(k: int, solution: str, ins_noise_arcsec: list[float] | None = None
+                 ) -> Flight:
+    scn = scenario(k, solution, ins_noise_arcsec)
     traj = TruthTrajectory.from_scenario(scn)
     terrain = Terrain.from_scenario(scn)
     table = ground_points(scn, terrain)
@@ -242,9 +247,10 @@ def z_scores(flight: Flight, sim: SimulatedObservations, res: CalibrationResult
     return out
 
 
-def one_flight(k: int, solution: str) -> dict[str, Any]:
+def one_flight(k: int, solution: str, ins_noise_arcsec: list[float] | None = None
+               ) -> dict[str, Any]:
     t0 = time.perf_counter()
-    flight = build_flight(k, solution)
+    flight = build_flight(k, solution, ins_noise_arcsec)
     sim = simulate_flight_observations(flight.truth, flight.points,
                                        replace(SETTINGS, seed=flight.scn.seed))
     true_g = flight.scn.mounting.antenna_offset_m
@@ -354,7 +360,18 @@ def main() -> None:
     ap.add_argument("--flights", type=int, default=40, help="flights per GPS solution")
     ap.add_argument("--first", type=int, default=0, help="first flight number")
     ap.add_argument("--out", type=Path, default=Path("runs/calibration_mc"))
+    ap.add_argument("--ins-noise-arcsec", default=None, metavar="R,P,H",
+                    help="the INS attitude's white noise σ (default: the scenario's 2,2,3); "
+                         "0,0,0 shows what that noise does to the delay (docs/calibration.md)")
     args = ap.parse_args()
+    ins_noise = None
+    if args.ins_noise_arcsec is not None:
+        try:
+            ins_noise = [float(v) for v in args.ins_noise_arcsec.split(",")]
+        except ValueError:
+            ap.error("--ins-noise-arcsec: three numbers, R,P,H")
+        if len(ins_noise) != 3 or not all(0.0 <= v <= 3600.0 for v in ins_noise):
+            ap.error("--ins-noise-arcsec: three numbers of 0–3600 arcsec, R,P,H")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "calibration_mc.json"
     rows: list[dict[str, Any]] = json.loads(path.read_text()) if path.is_file() else []
@@ -364,7 +381,7 @@ def main() -> None:
         for solution in ("code", "phase"):
             if (k, solution) in done:
                 continue
-            r = one_flight(k, solution)
+            r = one_flight(k, solution, ins_noise)
             rows.append(r)
             path.write_text(json.dumps(rows, default=float) + "\n", encoding="utf-8")
             print(f"flight {k:3d} {solution:<5} {r['seconds']:5.1f} s  delay A "

@@ -141,10 +141,17 @@ class CameraModel:
         if a == 0.0:
             return p0
         p1 = self._pose_at_offset_ns(round((k + 1) * h * 1e6))
-        # a chord between rotations 0.03° apart at most: off the arc by ~1e-8, left as it is
-        return Pose((1.0 - a) * p0.ins_m + a * p1.ins_m,
-                    (1.0 - a) * p0.r_ecef_from_body + a * p1.r_ecef_from_body,
-                    p0.valid & p1.valid)
+        # a chord between rotations ~0.03° apart on a strip: off the arc by ~1e-8, left so
+        ins = (1.0 - a) * p0.ins_m + a * p1.ins_m
+        rot = (1.0 - a) * p0.r_ecef_from_body + a * p1.r_ecef_from_body
+        off = ~(p0.valid & p1.valid)
+        if not off.any():
+            return Pose(ins, rot, p0.valid)
+        # a node beyond the navigation's span or in a gap: those rows sampled exactly
+        ex = self._pose_at_offset_ns(round(delay_ms * 1e6))
+        return Pose(np.where(off[:, None], ex.ins_m, ins),
+                    np.where(off[:, None, None], ex.r_ecef_from_body, rot),
+                    np.where(off, ex.valid, p0.valid))
 
     def _pose_at_offset_ns(self, offset_ns: int) -> Pose:
         """Pose at every observation's line time + offset (cached per whole ns)."""

@@ -218,3 +218,32 @@ def test_the_delay_grid_blends_the_poses_of_its_nodes() -> None:
     # over 50 ms the block's smooth motion is a straight chord to well under a millimetre
     assert float(np.max(np.abs(got.ins_m - sampled.ins_m))) < 1e-3
     assert float(np.max(np.abs(got.r_ecef_from_body - sampled.r_ecef_from_body))) < 1e-7
+
+
+def test_the_delay_grid_samples_exactly_where_a_node_has_no_navigation() -> None:
+    """A grid node past the trajectory's end does not make a timed observation untimed: that
+    row is sampled at t + τ exactly."""
+    from postproc.calibration.model import DELAY_GRID_MS, CameraModel, ObsGeometry
+
+    block = Block()
+    end = block.t0[0] + 10 * S
+
+    class Ending(NavTrajectory):
+        def pose_at(self, t_gps_ns: npt.ArrayLike) -> Pose:
+            p = super().pose_at(t_gps_ns)
+            ok = p.valid & (p.t_gps_ns <= end)
+            return Pose(p.t_gps_ns, np.where(ok[:, None], p.ins_ecef_m, np.nan),
+                        np.where(ok[:, None, None], p.r_ecef_from_body, np.nan), ok)
+
+    traj = Ending(block)
+    t = np.array([end - 40_000_000, block.t0[0] + 5 * S], np.int64)  # 40 ms before the end
+    assert not traj.pose_at(t[:1] + 50_000_000).valid.any()  # the node at +50 ms: none
+    n = t.size
+    zi, zf = np.zeros(n, np.int64), np.zeros(n)
+    geom = ObsGeometry(zi, zi, t, zf, np.full(n, 48e6), zf, zf, np.ones(n))
+    origin = traj.pose_at(t[1:]).ins_ecef_m[0]
+    grid = CameraModel(traj, nominal_sensor(), geom, origin, DELAY_GRID_MS)
+    exact = CameraModel(traj, nominal_sensor(), geom, origin)
+    got, want = grid.pose_at_delay(20.0), exact.pose_at_delay(20.0)
+    assert got.valid.all()
+    np.testing.assert_allclose(got.ins_m[0], want.ins_m[0], atol=1e-9)

@@ -34,7 +34,7 @@ from postproc.calibration.check import (
     predicted_variance,
 )
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
-from postproc.calibration.model import CameraModel
+from postproc.calibration.model import DELAY_GRID_MS, CameraModel
 from postproc.calibration.navigation import (
     Navigation,
     NavKnots,
@@ -157,7 +157,8 @@ def build(inp: CalibrationInput, opt: CalibrationOptions) -> Adjustment:
     origin = np.mean(adj_pts.ecef_m[adj_pts.kind == "control"], axis=0)
     geom = line_geometry(a_obs, inp.clock, adj_pts.index_of(a_obs.point_id, "observations"),
                          layout.seg_index(a_obs.segment), knots)
-    model = CameraModel(inp.traj, sensor, geom, origin)
+    model = CameraModel(inp.traj, sensor, geom, origin,
+                        DELAY_GRID_MS if Group.DELAY in opt.groups else None)
     surface: Surface | None = (None if inp.dem is None else DemSurface(inp.dem)
                                if isinstance(inp.dem, Dem) else inp.dem)
     ps = point_set(adj_pts, origin, opt.gcp_sigma_m, opt.dem_control and surface is not None)

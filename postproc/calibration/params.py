@@ -133,7 +133,7 @@ class PriorSigmas:
     δx0 needs one: for a line scanner φ and δx0 are the same thing (both turn every pixel's
     look by the same angle along track: δx0 = −f'·φ exactly to first order), so the data fix
     only δx0 − f'·φ and the prior the split; 20 µm (1.3 px) is about a slit's mechanical
-    tolerance. ω and δy0 differ by cos² of the view angle (0.91 at the CASI's swath edge): the
+    tolerance. ω and δy0 differ by cos² of the view angle (0.87 at the CASI's swath edge): the
     data separate them, weakly, without a prior.
     """
 

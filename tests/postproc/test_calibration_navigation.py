@@ -186,3 +186,64 @@ def test_a_prior_sets_sigma_whatever_the_data_fit(scene: Scene) -> None:
         assert phi["set_by_prior"]
         assert not kappa["set_by_prior"]
     assert float(rep["sigma0"]) > 1.7  # type: ignore[arg-type]
+
+
+def test_the_delay_grid_blends_the_poses_of_its_nodes() -> None:
+    """With the delay estimated, the pose at t + τ is linear in τ between the poses at
+    t + k·h and t + (k + 1)·h (so the INS's record-to-record noise is not read as information
+    on τ); on a node, and with the delay fixed, it is the pose at t + τ itself."""
+    from postproc.calibration.model import DELAY_GRID_MS, CameraModel, ObsGeometry
+
+    block = Block()
+    traj = NavTrajectory(block)
+    t = np.array([block.t0[0] + 5 * S, block.t0[1] + 7 * S + 123_457], np.int64)
+    n = t.size
+    zi, zf = np.zeros(n, np.int64), np.zeros(n)
+    geom = ObsGeometry(zi, zi, t, zf, np.full(n, 48e6), zf, zf, np.ones(n))
+    origin = traj.pose_at(t[:1]).ins_ecef_m[0]
+    h = DELAY_GRID_MS
+    grid = CameraModel(traj, nominal_sensor(), geom, origin, h)
+    exact = CameraModel(traj, nominal_sensor(), geom, origin)
+    p1, p2 = (exact.pose_at_delay(k * h) for k in (1, 2))
+    got = grid.pose_at_delay(1.3 * h)
+    np.testing.assert_allclose(got.ins_m, 0.7 * p1.ins_m + 0.3 * p2.ins_m, atol=1e-9)
+    np.testing.assert_allclose(got.r_ecef_from_body,
+                               0.7 * p1.r_ecef_from_body + 0.3 * p2.r_ecef_from_body,
+                               atol=1e-12)
+    np.testing.assert_allclose(grid.pose_at_delay(2 * h).ins_m, p2.ins_m, atol=1e-9)
+    tau_ms = 1.3 * h
+    at = traj.pose_at(t + round(tau_ms * 1e6))
+    sampled = exact.pose_at_delay(tau_ms)
+    np.testing.assert_allclose(sampled.ins_m, at.ins_ecef_m - origin, atol=1e-6)
+    # over 50 ms the block's smooth motion is a straight chord to well under a millimetre
+    assert float(np.max(np.abs(got.ins_m - sampled.ins_m))) < 1e-3
+    assert float(np.max(np.abs(got.r_ecef_from_body - sampled.r_ecef_from_body))) < 1e-7
+
+
+def test_the_delay_grid_samples_exactly_where_a_node_has_no_navigation() -> None:
+    """A grid node past the trajectory's end does not make a timed observation untimed: that
+    row is sampled at t + τ exactly."""
+    from postproc.calibration.model import DELAY_GRID_MS, CameraModel, ObsGeometry
+
+    block = Block()
+    end = block.t0[0] + 10 * S
+
+    class Ending(NavTrajectory):
+        def pose_at(self, t_gps_ns: npt.ArrayLike) -> Pose:
+            p = super().pose_at(t_gps_ns)
+            ok = p.valid & (p.t_gps_ns <= end)
+            return Pose(p.t_gps_ns, np.where(ok[:, None], p.ins_ecef_m, np.nan),
+                        np.where(ok[:, None, None], p.r_ecef_from_body, np.nan), ok)
+
+    traj = Ending(block)
+    t = np.array([end - 40_000_000, block.t0[0] + 5 * S], np.int64)  # 40 ms before the end
+    assert not traj.pose_at(t[:1] + 50_000_000).valid.any()  # the node at +50 ms: none
+    n = t.size
+    zi, zf = np.zeros(n, np.int64), np.zeros(n)
+    geom = ObsGeometry(zi, zi, t, zf, np.full(n, 48e6), zf, zf, np.ones(n))
+    origin = traj.pose_at(t[1:]).ins_ecef_m[0]
+    grid = CameraModel(traj, nominal_sensor(), geom, origin, DELAY_GRID_MS)
+    exact = CameraModel(traj, nominal_sensor(), geom, origin)
+    got, want = grid.pose_at_delay(20.0), exact.pose_at_delay(20.0)
+    assert got.valid.all()
+    np.testing.assert_allclose(got.ins_m[0], want.ins_m[0], atol=1e-9)

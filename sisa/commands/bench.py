@@ -17,8 +17,9 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, NamedTuple
 
 from sisa.commands import (
@@ -193,9 +194,10 @@ def _run(args: argparse.Namespace) -> int:
         rec_end = emu_end = None
         try:
             (run / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-            emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True,
-                                   process_group=0,  # see STOPPED_STARTING
-                                   pass_fds=emu_error.pass_fds, env=emu_error.env)
+            with _stops_held():  # a child started is a child the bench knows to stop
+                emu = subprocess.Popen(emu_cmd, stdout=subprocess.PIPE, text=True,
+                                       process_group=0,  # see STOPPED_STARTING
+                                       pass_fds=emu_error.pass_fds, env=emu_error.env)
             emu_error.started()
             with progress("bench", "starting: DEM, ground points, emulator") as bar:
                 # the DEM and ground points, as `sisa simulate` writes them, while the
@@ -203,14 +205,15 @@ def _run(args: argparse.Namespace) -> int:
                 write_survey_data(scn, Terrain.from_scenario(scn), run / "terrain")
                 bar.step("starting: waiting for the emulator's ports")
                 ep = wait_for_endpoints(endpoints_file, emu, emu_error)
-            rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
-                                    "--gps", ep["gps"], "--scanner", ep["scanner"],
-                                    "--ins", ep["ins"], "--pulses", ep["pulses"],
-                                    "--out", str(run / "flight.mcap"),
-                                    "--shown-as", str(args.out / "flight.mcap")],
-                                   stdout=subprocess.PIPE, text=True,
-                                   process_group=0,
-                                   pass_fds=rec_error.pass_fds, env=rec_error.env)
+            with _stops_held():
+                rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
+                                        "--gps", ep["gps"], "--scanner", ep["scanner"],
+                                        "--ins", ep["ins"], "--pulses", ep["pulses"],
+                                        "--out", str(run / "flight.mcap"),
+                                        "--shown-as", str(args.out / "flight.mcap")],
+                                       stdout=subprocess.PIPE, text=True,
+                                       process_group=0,
+                                       pass_fds=rec_error.pass_fds, env=rec_error.env)
             rec_error.started()
             rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
         except KeyboardInterrupt as exc:
@@ -286,6 +289,27 @@ STOPPED_STARTING = (143, -signal.SIGTERM)
 # SIGTERM: the terminal's Ctrl-C goes to its whole foreground group, and a child still starting
 # its interpreter died of it with a traceback (CI, 2026-11-28); SIGTERM, which Python leaves at
 # its default until `sisa.cli` takes it, ends a starting child silently.
+
+@contextlib.contextmanager
+def _stops_held() -> Iterator[None]:
+    """Ctrl-C or SIGTERM during the block is held, then raised as it ends: a stop between a
+    child's start and its assignment left a recorder running that the bench did not know of
+    (it then opened ports the emulator had closed; CI, 2026-11-29). The children start with
+    default handlers: a Python handler is not inherited across exec."""
+    held: list[int] = []
+
+    def hold(sig: int, _frame: FrameType | None) -> None:
+        held.append(sig)
+
+    saved = {sig: signal.signal(sig, hold) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+        if held:
+            signal.raise_signal(held[0])  # now, to the handler it was meant for
+
 
 def _ignore_stops() -> Callable[[], None]:
     """Ignore SIGINT and SIGTERM until the returned function puts their handlers back."""

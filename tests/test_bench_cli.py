@@ -264,10 +264,15 @@ def test_a_stop_while_a_child_starts_is_raised_once_it_is_known():
     from sisa.commands.bench import _stops_held
 
     handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    known = None
-    with pytest.raises(KeyboardInterrupt), _stops_held():
-        os.kill(os.getpid(), signal.SIGINT)
-        time.sleep(0.05)  # a handler would have run by now
-        known = "the child"
-    assert known == "the child"
+    known: list[str] = []
+
+    def start_a_child() -> None:
+        with _stops_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # a handler would have run by now
+            known.append("the child")
+
+    with pytest.raises(KeyboardInterrupt):
+        start_a_child()
+    assert known == ["the child"]
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers

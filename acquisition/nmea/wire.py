@@ -213,11 +213,10 @@ class Blankable(WireFormat[T | None]):
 
 
 @dataclass(frozen=True)
-class WithUnit(WireFormat[float]):
-    """A number followed by its unit letter (GGA's `545.4,M`); the letter may also be null."""
+class _NumberAndLetter(WireFormat[float]):
+    """Two tokens: a fixed-point number, then a letter that qualifies it."""
 
     number: FixedPoint
-    unit: str
 
     @property
     def width(self) -> int:
@@ -226,6 +225,13 @@ class WithUnit(WireFormat[float]):
     @property
     def resolution(self) -> float:
         return self.number.resolution
+
+
+@dataclass(frozen=True)
+class WithUnit(_NumberAndLetter):
+    """A number followed by its unit letter (GGA's `545.4,M`); the letter may also be null."""
+
+    unit: str
 
     def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
         return tokens[0] in ("", self.unit)
@@ -240,21 +246,12 @@ class WithUnit(WireFormat[float]):
 
 
 @dataclass(frozen=True)
-class Signed(WireFormat[float]):
+class Signed(_NumberAndLetter):
     """An unsigned number and a letter for its sign (RMC's magnetic variation `3.1,W`:
     east positive)."""
 
-    number: FixedPoint
     positive: Hemisphere
     negative: Hemisphere
-
-    @property
-    def width(self) -> int:
-        return 2
-
-    @property
-    def resolution(self) -> float:
-        return self.number.resolution
 
     def null_qualifiers_ok(self, tokens: Sequence[str]) -> bool:
         return tokens[0] in ("", self.positive, self.negative)

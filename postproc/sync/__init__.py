@@ -31,13 +31,19 @@ from postproc.sync.flightlog import (
     sync_input_from_columns,
 )
 from postproc.sync.pipeline import sync_log, synchronise
-from postproc.sync.report import AMBIGUOUS_HINT, no_ins_timed_note, untimed_lines_note
+from postproc.sync.report import (
+    AMBIGUOUS_HINT,
+    header_order_note,
+    no_ins_timed_note,
+    untimed_lines_note,
+)
 from postproc.sync.results import InsSolution, InsTimes, LineTimes, SyncResult
 
 __all__ = [
     "AMBIGUOUS_HINT", "FRAME_COUNTER_MAX", "SEGMENT_MAX", "WANTED", "GpsTimes", "HeaderColumns",
     "InsColumns", "InsSolution", "InsTimes", "LineTimes", "SisaColumns", "SyncConfig",
-    "SyncInput", "SyncResult", "TimeStatus", "no_ins_timed_note", "read_scanner_lines",
+    "SyncInput", "SyncResult", "TimeStatus", "header_order_note", "no_ins_timed_note",
+    "read_scanner_lines",
     "read_sync_input", "sync_input_from_columns", "sync_log", "synchronise",
     "unlisted_line_notes", "untimed_lines_note", "write_ins_times", "write_line_times",
     "write_report",

@@ -244,5 +244,19 @@ def lines_from_headers(hdr: HeaderColumns) -> LineTable:
     return LineTable(hdr.segment.copy(), line, hdr.frame_counter.copy())
 
 
+def first_gap_lines(table: LineTable, modulus: int) -> dict[int, int]:
+    """Per segment whose frame counter skips, the first line after the first skip. Numbered by
+    header order, a line from there on may not be the image's line of that number: a frame the
+    scanner dropped (no image line) and a header lost on the link (an image line) leave the
+    same gap, and only the scanner's lines files tell them apart."""
+    first: dict[int, int] = {}
+    for seg in np.unique(table.segment).tolist():
+        idx = np.flatnonzero(table.segment == seg)
+        skips = np.flatnonzero(_steps(table.frame_counter[idx], modulus) != 1)
+        if skips.size:
+            first[int(seg)] = int(table.line[idx[skips[0] + 1]])
+    return first
+
+
 def hdr_gps(hdr: HeaderColumns, host: ClockMap) -> I64:
     return host.gps_ns(hdr.t_host_ns) if hdr.t_host_ns.size else np.zeros(0, dtype=np.int64)

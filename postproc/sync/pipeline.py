@@ -105,6 +105,11 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
               "headers_lost": (ln.headers_lost(lines, hdr, u_line, linked, u_hdr)
                                if table is not None else None),
               "header_gaps": ln.frame_drops(ln.lines_from_headers(hdr), modulus),
+              # without the lines files a line is numbered by header order: from the first gap
+              # on, that number may not be the image's (report.header_order_note)
+              "header_order_first_gap": ({str(s): n for s, n in
+                                          ln.first_gap_lines(lines, modulus).items()}
+                                         if table is None else None),
               # the sync filter names a forwarded frame by the header it tied to it on host
               # time; none named at all is the symptom syncreport.untied_frames_note explains
               "frame_pulses_forwarded": int(np.count_nonzero(frame_pulse)),

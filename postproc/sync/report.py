@@ -180,6 +180,24 @@ def no_ins_timed_note(ins_status: npt.ArrayLike, report: dict[str, Any] | None =
             "times in the log (docs/sync.md, 'Clocks the log holds')")
 
 
+def header_order_note(lines: dict[str, Any], what: str = "line_times.csv") -> str | None:
+    """The warning when lines were numbered by frame-header order and the frame counter skips:
+    from the first skip of a segment on, the number may not be the image's line (a dropped
+    frame and a lost header look alike without the scanner's lines files), so a time put on an
+    image line by that number could be a line period off, silently. None when no skip."""
+    first = lines.get("header_order_first_gap") or {}
+    if not first:
+        return None
+    where = ", ".join(f"segment {s} from line {n}" for s, n in sorted(
+        first.items(), key=lambda kv: int(kv[0])))
+    return (f"lines numbered by frame-header order, and the frame counter skips "
+            f"({lines.get('header_gaps', '?')} frames missing from the headers; {where}): a "
+            f"frame the scanner dropped and a header lost on the link look alike there, so "
+            f"from those lines on the numbers in {what} may not be the image's lines (each "
+            "time belongs to its frame_counter): give the scanner's folder (--scanner) to "
+            "number lines by its lines files")
+
+
 def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
     """`untied_frames_note` with the header window `flight` was recorded with (or the
     default), when `frames_untied`; else None. For every command that syncs a log: `georef`

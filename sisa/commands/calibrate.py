@@ -328,6 +328,7 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     from postproc.georef import NAV_WANTED, Dem, merged_wanted, nav_from_columns
     from postproc.sync import WANTED as SYNC_WANTED
     from postproc.sync import (
+        header_order_note,
         read_scanner_lines,
         sync_input_from_columns,
         synchronise,
@@ -350,6 +351,9 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
         say_warning(args.command, recording)
     sync = synchronise(sync_input_from_columns(cols),
                        read_scanner_lines(scanner) if scanner is not None else None)
+    unsure = header_order_note(sync.report["lines"], "the image measurements' lines")
+    if unsure is not None:  # a measurement's line may be timed a line period off
+        say_warning(args.command, unsure)
     untied = untimed_lines_note(sync.report["lines"], paths)
     if untied is not None:  # observations on untimed lines are left out, and this is why
         say_warning(args.command, untied)

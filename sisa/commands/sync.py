@@ -50,6 +50,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.sync import WANTED as SYNC_WANTED
     from postproc.sync import (
         TimeStatus,
+        header_order_note,
         no_ins_timed_note,
         read_scanner_lines,
         sync_input_from_columns,
@@ -89,6 +90,10 @@ def _run(args: argparse.Namespace) -> int:
         ambiguous = no_ins_timed_note(ins.status, result.report)
         if ambiguous is not None:  # was said only as a count
             notes.append(ambiguous)
+        if args.scanner is None:
+            unsure = header_order_note(result.report["lines"])
+            if unsure is not None:  # the numbers were wrong after a lost header, silently
+                notes.append(unsure)
         untied = untimed_lines_note(result.report["lines"], flight)
         if untied is not None:  # was said only as a count
             notes.append(untied)

@@ -628,3 +628,19 @@ def test_sisa_sync_says_once_what_it_could_not_read_of_a_damaged_log(imaged: Pat
     assert len(said) == 1, proc.stderr
     assert said[0].startswith(f"sisa sync: warning: {bad}: ")
     assert f"`sisa log info {bad}` shows the gaps" in said[0]
+
+
+def test_sisa_sync_without_the_lines_files_says_where_line_numbers_stop_being_sure(
+        imaged: Path, tmp_path: Path) -> None:
+    """The run drops frames: its header stream has gaps, and without the lines files a gap
+    cannot be told from a lost header (which would shift every later number by one)."""
+    out = tmp_path / "sync"
+    proc = _sisa("sync", str(imaged / "flight.mcap"), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    said = [line for line in proc.stderr.splitlines() if "frame-header order" in line]
+    assert len(said) == 1, proc.stderr
+    report = json.loads((out / "sync_report.json").read_text("utf-8"))
+    first = report["lines"]["header_order_first_gap"]
+    assert first, report["lines"]
+    assert all(f"segment {s} from line {n}" in said[0] for s, n in first.items())
+    assert said[0] in [f"sisa sync: warning: {n}" for n in report["notes"]]

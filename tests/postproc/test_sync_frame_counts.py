@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from postproc.sync import TimeStatus, synchronise
+from postproc.sync import TimeStatus, header_order_note, synchronise
 from postproc.sync.flightlog import HeaderColumns, SyncInput
 from postproc.sync.lines import LineTable
 from tests.postproc.test_sync_jumps import _flight
@@ -60,3 +60,40 @@ def test_dropped_frames_and_lost_headers_counted_apart() -> None:
     inp, table = _drop(inp, dropped, lost)
     counts = synchronise(inp, table).report["lines"]
     assert (counts["frames_dropped"], counts["headers_lost"], counts["header_gaps"]) == (10, 15, 25)
+
+
+def test_header_order_numbers_are_flagged_from_the_first_gap() -> None:
+    """Without the lines files a line is numbered by header order: after a lost header the
+    number is one short of the image's line, and its time would go on the wrong image line, a
+    line period off. Nothing said so; the report now names where the numbers stop being sure,
+    and sisa sync / calibrate warn."""
+    inp, _, _ = _flight(100.0, 0)
+    hdr = inp.headers
+    seg = int(hdr.segment[hdr.segment.size // 2])
+    in_seg = np.flatnonzero(hdr.segment == seg)
+    lost = in_seg[[in_seg.size // 3, in_seg.size // 2]]
+    first_line = in_seg.size // 3  # the line number the header after the first lost one gets
+    inp, table = _drop(inp, np.zeros(0, dtype=np.int64), lost)
+    bare = synchronise(inp)
+    assert bare.report["lines"]["header_order_first_gap"] == {str(seg): first_line}
+    # why it matters: from the first gap on, header order and the image's lines disagree
+    mine = bare.lines.segment == seg
+    by_order = bare.lines.line[mine]
+    files = table.segment == seg
+    by_files = table.line[files][np.isin(table.frame_counter[files], inp.headers.frame_counter)]
+    assert np.array_equal(by_order[:first_line], by_files[:first_line])
+    assert (by_order[first_line:] != by_files[first_line:]).all()
+    note = header_order_note(bare.report["lines"])
+    assert note is not None
+    assert f"segment {seg} from line {first_line}" in note
+    assert "--scanner" in note
+    # with the lines files the numbers are the files': nothing to say
+    assert synchronise(inp, table).report["lines"]["header_order_first_gap"] is None
+    assert header_order_note(synchronise(inp, table).report["lines"]) is None
+
+
+def test_no_header_order_note_without_gaps() -> None:
+    inp, _, _ = _flight(100.0, 0)
+    lines = synchronise(inp).report["lines"]
+    assert lines["header_order_first_gap"] == {}
+    assert header_order_note(lines) is None

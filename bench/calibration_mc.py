@@ -82,6 +82,7 @@ from postproc.georef import (
     geodetic_to_ecef,
 )
 from sisa.commands.process import sensor_of
+from sisa.core.errors import ConfigError
 from sisa.core.frames import body_to_ned_matrix
 from sisa.core.sensor import Mounting
 from sisa.core.timescale import NS_PER_S, seconds_since
@@ -381,15 +382,25 @@ def main() -> None:
         for solution in ("code", "phase"):
             if (k, solution) in done:
                 continue
-            r = one_flight(k, solution, ins_noise)
+            try:
+                r = one_flight(k, solution, ins_noise)
+            except ConfigError as exc:  # a terrain draw with no room for the points asked
+                rows.append({"flight": k, "solution": solution, "not_built": str(exc)})
+                path.write_text(json.dumps(rows, default=float) + "\n", encoding="utf-8")
+                print(f"flight {k:3d} {solution:<5} not built: {exc}", flush=True)
+                continue
             rows.append(r)
             path.write_text(json.dumps(rows, default=float) + "\n", encoding="utf-8")
             print(f"flight {k:3d} {solution:<5} {r['seconds']:5.1f} s  delay A "
                   f"{r['A']['time_delay']['estimate']:.2f} ± {r['A']['time_delay']['sigma']:.2f}"
                   f", B {r['B']['time_delay']['estimate']:.2f} ± "
                   f"{r['B']['time_delay']['sigma']:.2f} ms", flush=True)
-    print_table(rows)
-    print(f"\n{path}: {len(rows)} flights, {time.perf_counter() - t0:.0f} s")
+    built = [r for r in rows if "not_built" not in r]
+    print_table(built)
+    for r in rows:
+        if "not_built" in r:  # left out of the table: drawn before anything was estimated
+            print(f"flight {r['flight']} {r['solution']}: not built ({r['not_built']})")
+    print(f"\n{path}: {len(built)} flights, {time.perf_counter() - t0:.0f} s")
 
 
 if __name__ == "__main__":

@@ -56,6 +56,18 @@ def test_every_pixel_within_a_hundredth_of_a_pixel(processed):
         assert acc["check_points"][comp]["max_abs_px"] < 0.01
     assert "report:" in stdout
     assert "every pixel vs truth" in stdout
+    _time_split_adds_up(stdout)
+
+
+def _time_split_adds_up(stdout: str) -> None:
+    """Issue 38: where the time goes, by step; the steps sum to the total."""
+    head = re.search(r"^  time ([\d.]+) s, CPU (\d+) % of a core:$", stdout, re.M)
+    assert head is not None, stdout
+    steps = dict(re.findall(r"^    (\S.*?)\s+([\d.]+) s  CPU +\d+ %$", stdout, re.M))
+    for step in ("reading the flight log and synchronising", "georeferencing",
+                 "ortho, mosaic, footprints", "accuracy against truth", "report"):
+        assert step in steps, stdout
+    assert abs(sum(map(float, steps.values())) - float(head.group(1))) < 0.1 * len(steps)
 
 
 # the IGM and the geolocation VRT have geolocation arrays, no geotransform: by design

@@ -34,7 +34,7 @@ from sisa.commands.georef import (
     options_from_args,
     run_georef,
 )
-from sisa.commands.progress import progress
+from sisa.commands.progress import progress, split_lines
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken, staged_output_dir
 
@@ -126,7 +126,7 @@ def _provenance(args: argparse.Namespace, run: Path, parts: list[Path],
 
 
 def _run(args: argparse.Namespace) -> int:
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     run: Path = args.run
     if not name_taken(run) or not run.exists():
         raise InputError(f"{run}: no such folder")
@@ -176,6 +176,8 @@ def _run(args: argparse.Namespace) -> int:
     print(f"report: {out / 'report.html'}")
     for name, value in rows:
         print(f"  {name}: {value}")
-    print(f"  ({time.perf_counter() - started:.1f} s)")
+    for line in split_lines(bar, time.perf_counter() - started,
+                            time.process_time() - cpu_started):
+        print(line)
     lost = losses(result)
     return 0 if lost is None else finished_with_losses("process", lost)

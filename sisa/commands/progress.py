@@ -80,6 +80,8 @@ class Progress:
         self.note = ""
         self.rate = True
         self._started = self._created = time.monotonic()
+        self._step_cpu_s = time.process_time()
+        self._done: dict[str, tuple[float, float]] = {}  # label: (wall s, CPU s), summed
         self._bar: RichProgress | None = None
         self._task: TaskID | None = None
         self._stop = threading.Event()
@@ -105,12 +107,28 @@ class Progress:
              rate: bool = True) -> None:
         """A new step: its count, rate and time left start again (`rate` False: a step that
         does not advance at a rate, e.g. paused, shows neither)."""
+        self._close_step()
         self.label, self.total, self.unit, self.completed, self.note = label, total, unit, 0.0, ""
         self.rate = rate
-        self._started = time.monotonic()
+        self._started, self._step_cpu_s = time.monotonic(), time.process_time()
         if self._bar is not None and self._task is not None:  # a new task: rich cannot
             self._bar.remove_task(self._task)  # take a task's total back to None (unknown)
             self._task = self._bar.add_task(label, total=total, unit=unit)
+
+    def _close_step(self) -> None:
+        if not self.label:
+            return
+        wall, cpu = self._done.get(self.label, (0.0, 0.0))
+        self._done[self.label] = (wall + time.monotonic() - self._started,
+                                  cpu + time.process_time() - self._step_cpu_s)
+
+    def splits(self) -> list[tuple[str, float, float]]:
+        """(label, wall s, CPU s of this process) of every step so far, the current one to
+        now; a label met again is summed. Where a command's time goes: `sisa process` printed
+        one total."""
+        self._close_step()
+        self._started, self._step_cpu_s = time.monotonic(), time.process_time()
+        return [(label, wall, cpu) for label, (wall, cpu) in self._done.items()]
 
     def set_total(self, total: float) -> None:
         self.total = total
@@ -200,6 +218,19 @@ class Progress:
             print(f"{time.strftime('%H:%M:%S')} {text}", file=self.stream, flush=True)
         except (OSError, ValueError):  # stderr gone (a closed pipe): stop saying
             self._stop.set()
+
+
+def split_lines(bar: Progress, wall_s: float, cpu_s: float) -> list[str]:
+    """The command's time and CPU, then each step's (for the summary a command prints)."""
+    rows = bar.splits()
+    before = (wall_s - sum(w for _, w, _ in rows), cpu_s - sum(c for _, _, c in rows))
+    if before[0] > 0.05:  # imports and checks of the inputs, before the first step
+        rows.insert(0, ("starting (imports, inputs)", *before))
+    width = max((len(label) for label, _, _ in rows), default=0)
+    out = [f"  time {wall_s:.1f} s, CPU {100 * cpu_s / max(wall_s, 1e-9):.0f} % of a core:"]
+    out += [f"    {label:<{width}}  {wall:6.1f} s  CPU {100 * cpu / max(wall, 1e-9):4.0f} %"
+            for label, wall, cpu in rows]
+    return out
 
 
 def _isatty(stream: TextIO) -> bool:

@@ -68,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
         SubParsers,
         bench,
         calibrate,
+        campaign,
         emulate,
         georef,
         log,
@@ -102,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     ortho.register(sub)
     calibrate.register(sub)
     process.register(sub)
+    campaign.register(sub)
     return parser
 
 

@@ -5,6 +5,7 @@ and the sync's files."""
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,8 @@ from recorder.columns import read_topics
 from recorder.framing import Paths, log_paths
 from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
+from sisa.core.errors import InputError
+from sisa.core.outdir import write_whole
 from sisa.core.timescale import gps_span_label
 
 
@@ -123,3 +126,24 @@ def write_sync(out_dir: Path, result: SyncResult) -> None:
     write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                      ln.t_gps_ns, ln.status)
     write_report(sync_dir / "sync_report.json", result.report)
+
+
+def save_handoff(path: Path, handoff: Handoff) -> None:
+    """The flight on GPS time, kept for the tasks that georeference its segments one by one
+    (a campaign): written whole. The file holds navigation arrays (tens of bytes per INS
+    record), never the image."""
+    write_whole(path, pickle.dumps(handoff, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def load_handoff(path: Path) -> Handoff:
+    """A hand-off `save_handoff` wrote. Only a file this software wrote in its own output
+    folder is read: a pickle runs code, so it is never taken from elsewhere."""
+    try:
+        with path.open("rb") as fh:
+            found = pickle.load(fh)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
+        raise InputError(f"{path}: unreadable sync hand-off ({exc}): synchronise the flight "
+                         "again") from None
+    if not isinstance(found, Handoff):
+        raise InputError(f"{path}: not a sync hand-off: synchronise the flight again")
+    return found

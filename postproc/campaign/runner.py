@@ -19,6 +19,7 @@ import fcntl
 import hashlib
 import json
 import os
+import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -132,6 +133,8 @@ class CampaignRun:
     mosaics: dict[str, MosaicRun] = field(default_factory=dict)
     ran: int = 0  # tasks run
     reused: int = 0  # tasks whose stamp matched
+    # per stage run: (first task submitted, last one done), time.monotonic() seconds
+    spans_s: dict[Stage, tuple[float, float]] = field(default_factory=dict)
 
     def failures(self) -> list[str]:
         """Every flight, segment or mosaic that gave nothing, with its reason."""
@@ -181,6 +184,7 @@ class Driver:
                     continue
                 if self._running:
                     self._wait_one()
+            _remove_partials(self.out)  # a task that died with its worker ran again elsewhere
         return self.run_state
 
     def _wait_one(self) -> None:
@@ -189,6 +193,8 @@ class Driver:
         done, _ = wait(list(self._running), return_when="FIRST_COMPLETED")  # type: ignore[no-untyped-call]
         for fut in done:
             step = self._running.pop(fut)
+            first, _ = self.run_state.spans_s[step.stage]
+            self.run_state.spans_s[step.stage] = (first, time.monotonic())
             try:
                 outcome = fut.result()
             except Exception as exc:  # a bug, or a worker lost more often than Dask allows
@@ -207,6 +213,9 @@ class Driver:
         if self._client is None:
             self._client = self._connect()
         self.run_state.ran += 1
+        now = time.monotonic()
+        first = self.run_state.spans_s.get(step.stage, (now, now))[0]
+        self.run_state.spans_s[step.stage] = (first, now)
         fut = self._client.submit(step.call, *step.args, key=f"{step.name}-{step.key[:12]}-"
                                   f"{os.urandom(3).hex()}", retries=RETRIES, pure=False)
         self._running[fut] = step
@@ -216,9 +225,8 @@ class Driver:
         rec = outcome.record
         if step.stage is Stage.SYNC:
             return not outcome.ok or (fl is not None and handoff_path(fl.out).is_file())
-        if step.stage is Stage.GEOREF and outcome.ok:
-            seg = rec["segment"]
-            return Path(seg["igm"]).is_file()
+        if step.stage is Stage.GEOREF and outcome.ok and fl is not None:
+            return _here(fl, rec["segment"])["igm"].is_file()
         if step.stage is Stage.ORTHO and outcome.ok and fl is not None:
             return all((fl.out / f).is_file() for f in rec["segment"]["files"].values())
         if step.stage is Stage.FLIGHT and outcome.ok and fl is not None:
@@ -288,7 +296,8 @@ class Driver:
         self.events.planned(Stage.ORTHO, len(segments))
         for s, info in sorted(segments.items()):
             key = task_key("cast", fl.sync_key, file_fingerprint(Path(info["image"])),
-                           file_fingerprint(opt.dem), geoid, opt.cell_m, opt.block_lines)
+                           file_fingerprint(opt.dem), geoid, opt.block_lines)  # (not the
+            # cell: the IGM does not depend on it; a cell too wide is refused before the orthos)
             fl.cast_keys[s] = key
             self._start(self._step(Stage.GEOREF, fl, s, key, cast_task, (fl.spec, fl.out, s)))
 
@@ -317,13 +326,15 @@ class Driver:
             if o.ok:
                 key = task_key("ortho", fl.cast_keys[s], fl.cell_m, fl.epsg)
                 fl.ortho_keys[s] = key
+                doc = {**o.record["segment"], "igm": str(_here(fl, o.record["segment"])["igm"])}
                 self._start(self._step(Stage.ORTHO, fl, s, key, ortho_task,
-                                       (fl.out, o.record["segment"], fl.epsg, fl.cell_m)))
+                                       (fl.out, doc, fl.epsg, fl.cell_m)))
 
     def _maybe_finish(self, fl: FlightRun) -> None:
         if len(fl.orthos) < len(fl.ortho_keys):
             return
-        docs = [o.record["segment"] for _, o in sorted(fl.orthos.items()) if o.ok]
+        docs = [{**o.record["segment"], "igm": str(_here(fl, o.record["segment"])["igm"])}
+                for _, o in sorted(fl.orthos.items()) if o.ok]
         features = [o.record["footprint"] for _, o in sorted(fl.orthos.items()) if o.ok]
         skips = [sk for _, o in sorted(fl.casts.items()) for sk in o.record.get("skipped", [])]
         key = task_key("flight", sorted(fl.ortho_keys.values()), sorted(fl.cast_keys.values()))
@@ -375,6 +386,12 @@ class Driver:
 
 
 # --- stamps and the output folder ------------------------------------------------------------
+
+def _here(fl: FlightRun, seg: dict[str, Any]) -> dict[str, Path]:
+    """A segment record's products where the flight's folder is now (an output folder may
+    have been moved since the record was made): they are named inside it."""
+    return {"igm": fl.out / Path(seg["igm"]).name}
+
 
 def _read_stamp(step: Step) -> Outcome | None:
     try:

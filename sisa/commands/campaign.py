@@ -65,6 +65,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                            "the same paths); default: a LocalCluster on this machine")
     proc.add_argument("--workers", type=int, default=None, metavar="N",
                       help="LocalCluster worker processes (default: the cores)")
+    proc.add_argument("--cell", type=float, default=None, metavar="M",
+                      help="one ortho cell for every flight, so that all share one mosaic "
+                           "(default: the campaign file's cell_m, else each flight's pixel "
+                           "spacing, as `sisa georef`)")
     proc.add_argument("--memory-limit", default="auto", metavar="BYTES",
                       help="per LocalCluster worker, e.g. 2GiB (default: the machine's memory "
                            "shared among the workers)")
@@ -101,6 +105,17 @@ def runs_campaign(folder: Path) -> CampaignSpec:
     check_unique([f.name for f in flights], str(folder))
     name = check_name(folder.resolve().name, str(folder))
     return CampaignSpec(name, name, tuple(flights), folder)
+
+
+def with_cell(spec: CampaignSpec, cell_m: float) -> CampaignSpec:
+    """Every flight mapped on cells of `cell_m` (--cell)."""
+    import dataclasses
+
+    if not 0 < cell_m <= 10_000:
+        raise InputError(f"--cell {cell_m:g}: a size in metres, above 0, at most 10000")
+    flights = tuple(dataclasses.replace(f, options=dataclasses.replace(f.options, cell_m=cell_m))
+                    for f in spec.flights)
+    return dataclasses.replace(spec, flights=flights)
 
 
 def _claim_out(out: Path, spec: CampaignSpec) -> None:
@@ -278,6 +293,8 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.campaign import Driver, load_campaign, write_catalog
 
     spec = runs_campaign(src) if src.is_dir() else load_campaign(src)
+    if args.cell is not None:
+        spec = with_cell(spec, args.cell)
     _claim_out(args.out, spec)
     held: list[Any] = []
     bars = StageBars()

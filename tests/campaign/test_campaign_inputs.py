@@ -1,0 +1,111 @@
+"""What `sisa campaign process` refuses (one line, exit 2, nothing written), and the
+fingerprints its reruns are judged by."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from postproc.campaign import file_fingerprint, load_campaign
+from sisa.cli import main
+from sisa.core.errors import InputError
+
+
+def _sisa(capsys, *args):
+    """The command in this process (no interpreter to start): (exit code, stderr)."""
+    code = main([str(a) for a in args])
+    return code, capsys.readouterr().err
+
+
+def _files(tmp_path: Path) -> Path:
+    """A flight's inputs as files (their content does not matter to the checks)."""
+    (tmp_path / "scanner").mkdir()
+    for name in ("flight.mcap", "dem.tif"):
+        (tmp_path / name).write_bytes(b"x")
+    return tmp_path
+
+
+FLIGHT = '[[flight]]\nname = "f1"\nlog = "flight.mcap"\nscanner = "scanner"\ndem = "dem.tif"\n'
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    ("[campaign\n", "not a TOML file"),
+    ('[campaign]\nname = "x"\n', "no [[flight]]"),
+    ('[campaign]\ncolour = 1\n' + FLIGHT, "unknown key 'colour'"),
+    (FLIGHT.replace('"dem.tif"', '"nowhere.tif"'), "dem"),
+    (FLIGHT.replace('"scanner"', '"dem.tif"'), "scanner"),
+    (FLIGHT + FLIGHT, "flight 'f1' is listed twice"),
+    (FLIGHT.replace('"f1"', '"../up"'), "name '../up'"),
+    ('[campaign]\ncell_m = -1\n' + FLIGHT, "cell_m"),
+    (FLIGHT + 'geoid_m = 500\n', "geoid_m 500"),
+    (FLIGHT.replace('dem = "dem.tif"', 'dem = ["dem.tif", "dem.tif"]'), "one DEM per flight"),
+])
+def test_a_bad_campaign_file_is_one_line_and_exit_2(tmp_path, capsys, text, says):
+    root = _files(tmp_path)
+    camp = root / "camp.toml"
+    camp.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError) as refused:
+        load_campaign(camp)
+    assert says in str(refused.value)
+    code, err = _sisa(capsys, "campaign", "process", camp, "--out", root / "out")
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("sisa campaign: error: ")
+    assert says in lines[0]
+    assert not (root / "out").exists()
+
+
+def test_a_good_campaign_file_resolves_paths_from_its_folder(tmp_path):
+    root = _files(tmp_path)
+    camp = root / "camp.toml"
+    camp.write_text('[campaign]\nname = "season"\ncell_m = 2\ncrs = 32631\n' + FLIGHT)
+    spec = load_campaign(camp)
+    assert spec.name == "season"
+    (f,) = spec.flights
+    assert f.log == (root / "flight.mcap",)
+    assert f.options.dem == root / "dem.tif"
+    assert f.options.cell_m == 2.0
+    assert f.options.epsg == 32631
+
+
+def test_an_output_folder_of_something_else_is_refused(tmp_path, capsys):
+    root = _files(tmp_path)
+    camp = root / "camp.toml"
+    camp.write_text(FLIGHT)
+    other = root / "other"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    code, err = _sisa(capsys, "campaign", "process", camp, "--out", other)
+    assert code == 2
+    assert "is not a campaign's output folder" in err
+    assert sorted(p.name for p in other.iterdir()) == ["keep.txt"]
+
+
+def test_a_fingerprint_reads_the_ends_only_and_sees_size_mtime_and_ends(tmp_path):
+    """The documented trade: a change in the middle that keeps size and mtime goes unseen;
+    any change of size, mtime or the first or last 64 KiB is seen."""
+    path = tmp_path / "big.bin"
+    data = bytearray(np.random.default_rng(0).bytes(1 << 20))
+    path.write_bytes(data)
+    st = path.stat()
+    first = file_fingerprint(path)
+    assert len(first) == 64
+    assert file_fingerprint(path) == first
+
+    def rewrite(mutate):
+        buf = bytearray(data)
+        mutate(buf)
+        path.write_bytes(buf)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+        return file_fingerprint(path)
+
+    assert rewrite(lambda b: b.__setitem__(500_000, b[500_000] ^ 1)) == first  # unseen
+    assert rewrite(lambda b: b.__setitem__(10, b[10] ^ 1)) != first
+    assert rewrite(lambda b: b.__setitem__(-10, b[-10] ^ 1)) != first
+    path.write_bytes(data)  # the same bytes, a new time (a copy, a re-export)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))
+    assert file_fingerprint(path) != first
+    assert rewrite(lambda b: b.extend(b"!")) != first
+    assert file_fingerprint(tmp_path / "none") == "missing"

@@ -27,8 +27,7 @@ def main() -> None:
         raise SystemExit(__doc__)
     out = Path(sys.argv[1])
     stages: dict[str, list[dict[str, Any]]] = {}
-    per_unit: dict[str, list[float]] = {"georef_cpu_s_per_mpx": [], "ortho_cpu_s_per_mb": [],
-                                        "ortho_read_per_image": []}
+    per_unit: dict[str, list[float]] = {}
     for stamp in sorted(out.rglob(".tasks/*.json")):
         doc = json.loads(stamp.read_text())
         rec = doc["outcome"]["record"]
@@ -40,12 +39,14 @@ def main() -> None:
         seg = rec.get("segment")
         if seg is None or not doc["outcome"]["ok"]:
             continue
-        if stage == "georef":
-            per_unit["georef_cpu_s_per_mpx"].append(cost["cpu_s"] / (seg["rays"] / 1e6))
-        if stage == "ortho":
+        if stage in ("georef", "ortho"):  # per million pixels (rays) of the segment
+            mpx = seg["rays"] / 1e6
             image_mb = Path(seg["image"]).stat().st_size / MB
-            per_unit["ortho_cpu_s_per_mb"].append(cost["cpu_s"] / image_mb)
-            per_unit["ortho_read_per_image"].append(cost["read_bytes"] / MB / image_mb)
+            for what, value in (("cpu_s", cost["cpu_s"]), ("wall_s", cost["wall_s"]),
+                                ("read_MB", cost["read_bytes"] / MB),
+                                ("written_MB", cost["written_bytes"] / MB),
+                                ("image_MB", image_mb)):
+                per_unit.setdefault(f"{stage} {what} per Mpx", []).append(value / mpx)
     print(f"{'stage':8} {'tasks':>5} {'wall s':>14} {'CPU s':>14} {'read MB':>14} "
           f"{'written MB':>14} {'peak RSS MB':>12}")
     print(f"{'':8} {'':>5} {'median   max':>14} {'median   max':>14} {'median   max':>14} "

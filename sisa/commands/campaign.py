@@ -163,7 +163,7 @@ def _connector(args: argparse.Namespace, held: list[Any]) -> Any:
             n = args.workers or os.cpu_count() or 1
             cluster = LocalCluster(  # type: ignore[no-untyped-call]
                 n_workers=n, threads_per_worker=1, processes=True,
-                memory_limit=args.memory_limit, dashboard_address=":0" if dashboard else None,
+                memory_limit=args.memory_limit, dashboard_address="127.0.0.1:0",
                 host="127.0.0.1")
             held.append(cluster)
             client = Client(cluster)  # type: ignore[no-untyped-call]

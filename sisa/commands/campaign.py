@@ -154,7 +154,7 @@ def _connector(args: argparse.Namespace, held: list[Any]) -> Any:
         if args.scheduler is not None:
             try:
                 client = Client(args.scheduler, timeout="20s")  # type: ignore[no-untyped-call]
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError) as exc:
                 raise InputError(f"--scheduler {args.scheduler}: cannot connect ({exc})") \
                     from None
             workers = len(client.scheduler_info().get("workers", {}))
@@ -191,6 +191,18 @@ def _check_installed() -> None:
     if missing:
         raise InputError(f"campaign: {', '.join(missing)} not installed: "
                          "pip install 'sisa[campaign]'")
+
+
+def _check_address(address: str) -> None:
+    """--scheduler as Dask takes it (PROTOCOL://HOST:PORT), checked before anything is
+    written."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        parse_host_port(parse_address(address)[1])
+    except ValueError as exc:
+        raise InputError(f"--scheduler {address[:100]!r}: not a scheduler address such as "
+                         f"tcp://HOST:8786 ({exc})") from None
 
 
 def _has_bokeh() -> bool:
@@ -290,6 +302,8 @@ def _run(args: argparse.Namespace) -> int:
     if not name_taken(src):
         raise InputError(f"{src}: no such file or folder")
     _check_installed()
+    if args.scheduler is not None:
+        _check_address(args.scheduler)
     from postproc.campaign import Driver, load_campaign, write_catalog
 
     spec = runs_campaign(src) if src.is_dir() else load_campaign(src)

@@ -109,3 +109,16 @@ def test_a_fingerprint_reads_the_ends_only_and_sees_size_mtime_and_ends(tmp_path
     assert file_fingerprint(path) != first
     assert rewrite(lambda b: b.extend(b"!")) != first
     assert file_fingerprint(tmp_path / "none") == "missing"
+
+
+@pytest.mark.parametrize("address", ["notanaddress", "tcp://host-without-port"])
+def test_a_scheduler_address_dask_cannot_take_is_refused_before_anything(tmp_path, capsys,
+                                                                        address):
+    root = _files(tmp_path)
+    camp = root / "camp.toml"
+    camp.write_text(FLIGHT)
+    code, err = _sisa(capsys, "campaign", "process", camp, "--out", root / "out",
+                      "--scheduler", address)
+    assert code == 2
+    assert "not a scheduler address such as tcp://HOST:8786" in err
+    assert not (root / "out").exists()

@@ -13,7 +13,7 @@ from the file's folder. A folder of simulated runs is turned into the same recor
     name = "f01"
     log = "f01/flight.mcap"         # or a list of parts
     scanner = "f01/scanner"
-    dem = "f01/dem.tif"             # one DEM (a GDAL VRT mosaics several)
+    dem = "f01/dem.tif"             # or a list of DEM tiles on one grid (mosaicked in a VRT)
     sensor = "casi.toml"            # optional: a nominal CASI-501
     trajectory = "f01/rtk.pos"      # optional
     geoid_m = 49.5                  # or geoid = "egm.tif": the DEM holds orthometric heights
@@ -33,6 +33,7 @@ from sisa.core.errors import InputError
 
 NAME_RE: Final = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 MAX_FLIGHTS: Final = 10_000
+MAX_DEM_TILES: Final = 10_000
 MAX_FILE_BYTES: Final = 4 << 20  # a campaign file of 10 000 flights is well under this
 FLIGHT_KEYS: Final = frozenset({"name", "log", "scanner", "dem", "sensor", "trajectory",
                                 "geoid", "geoid_m", "leap_seconds"})
@@ -49,6 +50,7 @@ class FlightSpec:
     scanner: Path
     options: GeorefOptions
     sensor_source: str  # where the sensor model came from, for the catalog
+    dems: tuple[Path, ...] = ()  # DEM tiles, when several: mosaicked into a VRT at run time
 
     @property
     def sensor_text(self) -> str:
@@ -131,12 +133,11 @@ def _flight(raw: dict[str, Any], base: Path, cell_m: float | None, crs: int | No
     log = tuple(_path(base, p, where, "log", "file") for p in logs)
     scanner = _path(base, raw.get("scanner"), where, "scanner", "folder")
     dem_raw = raw.get("dem")
-    if isinstance(dem_raw, list):
-        if len(dem_raw) != 1:
-            raise InputError(f"{where}: dem: one DEM per flight (mosaic several into a GDAL "
-                             "VRT with gdalbuildvrt and give the VRT)")
-        dem_raw = dem_raw[0]
-    dem = _path(base, dem_raw, where, "dem", "file")
+    tiles = dem_raw if isinstance(dem_raw, list) else [dem_raw]
+    if not tiles or len(tiles) > MAX_DEM_TILES:
+        raise InputError(f"{where}: dem: a DEM, or a list of 1 to {MAX_DEM_TILES} DEM tiles")
+    dems = tuple(_path(base, d, where, "dem", "file") for d in tiles)
+    dem = dems[0]  # several: the runner puts their VRT mosaic in its place
     sensor_path = (None if raw.get("sensor") is None else
                    _path(base, raw["sensor"], where, "sensor", "file"))
     sensor = SensorModel() if sensor_path is None else SensorModel.load(sensor_path)
@@ -157,7 +158,7 @@ def _flight(raw: dict[str, Any], base: Path, cell_m: float | None, crs: int | No
     options = GeorefOptions(sensor=sensor, dem=dem, geoid=geoid, epsg=crs, cell_m=cell_m,
                             trajectory=trajectory, leap_seconds=leap)
     source = str(sensor_path) if sensor_path is not None else "a nominal CASI-501"
-    return FlightSpec(name, log, scanner, options, source)
+    return FlightSpec(name, log, scanner, options, source, dems if len(dems) > 1 else ())
 
 
 def _table(value: object, where: str) -> dict[str, Any]:

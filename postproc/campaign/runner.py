@@ -15,6 +15,7 @@ OUT/mosaics/                one mosaic COG per band set, CRS and cell
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import hashlib
 import json
@@ -28,6 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from postproc.campaign.config import CampaignSpec, FlightSpec
+from postproc.campaign.demvrt import write_dem_vrt
 from postproc.campaign.fingerprint import file_fingerprint, files_fingerprint, task_key
 from postproc.campaign.tasks import (
     Outcome,
@@ -50,6 +52,7 @@ if TYPE_CHECKING:
 TASKS_VERSION: Final = "1"
 RETRIES: Final = 1  # a task that raised (not a worker lost: Dask reschedules that itself)
 STAMPS: Final = ".tasks"
+DEM_VRT: Final = "dem_mosaic.vrt"  # in the flight's folder, when its DEM comes in tiles
 
 
 class Stage(StrEnum):
@@ -172,7 +175,15 @@ class Driver:
             self.events.planned(Stage.SYNC, len(self.spec.flights))
             self.events.planned(Stage.FLIGHT, len(self.spec.flights))
             for fl in self.run_state.flights.values():
-                self._start(self._sync_step(fl))
+                try:
+                    step = self._sync_step(fl)
+                except InputError as exc:  # its DEM tiles do not make one DEM
+                    fl.failure = str(exc)
+                    self.events.finished(Stage.SYNC, False)
+                    self.events.finished(Stage.FLIGHT, False)
+                    self.events.warning(f"{fl.spec.name}: {exc}")
+                    continue
+                self._start(step)
             mosaics_started = False
             while self._ready or self._running:
                 while self._ready:
@@ -264,6 +275,11 @@ class Driver:
     def _sync_step(self, fl: FlightRun) -> Step:
         from recorder.parts import flight_parts
 
+        if len(fl.spec.dems) > 1:  # tiles: their mosaic, as the flight's DEM
+            vrt = fl.out / DEM_VRT
+            write_dem_vrt(fl.spec.dems, vrt)
+            fl.spec = dataclasses.replace(
+                fl.spec, options=dataclasses.replace(fl.spec.options, dem=vrt))
         spec, opt = fl.spec, fl.spec.options
         try:
             parts = flight_parts(list(spec.log))
@@ -272,7 +288,8 @@ class Driver:
         scanner = sorted(p for p in spec.scanner.iterdir() if p.is_file())
         fl.sync_key = task_key(
             "sync", TASKS_VERSION, files_fingerprint(parts), files_fingerprint(scanner),
-            files_fingerprint([opt.dem] + ([opt.trajectory] if opt.trajectory else [])),
+            _dem_fingerprint(spec),
+            files_fingerprint([opt.trajectory] if opt.trajectory else []),
             spec.sensor_text, opt.epsg, opt.leap_seconds, opt.leap_seconds_fallback,
             opt.max_gap_s)
         return self._step(Stage.SYNC, fl, -1, fl.sync_key, sync_task, (spec, fl.out))
@@ -296,7 +313,7 @@ class Driver:
         self.events.planned(Stage.ORTHO, len(segments))
         for s, info in sorted(segments.items()):
             key = task_key("cast", fl.sync_key, file_fingerprint(Path(info["image"])),
-                           file_fingerprint(opt.dem), geoid, opt.block_lines)  # (not the
+                           _dem_fingerprint(fl.spec), geoid, opt.block_lines)  # (not the
             # cell: the IGM does not depend on it; a cell too wide is refused before the orthos)
             fl.cast_keys[s] = key
             self._start(self._step(Stage.GEOREF, fl, s, key, cast_task, (fl.spec, fl.out, s)))
@@ -386,6 +403,12 @@ class Driver:
 
 
 # --- stamps and the output folder ------------------------------------------------------------
+
+def _dem_fingerprint(spec: FlightSpec) -> dict[str, str]:
+    """The DEM's, and each tile's when it is their VRT mosaic (the VRT is rewritten only when
+    its text changes: a tile changed in place leaves it as it was)."""
+    return files_fingerprint([spec.options.dem, *spec.dems])
+
 
 def _here(fl: FlightRun, seg: dict[str, Any]) -> dict[str, Path]:
     """A segment record's products where the flight's folder is now (an output folder may

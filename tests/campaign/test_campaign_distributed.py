@@ -1,7 +1,7 @@
 """The distributed deployment: a real `dask scheduler` and two `dask worker` processes on
 loopback, the campaign given with --scheduler. One worker is killed (SIGKILL) while it runs a
 segment's task: Dask gives the task to the other, the campaign completes, and its products are
-those of the LocalCluster run."""
+those of the LocalCluster run (one flight's DEM given as two tiles, read through their VRT)."""
 
 import json
 import os
@@ -65,6 +65,29 @@ def cluster(tmp_path):
             _stop(proc)
 
 
+def _tiles(dem: Path, root: Path) -> list[Path]:
+    """The DEM cut into a west and an east tile, overlapping by 4 columns."""
+    import rasterio
+    from affine import Affine
+    from rasterio.windows import Window
+
+    tiles = []
+    with rasterio.open(dem) as ds:
+        half, t = ds.width // 2, ds.transform
+        for k, (c0, c1) in enumerate(((0, half + 2), (half - 2, ds.width))):
+            win = Window(c0, 0, c1 - c0, ds.height)
+            shifted = Affine(t.a, t.b, t.c + c0 * t.a, t.d, t.e, t.f)
+            profile = {**ds.profile, "width": c1 - c0, "transform": shifted}
+            profile.pop("blockxsize", None)
+            profile.pop("blockysize", None)
+            profile["tiled"] = False
+            path = root / f"dem_{k}.tif"
+            with rasterio.open(path, "w", **profile) as out:
+                out.write(ds.read(window=win))
+            tiles.append(path)
+    return tiles
+
+
 def _campaign_file(root: Path, runs: Path) -> Path:
     from emulators.scenario import load_scenario
     from sisa.commands.process import sensor_of
@@ -74,9 +97,12 @@ def _campaign_file(root: Path, runs: Path) -> Path:
         run = runs / name
         sensor = root / f"{name}.sensor.toml"
         sensor.write_text(sensor_of(load_scenario(run / "scenario.toml")).to_toml())
+        dem = f'"{run / "terrain" / "dem.tif"}"'
+        if name == "b_east":  # its DEM in two tiles: the VRT of them must read as the whole
+            dem = "[" + ", ".join(f'"{t}"' for t in _tiles(run / "terrain" / "dem.tif",
+                                                             root)) + "]"
         lines += ["[[flight]]", f'name = "{name}"', f'log = "{run / "flight.mcap"}"',
-                  f'scanner = "{run / "scanner"}"', f'dem = "{run / "terrain" / "dem.tif"}"',
-                  f'sensor = "{sensor.name}"']
+                  f'scanner = "{run / "scanner"}"', f"dem = {dem}", f'sensor = "{sensor.name}"']
     path = root / "loopback.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -117,6 +143,7 @@ def test_a_worker_killed_mid_task_on_a_real_cluster_is_survived(cluster, campaig
     assert items == ["a_north-segment_000", "a_north-segment_001", "b_east-segment_000",
                      "b_east-segment_001"]
     assert not list(out.rglob(".*.partial-*"))  # nothing of the killed task left behind
+    assert (out / "flights" / "b_east" / "dem_mosaic.vrt").is_file()
     for name in ("a_north", "b_east"):  # the same products as the LocalCluster's
         for s in (0, 1):
             for kind in ("igm.bil", "glt.bil", "eo.csv"):

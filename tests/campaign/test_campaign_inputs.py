@@ -39,7 +39,7 @@ FLIGHT = '[[flight]]\nname = "f1"\nlog = "flight.mcap"\nscanner = "scanner"\ndem
     (FLIGHT.replace('"f1"', '"../up"'), "name '../up'"),
     ('[campaign]\ncell_m = -1\n' + FLIGHT, "cell_m"),
     (FLIGHT + 'geoid_m = 500\n', "geoid_m 500"),
-    (FLIGHT.replace('dem = "dem.tif"', 'dem = ["dem.tif", "dem.tif"]'), "one DEM per flight"),
+    (FLIGHT.replace('dem = "dem.tif"', 'dem = []'), "a list of 1 to 10000 DEM tiles"),
 ])
 def test_a_bad_campaign_file_is_one_line_and_exit_2(tmp_path, capsys, text, says):
     root = _files(tmp_path)
@@ -122,3 +122,45 @@ def test_a_scheduler_address_dask_cannot_take_is_refused_before_anything(tmp_pat
     assert code == 2
     assert "not a scheduler address such as tcp://HOST:8786" in err
     assert not (root / "out").exists()
+
+
+def _dem(path: Path, west: float, north: float, heights: np.ndarray, cell: float = 5.0,
+         nodata: float | None = -9999.0) -> Path:
+    import rasterio
+    from affine import Affine
+
+    with rasterio.open(path, "w", driver="GTiff", width=heights.shape[1],
+                       height=heights.shape[0], count=1, dtype="float32", crs="EPSG:32631",
+                       transform=Affine(cell, 0.0, west, 0.0, -cell, north), nodata=nodata) as ds:
+        ds.write(heights.astype(np.float32), 1)
+    return path
+
+
+def test_dem_tiles_read_as_one_dem_through_their_vrt(tmp_path):
+    """Two tiles of one DEM (overlapping by 3 columns, the first with a void there): their
+    VRT reads as the whole DEM, the void filled from the second tile."""
+    import rasterio
+
+    from postproc.campaign.demvrt import write_dem_vrt
+
+    whole = np.random.default_rng(0).uniform(200, 400, size=(40, 60))
+    left = whole[:, :33].copy()
+    left[10, 31] = -9999.0
+    a = _dem(tmp_path / "a.tif", 400_000.0, 4_600_000.0, left)
+    b = _dem(tmp_path / "b.tif", 400_000.0 + 30 * 5.0, 4_600_000.0, whole[:, 30:])
+    vrt = tmp_path / "dem.vrt"
+    write_dem_vrt([a, b], vrt)
+    with rasterio.open(vrt) as ds:
+        assert (ds.width, ds.height, ds.res) == (60, 40, (5.0, 5.0))
+        assert ds.crs.to_epsg() == 32631
+        got = ds.read(1)
+    assert np.array_equal(got, whole.astype(np.float32))
+    mtime = vrt.stat().st_mtime_ns
+    write_dem_vrt([a, b], vrt)  # the same tiles: the file left as it was (keys stay put)
+    assert vrt.stat().st_mtime_ns == mtime
+    odd = _dem(tmp_path / "odd.tif", 400_000.0 + 2.5, 4_600_000.0, whole[:, 30:])
+    with pytest.raises(InputError, match=r"off .* grid"):
+        write_dem_vrt([a, odd], vrt)
+    coarse = _dem(tmp_path / "coarse.tif", 400_000.0, 4_600_000.0, whole, cell=10.0)
+    with pytest.raises(InputError, match="cell 10 x 10 differs"):
+        write_dem_vrt([a, coarse], vrt)

@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from distributed import Client, Future
 
 # bumped when a task's products change for the same inputs: every stamp is then stale
-TASKS_VERSION: Final = "1"
+TASKS_VERSION: Final = "2"
 RETRIES: Final = 1  # a task that raised (not a worker lost: Dask reschedules that itself)
 STAMPS: Final = ".tasks"
 DEM_VRT: Final = "dem_mosaic.vrt"  # in the flight's folder, when its DEM comes in tiles
@@ -158,8 +158,10 @@ class Driver:
     that must run)."""
 
     def __init__(self, spec: CampaignSpec, out: Path, connect: Callable[[], Client],
-                 events: Events) -> None:
+                 events: Events, *, force: bool = False) -> None:
+        """`force`: every task runs, whatever its stamp says."""
         self.spec, self.out, self.events = spec, out, events
+        self.force = force
         self._connect = connect
         self._client: Client | None = None
         self.run_state = CampaignRun(spec, out, {
@@ -216,7 +218,7 @@ class Driver:
             self._ready.append((step, outcome, False))
 
     def _start(self, step: Step) -> None:
-        found = _read_stamp(step)
+        found = None if self.force else _read_stamp(step)
         if found is not None and self._outputs_exist(step, found):
             self.run_state.reused += 1
             self._ready.append((step, found, True))
@@ -358,7 +360,8 @@ class Driver:
         assert fl.cell_m is not None
         self._start(self._step(Stage.FLIGHT, fl, -1, key, flight_task,
                                (fl.spec, fl.out, docs, features, skips, fl.epsg, fl.cell_m,
-                                fl.warnings())))
+                                fl.warnings(), fl.sync.record["recording_health"]
+                                if fl.sync is not None else {})))
 
     # --- the mosaics -----------------------------------------------------------------------
 

@@ -51,7 +51,7 @@ from sisa.core.errors import SisaError
 from sisa.core.jsonio import finite_json
 from sisa.core.outdir import partial_path, write_whole
 
-HANDOFF_NAME: Final = "handoff.pickle"  # in the flight's sync/ folder
+HANDOFF_NAME: Final = "handoff.npz"  # in the flight's sync/ folder
 TASK_CORES: Final = 1
 
 
@@ -149,7 +149,8 @@ def sync_task(flight: FlightSpec, out: Path) -> Outcome:
                              "listed": listed.get(s, 0), "image": str(raw.path)}
                     for s, raw in rasters.items()}
         return Outcome(True, {"segments": segments, "epsg": job.epsg,
-                              "job_warnings": len(job.warnings)}, warnings=tuple(job.warnings))
+                              "recording_health": handoff.recording_health.as_dict()},
+                       warnings=tuple(job.warnings))
     return guarded(work)
 
 
@@ -176,7 +177,7 @@ def cast_task(flight: FlightSpec, out: Path, segment: int) -> Outcome:
     def work() -> Outcome:
         job = _job(flight, out)
         before = len(job.warnings)
-        handoff = load_handoff(handoff_path(out))
+        handoff = load_handoff(handoff_path(out), flight.options)
         raw, _ = segment_raster(segment_image(job.scanner_dir, segment), segment)
         skipped = Skipped()
         seg = job.segment(handoff, segment, raw, skipped, None)
@@ -225,16 +226,17 @@ def ortho_task(out: Path, seg_doc: dict[str, Any], epsg: int, cell_m: float) -> 
 
 def flight_task(flight: FlightSpec, out: Path, seg_docs: Sequence[dict[str, Any]],
                 features: Sequence[dict[str, Any]], skips: Sequence[dict[str, Any]], epsg: int,
-                cell_m: float, notes: Sequence[str]) -> Outcome:
+                cell_m: float, notes: Sequence[str], health: dict[str, Any]) -> Outcome:
     """The flight's footprints, strip-to-strip registration and georef_summary.json, as
     `sisa georef` writes them, over the segments made."""
     def work() -> Outcome:
         done = [segment_from_record(d) for d in seg_docs]
         write_footprints_geojson(out / "footprints.geojson", list(features))
-        handoff = load_handoff(handoff_path(out))
+        handoff = load_handoff(handoff_path(out), flight.options)
         summary = flight_summary(flight.options, epsg, handoff, done, cell_m,
                                  registrations(out, done), [], list(notes))
         summary["skipped"] = list(skips)
+        summary["recording_health"] = health  # the sync task's, from the log
         write_whole(out / "georef_summary.json",
                     json.dumps(finite_json(summary), indent=1, allow_nan=False) + "\n")
         return Outcome(True, {"summary": "georef_summary.json",

@@ -49,6 +49,7 @@ from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResul
 from postproc.georef.orthocell import ortho_cell_m
 from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
 from postproc.products import EnviRaster, Progress
+from postproc.sync import SyncResult
 from recorder.framing import Paths
 from sisa.core.jsonio import write_json
 
@@ -99,6 +100,8 @@ class GeorefJob:
         summary = flight_summary(self.opt, self.epsg, handoff, done, cell_m,
                                  registrations(self.out, done), skipped.skips, self.warnings)
         write_json(self.out / "georef_summary.json", summary)
+        if not isinstance(handoff.sync, SyncResult):  # read_and_sync's is always whole
+            raise TypeError("a hand-off read back from its file cannot make a GeorefResult")
         return GeorefResult(handoff.sync, handoff.trajectory, self.epsg, cell_m, done,
                             mosaic_path, summary, skipped.skips, list(self.warnings),
                             log_fixes=handoff.log_fixes, recording_health=handoff.recording_health)

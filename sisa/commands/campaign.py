@@ -19,6 +19,7 @@ import argparse
 import json
 import os
 import sys
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -39,6 +40,9 @@ if TYPE_CHECKING:
 
     from postproc.campaign import CampaignRun, CampaignSpec, FlightSpec, Stage
 
+STOP_RULE = ("Ctrl-C (or SIGTERM) stops it: the tasks finished so far are kept, and a rerun "
+             "resumes from them; no product is left half-written (each appears whole or not "
+             "at all); exit 130 (143 for SIGTERM).")
 MARKER = "campaign.json"  # names the campaign an output folder belongs to
 STAGES = ("sync", "georef", "ortho", "flight", "mosaic")
 
@@ -54,8 +58,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
         "set; orthos and mosaics as Cloud-Optimized GeoTIFFs, a STAC catalog; a rerun skips "
         "what is done",
         epilog="example:\n  sisa campaign process season.toml --out season --workers 2\n"
-               "  sisa campaign process runs/ --out camp --scheduler tcp://10.0.0.5:8786",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+               "  sisa campaign process runs/ --out camp --scheduler tcp://10.0.0.5:8786\n\n"
+               + textwrap.fill(STOP_RULE, 79), formatter_class=argparse.RawDescriptionHelpFormatter)
     proc.add_argument("campaign", type=Path, metavar="CAMPAIGN",
                       help="campaign TOML file, or a folder of `sisa simulate` runs")
     proc.add_argument("--out", type=Path, required=True,
@@ -65,6 +69,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                            "the same paths); default: a LocalCluster on this machine")
     proc.add_argument("--workers", type=int, default=None, metavar="N",
                       help="LocalCluster worker processes (default: the cores)")
+    proc.add_argument("--force", action="store_true",
+                      help="run every task again, whatever a previous run left in OUT (each "
+                           "product replaced whole as its task ends); without it, a rerun "
+                           "skips the tasks whose inputs and settings are unchanged")
     proc.add_argument("--cell", type=float, default=None, metavar="M",
                       help="one ortho cell for every flight, so that all share one mosaic "
                            "(default: the campaign file's cell_m, else each flight's pixel "
@@ -313,7 +321,7 @@ def _run(args: argparse.Namespace) -> int:
     held: list[Any] = []
     bars = StageBars()
     try:
-        run = Driver(spec, args.out, _connector(args, held), bars).run()
+        run = Driver(spec, args.out, _connector(args, held), bars, force=args.force).run()
     finally:
         bars.close()
         for thing in reversed(held):

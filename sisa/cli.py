@@ -46,6 +46,8 @@ EPILOG = """examples:
   sisa ortho runs/bench/process/segment_000_igm.bil runs/bench/scanner/segment_000.bil \\
        --cell 2 --out seg0_2m.tif    one segment mapped again, here at 2 m cells
   sisa process runs/bench            sync + georeference + report with accuracy vs truth
+  sisa campaign process season.toml --out season
+                                     every flight of a campaign on Dask: COGs, STAC catalog
   sisa <command> --help              every command shows an example
 
 exit codes: 0 complete; 3 finished, but short of what the inputs promised (the headline
@@ -68,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
         SubParsers,
         bench,
         calibrate,
+        campaign,
         emulate,
         georef,
         log,
@@ -102,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     ortho.register(sub)
     calibrate.register(sub)
     process.register(sub)
+    campaign.register(sub)
     return parser
 
 

@@ -15,9 +15,10 @@ cell), `segmentproducts` and `flightproducts`. The writers of the products thems
 """
 
 from postproc.georef.dem import PLAUSIBLE_HEIGHTS_M, Dem, check_undulation_m
-from postproc.georef.handoff import merged_wanted
-from postproc.georef.job import GeorefJob
-from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult
+from postproc.georef.flightproducts import flight_summary, registrations, write_footprints
+from postproc.georef.handoff import Handoff, load_handoff, merged_wanted, save_handoff
+from postproc.georef.job import GeorefJob, Skipped
+from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult, SegmentSkip
 from postproc.georef.navigation import (
     MAX_GAP_LIMIT_S,
     NAV_WANTED,
@@ -31,16 +32,23 @@ from postproc.georef.navigation import (
     geodetic_to_ecef,
     nav_from_columns,
 )
+from postproc.georef.orthocell import ortho_cell_m
 from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
 from postproc.georef.report import Provenance, write_report
+from postproc.georef.segmentproducts import segment_products
+from postproc.georef.segments import segment_image, segment_raster, segment_rasters
 from postproc.georef.sensorfile import CALIBRATED_SUFFIX, SensorModel
 from postproc.georef.trajfiles import LEAP_SECONDS_RANGE
 
 __all__ = [
     "CALIBRATED_SUFFIX", "LEAP_SECONDS_RANGE", "MAX_GAP_LIMIT_S", "NAV_WANTED",
     "PLAUSIBLE_HEIGHTS_M", "AntennaFixes", "CastStats", "Dem", "GeorefJob", "GeorefOptions",
-    "GeorefResult", "GroundPoints", "InsSamples", "Pose", "Provenance", "SegmentResult",
-    "SensorModel", "Trajectory", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns",
-    "fuse_ins_gps", "geodetic_to_ecef",
-    "intersect", "merged_wanted", "nav_from_columns", "reference_intersect", "write_report",
+    "GeorefResult", "GroundPoints", "Handoff", "InsSamples", "Pose", "Provenance",
+    "SegmentResult", "SegmentSkip", "SensorModel", "Skipped", "Trajectory",
+    "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "flight_summary",
+    "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_handoff", "merged_wanted",
+    "nav_from_columns", "ortho_cell_m", "reference_intersect", "registrations",
+    "save_handoff", "segment_image", "segment_products", "segment_raster", "segment_rasters",
+    "write_footprints",
+    "write_report",
 ]

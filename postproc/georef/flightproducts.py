@@ -27,15 +27,11 @@ def flight_products(done: list[SegmentResult], out: Path, epsg: int, cell_m: flo
                     products: bool, notes: list[str]) -> Path | None:
     """Every segment's products, the footprints of all, and with `products` the mosaic of
     their orthos and its quicklook; the mosaic's path (None when none is made)."""
-    features = []
     mapped: list[tuple[SwathIndex, Path]] = []
     for seg in done:
         if (index := segment_products(seg, out, epsg, cell_m, products, notes)) is not None:
             mapped.append((index, seg.image))
-        features.append(footprint_feature(seg.igm, epsg, properties={
-            "segment": seg.segment, "lines": seg.lines,
-            "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns}))
-    write_footprints_geojson(out / "footprints.geojson", features)
+    write_footprints(done, out / "footprints.geojson", epsg)
     if not (products and mapped):
         return None
     mosaic_path = out / "mosaic.tif"
@@ -43,6 +39,15 @@ def flight_products(done: list[SegmentResult], out: Path, epsg: int, cell_m: flo
                                       epsg), mosaic_path)
     write_quicklook(mosaic_path, out / "mosaic_quicklook.png")
     return mosaic_path
+
+
+def write_footprints(done: list[SegmentResult], path: Path, epsg: int) -> None:
+    """The swath outline of every segment `done`, with its lines and GPS time span."""
+    features = [footprint_feature(seg.igm, epsg, properties={
+        "segment": seg.segment, "lines": seg.lines,
+        "t_first_gps_ns": seg.t_first_gps_ns, "t_last_gps_ns": seg.t_last_gps_ns})
+        for seg in done]
+    write_footprints_geojson(path, features)
 
 
 def registrations(out: Path, done: list[SegmentResult]) -> list[dict[str, Any]]:

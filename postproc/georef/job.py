@@ -49,12 +49,13 @@ from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResul
 from postproc.georef.orthocell import ortho_cell_m
 from postproc.georef.segments import coverage, no_overlap_error, segment_eo, segment_rasters
 from postproc.products import EnviRaster, Progress
+from postproc.sync import SyncResult
 from recorder.framing import Paths
 from sisa.core.jsonio import write_json
 
 
 @dataclass
-class _Skipped:
+class Skipped:
     """The segments and lines a run skipped, and why."""
 
     skips: list[SegmentSkip] = field(default_factory=list)
@@ -83,33 +84,47 @@ class GeorefJob:
             ) -> GeorefResult:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
         `progress` each block of lines done."""
-        self.out.mkdir(parents=True, exist_ok=True)
-        handoff = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
-        write_sync(self.out, handoff.sync)
+        handoff = self.synchronise()
         rasters = segment_rasters(self.scanner_dir, handoff.sync, self.warnings)
         if on_total is not None:
             on_total(sum(raw.lines for raw in rasters.values()))
         done: list[SegmentResult] = []
-        skipped = _Skipped()
+        skipped = Skipped()
         for s, raw in rasters.items():
-            if (seg := self._segment(handoff, s, raw, skipped, progress)) is not None:
+            if (seg := self.segment(handoff, s, raw, skipped, progress)) is not None:
                 done.append(seg)
-        if not done and not skipped.off_dem and not skipped.voids:
-            raise no_overlap_error(handoff, self.flight)
-        if not any(d.rays_hit for d in done):
-            raise self.cover.no_hit_error(done, skipped.off_dem, skipped.voids)
+        self.check_any_done(handoff, done, skipped)
         cell_m = ortho_cell_m(self.opt, done)
         mosaic_path = flight_products(done, self.out, self.epsg, cell_m, self.opt.products,
                                       self.warnings)
         summary = flight_summary(self.opt, self.epsg, handoff, done, cell_m,
                                  registrations(self.out, done), skipped.skips, self.warnings)
         write_json(self.out / "georef_summary.json", summary)
+        if not isinstance(handoff.sync, SyncResult):  # read_and_sync's is always whole
+            raise TypeError("a hand-off read back from its file cannot make a GeorefResult")
         return GeorefResult(handoff.sync, handoff.trajectory, self.epsg, cell_m, done,
                             mosaic_path, summary, skipped.skips, list(self.warnings),
                             log_fixes=handoff.log_fixes, recording_health=handoff.recording_health)
 
-    def _segment(self, handoff: Handoff, s: int, raw: EnviRaster, skipped: _Skipped,
-                 progress: Progress | None) -> SegmentResult | None:
+    def synchronise(self) -> Handoff:
+        """The log read once and synchronised, the trajectory built, the sync's files written
+        in OUT/sync: the first step, done once per flight (a campaign hands the result to each
+        segment's task through `save_handoff`)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        handoff = read_and_sync(self.flight, self.scanner_dir, self.opt, self.warnings)
+        write_sync(self.out, handoff.sync)
+        return handoff
+
+    def check_any_done(self, handoff: Handoff, done: list[SegmentResult], skipped: Skipped
+                       ) -> None:
+        """The job's one error when no segment could be georeferenced, saying why."""
+        if not done and not skipped.off_dem and not skipped.voids:
+            raise no_overlap_error(handoff, self.flight)
+        if not any(d.rays_hit for d in done):
+            raise self.cover.no_hit_error(done, skipped.off_dem, skipped.voids)
+
+    def segment(self, handoff: Handoff, s: int, raw: EnviRaster, skipped: Skipped,
+                progress: Progress | None = None) -> SegmentResult | None:
         """One segment: its lines' times and poses, its swath against the DEM, its rays cast;
         None when it is skipped whole (said in `skipped` and the warnings)."""
         eo, t = segment_eo(handoff, self.opt.sensor, self.scanner_dir, s, raw.lines,
@@ -135,6 +150,6 @@ class GeorefJob:
             self.warnings.append(note)
         return seg
 
-    def _skip(self, skipped: _Skipped, skip: SegmentSkip) -> None:
+    def _skip(self, skipped: Skipped, skip: SegmentSkip) -> None:
         skipped.skips.append(skip)
         self.warnings.append(skip.message)

@@ -12,7 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.georef.exterior import LineEo, exterior_orientation
-from postproc.georef.handoff import Handoff
+from postproc.georef.handoff import Handoff, SyncTables
 from postproc.georef.jobrecords import LineSpan, SegmentSkip
 from postproc.georef.sensorfile import SensorModel
 from postproc.products import EnviRaster
@@ -45,7 +45,7 @@ def segment_raster(path: Path, segment: int) -> tuple[EnviRaster, str | None]:
                  f"{raw.header_lines - 1} are not georeferenced")
 
 
-def segment_rasters(scanner_dir: Path, result: SyncResult, notes: list[str]
+def segment_rasters(scanner_dir: Path, result: SyncResult | SyncTables, notes: list[str]
                     ) -> dict[int, EnviRaster]:
     """The raw image of every segment the lines files list, in segment order (InputError when
     one is missing); images cut short, and lines the lines files leave out, said in `notes`."""

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 from typing import Final
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -20,6 +19,7 @@ I64 = npt.NDArray[np.int64]
 B1 = npt.NDArray[np.bool_]
 
 BLOCK_LINES: Final = 512  # lines sharing one fitted map (and one parallel work item)
+BALANCE_BLOCKS: Final = 8  # the block count is a multiple of this (not of the threads)
 MAP_TOLERANCE_M: Final = 3e-5  # fitted map vs pyproj at check points
 BOX_MARGIN_M: Final = 60.0  # map box beyond the sampled footprints...
 BOX_MARGIN_FRACTION: Final = 0.1  # ...plus this fraction of its size
@@ -56,10 +56,11 @@ def fit_block_maps(surf: Surface, centre: F64, rot: F64, unit: F64) -> Maps:
             foot.update({k: got[:, i] for i, k in enumerate(new)})
         return foot
 
-    # equal blocks, as many as a multiple of the threads: the kernel's static schedule is
-    # balanced
-    threads = numba.get_num_threads()
-    count = min(n, math.ceil(math.ceil(n / BLOCK_LINES) / threads) * threads)
+    # equal blocks, as many as a multiple of BALANCE_BLOCKS: the kernel's static schedule is
+    # balanced on 1, 2, 4 or 8 threads, and the blocks (hence every map and every ray's start)
+    # do not depend on the threads a process has: a campaign's one-thread task gives the IGM
+    # `sisa georef` gives on all the cores, bit for bit
+    count = min(n, math.ceil(math.ceil(n / BLOCK_LINES) / BALANCE_BLOCKS) * BALANCE_BLOCKS)
     bounds = (np.arange(count + 1, dtype=np.int64) * n) // count
     start, stop = bounds[:-1], bounds[1:]
     banded = np.zeros(start.size, np.bool_)  # blocks given their own height band

@@ -59,6 +59,7 @@ PPS_LOCK_NS: Final = 2_500_000_000  # a PPS with its GPS second this recently: l
 DISK_RATE_WINDOW_S: Final = 30.0
 SYNC_PERIOD_S: Final = 5.0
 FINAL_PASS_TIMEOUT_S: Final = 120.0
+STALE_SYNC_S: Final = 60.0  # no pass for this long: the crew is told the view is old
 GREEN: Final = Color(r=0.17, g=0.63, b=0.17, a=1.0)
 AMBER: Final = Color(r=1.0, g=0.5, b=0.05, a=1.0)
 RED: Final = Color(r=0.84, g=0.15, b=0.16, a=1.0)
@@ -185,6 +186,7 @@ class LiveView:
         self.sync_passes = 0
         self.sync_failures = 0
         self._sizes: list[tuple[float, int]] = []
+        self._started_ns = time.time_ns()
         self._stop = threading.Event()
         self._lock = threading.Lock()
         cmd = [sys.executable, "-m", "sisa.wiring.livesync", "--log", str(log),
@@ -265,6 +267,14 @@ class LiveView:
             sync, sync_wall = dict(self._sync.get("state", {})), self._sync_wall_ns
             warnings = list(self._sync.get("warnings", []))
         locked = u.last_pps_host_ns >= 0 and now_ns - u.last_pps_host_ns < PPS_LOCK_NS
+        age_s = (now_ns - sync_wall) / 1e9 if sync_wall else -1.0
+        code = self._proc.poll()
+        if code is not None and not self._stop.is_set():
+            warnings.append(f"incremental sync stopped (exit {code}): what it says is its "
+                            "last pass; the recording goes on")
+        elif (age_s if sync_wall else (now_ns - self._started_ns) / 1e9) > STALE_SYNC_S:
+            warnings.append(f"incremental sync silent for over {STALE_SYNC_S:g} s (a busy "
+                            "machine?): what it says is its last pass")
         return {
             "t_host_ns": now_ns, "mode": u.mode, "session": u.session,
             "lfsr_state": u.lfsr_state, "lfsr_bit": u.lfsr_bit, "pps_seen": u.pps_seen,
@@ -280,7 +290,7 @@ class LiveView:
             "segment": int(sync.get("segment", -1)),
             "segment_lines": int(sync.get("segment_lines", 0)),
             "segment_lines_timed_pct": float(sync.get("segment_lines_timed_pct", 0.0)),
-            "sync_age_s": round((now_ns - sync_wall) / 1e9, 1) if sync_wall else -1.0,
+            "sync_age_s": round(age_s, 1),
             "warning_count": len(warnings), "warnings": warnings,
             "note": str(sync.get("note", "")),
         }

@@ -32,9 +32,11 @@ from recorder.columns import read_columns, read_topics
 from recorder.messages import Topic
 from recorder.reader import scan_log
 from recorder.writer import TOPIC_TYPES
+from sisa.core.errors import InputError
 from sisa.wiring.live import (
     LIVE_HEALTH_SCHEMA,
     LIVE_SYNC_SCHEMA,
+    LiveView,
     layout_json,
     listen_address,
     planned_strips,
@@ -258,13 +260,19 @@ def test_live_addresses(text: str, expected: tuple[str, int]) -> None:
 
 
 @pytest.mark.parametrize("text", ["", "host:", "99999", "x:-1", "port", "1:2:abc"])
-def test_a_bad_live_address_is_one_line_and_exit_2(text: str, tmp_path: Path) -> None:
+def test_a_bad_live_address_is_refused(text: str) -> None:
+    with pytest.raises(InputError, match="--live"):
+        listen_address(text)
+
+
+def test_a_bad_live_address_is_one_line_and_exit_2_before_anything_starts(tmp_path: Path
+                                                                          ) -> None:
     done = subprocess.run([sys.executable, "-m", "sisa.cli", "record", "--pulses",
                            "tcp://127.0.0.1:1", "--out", str(tmp_path / "f.mcap"), "--live",
-                           text], capture_output=True, text=True, timeout=60)
+                           "localhost:http"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
-    assert "--live" in done.stderr
+    assert "--live localhost:http" in done.stderr
     assert not (tmp_path / "f.mcap").exists()
 
 
@@ -338,3 +346,17 @@ def test_the_layout_file_is_the_generated_one_on_the_served_fields() -> None:
         topic, _, name = path.partition(".")
         assert topic in LIVE_TOPICS, path
         assert not name or name in fields[topic], path
+
+
+def test_the_crew_is_told_when_the_incremental_sync_has_stopped(tmp_path: Path) -> None:
+    view = LiveView("127.0.0.1", 0, tmp_path / "flight.mcap")
+    try:
+        assert view.sync_state(time.time_ns())["warnings"] == []
+        view._proc.kill()  # as if it had crashed
+        view._proc.wait()
+        said = view.sync_state(time.time_ns())["warnings"]
+        assert len(said) == 1
+        assert said[0].startswith("incremental sync stopped (exit -9)")
+        assert view.health(time.time_ns())["log_bytes"] == 0  # no log yet: nothing, no error
+    finally:
+        view.close()

@@ -172,8 +172,10 @@ def _pct(part: int, whole: int) -> float:
     return round(100.0 * part / whole, 2) if whole else 0.0
 
 
-def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult) -> list[str]:
-    """What the crew can act on while airborne, in words; [] when all is well."""
+def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult,
+                  stale_s: float = STALE_S) -> list[str]:
+    """What the crew can act on while airborne, in words; [] when all is well. An INS record
+    still untimed `stale_s` after it was logged is one to warn of."""
     out: list[str] = []
     fwd, tags = cols[Topic.SYNC_FORWARD], cols[Topic.GPS_TIME_TAG]
     ins = cols[Topic.INS_RECORD]
@@ -186,7 +188,7 @@ def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult)
         out.append(f"tags not arriving: {to_event} pulses sent to the GPS event input in the "
                    "last 30 s and no TTT time tag back: check the receiver's event input and "
                    "its TTT output")
-    stale = ins["log_time_ns"] < newest - int(STALE_S * 1e9)
+    stale = ins["log_time_ns"] < newest - int(stale_s * 1e9)
     untimed = stale & (res.ins.status != TimeStatus.OK)
     if np.any(untimed):
         latches = int(np.count_nonzero(ins["sync_flag"]))
@@ -197,7 +199,7 @@ def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult)
             out.append(f"INS records not timed ({what}): the INS latched no sync pulse: check "
                        "the sync cable to the INS")
         else:
-            out.append(f"pattern not matching: INS records logged over {STALE_S:g} s ago not "
+            out.append(f"pattern not matching: INS records logged over {stale_s:g} s ago not "
                        f"timed ({what}), with {latches} latched pulses: the INS's pulses do "
                        "not match the sync unit's pattern yet")
     jumps = int(np.count_nonzero(res.ins.status == TimeStatus.CLOCK_JUMP))

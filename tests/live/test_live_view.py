@@ -280,7 +280,9 @@ def _doctored(flight: Path, change: Callable[[dict[str, dict[str, Any]]], None]
               ) -> list[str]:
     cols = read_topics(flight, LIVE_WANTED)
     change(cols)
-    return livesync_warnings(cols, synchronise(sync_input_from_columns(cols)))
+    # a record untimed 20 s after its logging is a warning here (45 s in flight): the run
+    # lasts 45 s
+    return livesync_warnings(cols, synchronise(sync_input_from_columns(cols)), stale_s=20.0)
 
 
 def test_the_warnings_say_what_to_check(live_run: dict[str, Any]) -> None:
@@ -299,6 +301,15 @@ def test_the_warnings_say_what_to_check(live_run: dict[str, Any]) -> None:
 
     said = _doctored(flight, no_latch)
     assert any("the INS latched no sync pulse" in w for w in said), said
+
+    def scrambled(cols: dict[str, dict[str, Any]]) -> None:  # latches at random records
+        ins = cols[Topic.INS_RECORD]
+        flags = np.random.default_rng(5).permutation(ins["sync_flag"])
+        ins["sync_flag"] = flags
+        ins["sync_time_ticks"] = np.where(flags, ins["ins_time_ticks"], ins["sync_time_ticks"])
+
+    said = _doctored(flight, scrambled)
+    assert any(w.startswith("pattern not matching") for w in said), said
 
     def untied(cols: dict[str, dict[str, Any]]) -> None:
         fwd = cols[Topic.SYNC_FORWARD]

@@ -121,6 +121,7 @@ def _run(args: argparse.Namespace) -> int:
         sources.close()
         if live is not None:  # the incremental sync's last pass, on the finished file
             live.close()
+            print(f"sisa record: {live.summary()}", file=sys.stderr, flush=True)
     _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)
     if away:
         print(f"sisa record: recording ended with {away}: what it sent since is missing "

@@ -338,6 +338,17 @@ class LiveView:
             self.publish()
         self.server.stop()
 
+    def summary(self) -> str:
+        """One line for the end of the recording."""
+        with self._lock:
+            state = dict(self._sync.get("state", {}))
+        timed = (f"; last pass: INS records {state.get('ins_timed', 0)}/"
+                 f"{state.get('ins_records', 0)} timed, scan lines {state.get('lines_timed', 0)}/"
+                 f"{state.get('lines', 0)}" if state else "")
+        return (f"live view: {self.served} messages served, {self.failures} serving failures; "
+                f"incremental sync: {self.sync_passes} passes, {self.sync_failures} failed"
+                f"{timed}")
+
 
 def _logged_schemas() -> dict[str, str]:
     """Every topic the recorder writes, with its schema's name."""

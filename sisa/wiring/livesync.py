@@ -59,6 +59,7 @@ TIMED_COLOUR: Final = "#2ca02c"
 UNTIMED_COLOUR: Final = "#d62728"
 PENDING_COLOUR: Final = "#ff7f0e"
 FOOTPRINT_VERTICES: Final = 40  # per run of lines: enough for a strip on a map
+MAX_CPU_SHARE: Final = 0.05  # of a core, for the passes of a long flight
 
 
 @dataclass
@@ -308,10 +309,12 @@ def main(argv: list[str] | None = None) -> int:
     _lower_priority()
     live = LiveSync(args.log, args.half_swath_m)
     ending = False
+    wait_s = args.period
     while True:
-        ready, _, _ = select.select([sys.stdin], [], [], args.period)
+        ready, _, _ = select.select([sys.stdin], [], [], wait_s)
         if ready and not os.read(sys.stdin.fileno(), 4096):  # closed: the recording has ended
             ending = True
+        cpu0 = time.process_time()
         try:
             line = json.dumps(live.run_pass(), separators=(",", ":"))
         except Exception as exc:  # a pass that fails says so and the next runs
@@ -319,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
                                "error": f"{type(exc).__name__}: {exc}"[:300]})
         with contextlib.suppress(BrokenPipeError):
             print(line, flush=True)
+        # a long flight's pass takes longer (1 s at 5 hours): the passes then space out so
+        # that they never take more than MAX_CPU_SHARE of a core
+        wait_s = max(args.period, (time.process_time() - cpu0) / MAX_CPU_SHARE)
         if ending:
             if args.out is not None:
                 live.write(args.out)

@@ -371,3 +371,19 @@ def test_the_crew_is_told_when_the_incremental_sync_has_stopped(tmp_path: Path) 
         assert view.health(time.time_ns())["log_bytes"] == 0  # no log yet: nothing, no error
     finally:
         view.close()
+
+
+def test_a_port_in_use_is_one_line_and_exit_2_before_anything_is_recorded(tmp_path: Path
+                                                                          ) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = subprocess.run([sys.executable, "-m", "sisa.cli", "record", "--pulses",
+                               "tcp://127.0.0.1:1", "--out", str(tmp_path / "f.mcap"),
+                               "--live", str(port)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"sisa record: error: --live 127.0.0.1:{port}: cannot serve: FoxgloveError: Failed to "
+        "bind port: Address already in use (os error 98)"]
+    assert not (tmp_path / "f.mcap").exists()

@@ -16,6 +16,7 @@ logged each record was first timed. With --baseline, the same run without --live
 recorder as it was, window A only), for the same hour's figure.
 
     .venv/bin/python bench/live_view.py [--baseline] [--keep DIR]
+    .venv/bin/python bench/live_view.py --pass-cost FLIGHT.mcap   (a pass's CPU on a long log)
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import tomli_w
 from emulators.scenario import load_scenario
 from postproc.sync import TimeStatus, sync_log, write_ins_times, write_line_times
 from recorder.follow import LogFollower
+from sisa.wiring.livesync import LiveSync
 from tests.live import RawClient
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -259,12 +261,30 @@ def agreement(out: Path) -> None:
               f"{int((timed & ~ok).sum())}")
 
 
+def pass_cost(log: Path) -> None:
+    """The incremental sync on a finished log: its catch-up passes, then passes with nothing
+    new to read (what a pass costs at that length of flight)."""
+    live = LiveSync(log, 600.0)
+    for i in range(12):
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        state = live.run_pass()["state"]
+        print(f"pass {i}: CPU {time.process_time() - cpu0:.2f} s, wall "
+              f"{time.perf_counter() - wall0:.2f} s, bytes read "
+              f"{live.follower.stats.bytes_read}, INS {state['ins_timed']}/"
+              f"{state['ins_records']} timed, lines {state['lines_timed']}/{state['lines']}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--pass-cost", type=Path, default=None, metavar="FLIGHT",
+                        help="only measure the incremental sync's passes on this log")
     parser.add_argument("--baseline", action="store_true",
                         help="first the same run without --live (window A only)")
     parser.add_argument("--keep", type=Path, default=None, help="keep the runs here")
     args = parser.parse_args()
+    if args.pass_cost is not None:
+        pass_cost(args.pass_cost)
+        return
     if shutil.which("node") is None or not (CLIENT.parent / "node_modules").is_dir():
         raise SystemExit("needs node and `npm ci` in tests/live/js")
     folder = Path(tempfile.mkdtemp(prefix="live_view_")) if args.keep is None else args.keep

@@ -131,7 +131,7 @@ class _Misbehaving:
 def live_run(tmp_path_factory: pytest.TempPathFactory, live_client: list[str],
              worker_id: str) -> dict[str, Any]:
     """One real-time `sisa bench --live` for the session, whichever xdist worker asks first
-    (two at once on a two-core machine would each make the other late)."""
+    (a module fixture runs once per worker: two real-time runs at once on two cores)."""
     shared = tmp_path_factory.getbasetemp()
     if worker_id != "master":  # the workers' temp folders share this session's parent
         shared = shared.parent

@@ -17,6 +17,7 @@ recorder as it was, window A only), for the same hour's figure.
 
     .venv/bin/python bench/live_view.py [--baseline] [--keep DIR]
     .venv/bin/python bench/live_view.py --pass-cost FLIGHT.mcap   (a pass's CPU on a long log)
+    .venv/bin/python bench/live_view.py --late RUN [RUN ...]   (late edges by window of kept runs)
 """
 
 from __future__ import annotations
@@ -40,7 +41,9 @@ import tomli_w
 
 from emulators.scenario import load_scenario
 from postproc.sync import TimeStatus, sync_log, write_ins_times, write_line_times
+from recorder.columns import read_columns
 from recorder.follow import LogFollower
+from recorder.messages import Topic
 from sisa.wiring.livesync import LiveSync
 from tests.live import RawClient
 
@@ -229,6 +232,28 @@ def run(folder: Path, scenario: Path, live: bool) -> dict[str, Any]:
             "garbage_rounds": hostile.garbage_sent if hostile else 0}
 
 
+LATE_WINDOWS = {"pre": (0.0, 40.0), "A": (40.0, 70.0), "B": (70.0, 106.0), "C": (106.0, 145.0),
+                "after": (145.0, float("inf"))}
+
+
+def late_by_window(flight: Path) -> dict[str, int]:
+    """Late edges (the health channel's deadline misses) in each window of the run, seconds
+    from the log's first INS record."""
+    health = read_columns(flight, Topic.HEALTH)
+    t0 = int(read_columns(flight, Topic.INS_RECORD)["log_time_ns"][0])
+    out = dict.fromkeys(LATE_WINDOWS, 0)
+    for stream in np.unique(health["stream"]).tolist():
+        mine = health["stream"] == stream
+        t_s = (health["log_time_ns"][mine] - t0) / 1e9
+        misses = health["deadline_misses"][mine]
+        for name, (a, b) in LATE_WINDOWS.items():
+            inside = (t_s >= a) & (t_s < b)
+            if inside.any():
+                before = misses[t_s < a]
+                out[name] += int(misses[inside][-1] - (before[-1] if before.size else 0))
+    return out
+
+
 def agreement(out: Path) -> None:
     """The incremental sync's tables against `sisa sync` on the finished file."""
     offline = sync_log(out / "flight.mcap")
@@ -278,10 +303,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pass-cost", type=Path, default=None, metavar="FLIGHT",
                         help="only measure the incremental sync's passes on this log")
+    parser.add_argument("--late", type=Path, nargs="+", default=None, metavar="RUN",
+                        help="only count the late edges by window in kept runs (--keep)")
     parser.add_argument("--baseline", action="store_true",
                         help="first the same run without --live (window A only)")
     parser.add_argument("--keep", type=Path, default=None, help="keep the runs here")
     args = parser.parse_args()
+    if args.late:
+        for folder in args.late:
+            print(f"{folder}: late edges by window {late_by_window(folder / 'flight.mcap')}")
+        return
     if args.pass_cost is not None:
         pass_cost(args.pass_cost)
         return
@@ -295,7 +326,8 @@ def main() -> None:
         base = run(folder, scenario, live=False)
         print(f"without --live: recorder {base['cpu']['A'][0]:.1f} % of a core (window A); "
               f"late edges {base['late_edges']}, drops {base['drops']}, decode errors "
-              f"{base['decode_errors']}; emulator lag {base['emulator_lag_ms']:.1f} ms")
+              f"{base['decode_errors']}; emulator lag {base['emulator_lag_ms']:.1f} ms; late "
+              f"edges by window {late_by_window(base['out'] / 'flight.mcap')}")
     r = run(folder, scenario, live=True)
     names = {"A": "no client", "B": "a client reading every channel",
              "C": "a client that never reads + a garbage sender"}
@@ -304,7 +336,8 @@ def main() -> None:
               f" together {rec + sync:.1f} % of a core")
     print(f"late edges {r['late_edges']}, drops {r['drops']}, decode errors "
           f"{r['decode_errors']}; emulator lag {r['emulator_lag_ms']:.1f} ms; stalled client "
-          f"subscribed to {r['stalled_channels']} channels, {r['garbage_rounds']} garbage rounds")
+          f"subscribed to {r['stalled_channels']} channels, {r['garbage_rounds']} garbage rounds; "
+          f"late edges by window {late_by_window(r['out'] / 'flight.mcap')}")
     client = r["client"] or {"channels": {}}
     bad = {t: c["invalid"] for t, c in client["channels"].items() if c["invalid"]}
     empty = [t for t, c in client["channels"].items() if c["received"] == 0]

@@ -219,3 +219,28 @@ def topics_in(stats: LogStats) -> Iterable[str]:
     """Topics of a log in a stable order (as declared by SISA's Topic enum, then the rest)."""
     order = {str(t): i for i, t in enumerate(Topic)}
     return sorted(stats.topics, key=lambda t: (order.get(t, len(order)), t))
+
+
+class GrowingColumns:
+    """`read_topics` for a log still being written: messages go in as they are read (from a
+    `recorder.follow.LogFollower`), and `columns()` gives every wanted topic's columns so far,
+    typed as `read_topics` types them. A message that does not decode is counted in `bad`."""
+
+    def __init__(self, wanted: Mapping[str, Sequence[str] | None]) -> None:
+        self._batches = {topic: _TopicBatches(fields) for topic, fields in wanted.items()}
+        self.bad = 0
+
+    def _on_bad(self, _log_time: int, _why: str) -> None:
+        self.bad += 1
+
+    def add(self, channel: ChannelInfo, log_time: int, data: bytes) -> None:
+        batch = self._batches.get(channel.topic)
+        if batch is not None:
+            batch.add(channel, log_time, data, self._on_bad)
+
+    def columns(self) -> dict[str, dict[str, npt.NDArray[Any]]]:
+        out = {}
+        for topic, batch in self._batches.items():
+            out[topic] = batch.result(topic, self._on_bad)
+            batch.times, batch.datas = [], []  # converted now: not again on the next call
+        return out

@@ -446,6 +446,11 @@ class _Part:
 
 # --- the recorder -------------------------------------------------------------------------------
 
+Tap = Callable[[Topic, str, LoggedMessage, int, bytes], None]
+"""Called with (topic, schema name, message, log time ns, the JSON bytes as written) after each
+message is written: how a live view sees the log as it grows, without encoding it again."""
+
+
 class FlightRecorder:
     """Writes a flight log; use as a context manager. Thread-safe (one lock per recorder).
 
@@ -458,7 +463,8 @@ class FlightRecorder:
     def __init__(self, path: Path | str, *, split_duration_s: float | None = None,
                  split_size_bytes: int | None = None, flush_interval_s: float = 1.0,
                  chunk_size: int = DEFAULT_CHUNK_SIZE,
-                 metadata: Mapping[str, object] | None = None) -> None:
+                 metadata: Mapping[str, object] | None = None,
+                 tap: Tap | None = None) -> None:
         _check_settings(split_duration_s, split_size_bytes, flush_interval_s, chunk_size)
         self.path = Path(path)
         refuse_existing(self.path)
@@ -475,6 +481,8 @@ class FlightRecorder:
         self.paths: list[Path] = []
         self.messages_written = 0
         self.recording_id = uuid.uuid4().hex  # in every part: readers refuse to mix flights
+        self._tap = tap
+        self.tap_failures = 0  # calls of the tap that raised: counted, never the recording's
         try:
             self._part = self._open_part()
         except OSError as exc:
@@ -511,6 +519,21 @@ class FlightRecorder:
             except (OSError, InputError) as exc:  # InputError: a part name taken mid-flight
                 self._fail(exc)
                 self._check_open()
+        tap = self._tap
+        if tap is not None:  # after the write, outside the lock
+            self._tapped(tap, topic, cls.schema_name, msg, log_ns, data)
+            if extra is not None:
+                self._tapped(tap, Topic.GPS_LOCATION, LOCATION_FIX_SCHEMA_NAME, msg, log_ns,
+                             extra)
+
+    def _tapped(self, tap: Tap, topic: Topic, schema_name: str, msg: LoggedMessage,
+                log_ns: int, data: bytes) -> None:
+        """Hand a written message to the tap; whatever the tap does wrong is counted and
+        dropped: a live view must never cost the log a message."""
+        try:
+            tap(topic, schema_name, msg, log_ns, data)
+        except Exception:  # anything: the recording goes on
+            self.tap_failures += 1
 
     def flush(self) -> None:
         """Close the open chunk and fsync now (also done every `flush_interval_s`)."""

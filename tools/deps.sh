@@ -6,8 +6,9 @@
 #
 #   tools/deps.sh demo    a C compiler, the Python headers and venv (the ortho's C loops are
 #                         built at install; `python -m venv` needs ensurepip)
-#   tools/deps.sh test    demo's, and gpsd + gpspipe, node + npm (the independent MCAP reader,
-#                         whose packages `npm ci` installs from the committed lock) and gdalwarp
+#   tools/deps.sh test    demo's, and gpsd + gpspipe, node + npm (the independent MCAP reader
+#                         and Foxglove WebSocket client, whose packages `npm ci` installs from
+#                         the committed locks) and gdalwarp
 #                         (the reference `gdalwarp -geoloc` in the tests), chromium (headless:
 #                         the processing report rendered as a reader sees it)
 #   tools/deps.sh make    make itself (for .ci/run, before it can call make)
@@ -113,5 +114,9 @@ for group in "$@"; do
   if [ "$group" = test ] && [ ! -d tests/recorder/js/node_modules/@mcap/core ]; then
     echo "deps: npm ci in tests/recorder/js (the independent MCAP reader)" >&2
     (cd tests/recorder/js && npm ci --no-audit --no-fund --silent)
+  fi
+  if [ "$group" = test ] && [ ! -d tests/live/js/node_modules/@foxglove/ws-protocol ]; then
+    echo "deps: npm ci in tests/live/js (the independent Foxglove WebSocket client)" >&2
+    (cd tests/live/js && npm ci --no-audit --no-fund --silent)
   fi
 done

@@ -66,6 +66,10 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     add_span_args(parser, "seconds of flight to run (default: the whole scenario, or strip "
                           "N with --strip)")
     parser.add_argument("--no-images", action="store_true", help="do not render image lines")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="serve the run as it is recorded over the Foxglove WebSocket "
+                        "protocol (sisa record --live); the incremental sync's last tables "
+                        "are kept in the run's live_sync/")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
@@ -73,6 +77,12 @@ def _scenario_args(args: argparse.Namespace) -> list[str]:
     if args.scenario is not None:
         return ["--scenario", str(args.scenario.resolve())]
     return ["--preset", args.preset]
+
+
+def _live_args(args: argparse.Namespace, run: Path) -> list[str]:
+    if args.live is None:
+        return []
+    return ["--live", args.live, "--live-sync-out", str(run / "live_sync")]
 
 
 def wait_for_endpoints(path: Path, proc: subprocess.Popen[str],
@@ -163,6 +173,10 @@ def _run(args: argparse.Namespace) -> int:
     from sisa.wiring.simulation import write_survey_data
 
     scn = scenario_from_args(args)
+    if args.live is not None:
+        from sisa.wiring.live import listen_address
+
+        listen_address(args.live)  # refused before anything starts
     traj = TruthTrajectory.from_scenario(scn)
     check_span(scn, traj, args)  # before anything starts
     real_s = _real_seconds(traj, args)
@@ -210,7 +224,8 @@ def _run(args: argparse.Namespace) -> int:
                                         "--gps", ep["gps"], "--scanner", ep["scanner"],
                                         "--ins", ep["ins"], "--pulses", ep["pulses"],
                                         "--out", str(run / "flight.mcap"),
-                                        "--shown-as", str(args.out / "flight.mcap")],
+                                        "--shown-as", str(args.out / "flight.mcap"),
+                                        *_live_args(args, run)],
                                        stdout=subprocess.PIPE, text=True,
                                        process_group=0,
                                        pass_fds=rec_error.pass_fds, env=rec_error.env)
@@ -270,7 +285,8 @@ def _run(args: argparse.Namespace) -> int:
     if failed:  # what was recorded is kept (the log is readable up to the failure)
         raise SisaError(f"{failed}; the run so far is in {args.out}")
     parts = [f"{p}/" if (args.out / p).is_dir() else p
-             for p in ("flight.mcap", "scanner", "terrain", "truth") if (args.out / p).exists()]
+             for p in ("flight.mcap", "scanner", "terrain", "truth", "live_sync")
+             if (args.out / p).exists()]
     how = "" if stopped is None else ", stopped early (Ctrl-C)"
     print(f"{args.out}: {', '.join(parts)} from a real-time run of {scn.block.name}{how}",
           flush=True)

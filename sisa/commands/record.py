@@ -28,6 +28,8 @@ if TYPE_CHECKING:
 
     from acquisition.live import LinkEvent, LiveSources, Source
     from acquisition.runner import Acquisition
+    from emulators.scenario import Scenario
+    from sisa.wiring.live import LiveView
 
 STATUS_PERIOD_S = 1.0
 TICK_S = 0.1
@@ -67,6 +69,12 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         f"(exit {ENDED_ON_LOSS}); default: never, it keeps reconnecting until "
                         "stopped")
     parser.add_argument("--quiet", action="store_true", help="no live status, summary only")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="serve the flight as it is recorded over the Foxglove WebSocket "
+                        "protocol (loopback unless HOST is given; PORT 0: any free port), with "
+                        "the incremental sync's progress and warnings (docs/live.md)")
+    # the incremental sync's last tables (sisa bench --live keeps them beside the run)
+    parser.add_argument("--live-sync-out", type=Path, default=None, help=argparse.SUPPRESS)
     # sisa bench records into a scratch folder renamed at the end: the status names the final one
     parser.add_argument("--shown-as", type=Path, default=None, help=argparse.SUPPRESS)
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
@@ -86,8 +94,14 @@ def _run(args: argparse.Namespace) -> int:
     _check_options(args)
     scn = scenario_from_args(args)
     config = acquisition_config(scn)
-    sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
-                          read_interval_s=config.read_interval_ns / 1e9)
+    live = _start_live(args, scn) if args.live is not None else None
+    try:
+        sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
+                              read_interval_s=config.read_interval_ns / 1e9)
+    except BaseException:
+        if live is not None:
+            live.close()
+        raise
     stop = _install_stop_handlers()
     split_s = args.split_minutes * 60 if args.split_minutes else None
     split_b = int(args.split_mb * 1e6) if args.split_mb else None
@@ -95,7 +109,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with FlightRecorder(args.out, split_duration_s=split_s, split_size_bytes=split_b,
                             metadata={"settings": scn.block.name,
-                                      **recording_settings(config)}) as rec:
+                                      **recording_settings(config)},
+                            tap=live.tap if live is not None else None) as rec:
             acq = Acquisition(config, rec.write, sources.send_edge,
                               pulse_stats=sources.pulse_stats)
             away = _loop(acq, sources, stop, args)
@@ -104,12 +119,28 @@ def _run(args: argparse.Namespace) -> int:
                             "`sisa log recover` makes it whole") from exc
     finally:
         sources.close()
+        if live is not None:  # the incremental sync's last pass, on the finished file
+            live.close()
+            print(f"sisa record: {live.summary()}", file=sys.stderr, flush=True)
     _summary(acq, args.out, time.monotonic() - wall0, time.process_time() - cpu0)
     if away:
         print(f"sisa record: recording ended with {away}: what it sent since is missing "
               f"(exit {ENDED_ON_LOSS})", file=sys.stderr, flush=True)
         return ENDED_ON_LOSS
     return 0
+
+
+def _start_live(args: argparse.Namespace, scn: Scenario) -> LiveView:
+    """The live view's server and incremental sync, before the recording starts."""
+    from sisa.wiring.live import LiveView, listen_address, planned_strips
+
+    host, port = listen_address(args.live)
+    strips, half_swath_m = planned_strips(scn)
+    live = LiveView(host, port, args.out, strips_geojson=strips, half_swath_m=half_swath_m,
+                    sync_out=args.live_sync_out)
+    print(f"sisa record: live view on ws://{host}:{live.port} (Foxglove: open connection, "
+          "Foxglove WebSocket; layout docs/live-layout.json)", file=sys.stderr, flush=True)
+    return live
 
 
 PTY_MULTIPLEXERS = ("/dev/ptmx", "/dev/pts/ptmx")
@@ -135,6 +166,10 @@ def _check_options(args: argparse.Namespace) -> None:
         if value is not None and value > most:
             raise InputError(f"{option} {value:g}: at most {most:g} (leave it out for one "
                              "file)")
+    if args.live is not None:
+        from sisa.wiring.live import listen_address
+
+        listen_address(args.live)  # a bad address is refused before anything starts
     if args.pulses:
         args.pulses = pulse_endpoint(args.pulses)
     ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins")

@@ -61,8 +61,13 @@ def test_sync_says_what_the_recorder_counted(faulty: Path, tmp_path: Path,
     err = capsys.readouterr().err.splitlines()
     note = (f"the recorder counted {counted} while recording flight.mcap: records or lines may "
             f"be missing for it (per stream: sisa log info {faulty / 'flight.mcap'})")
-    assert err == [f"sisa sync: warning: {note}"]
-    assert json.loads((tmp_path / "s" / "sync_report.json").read_text())["notes"] == [note]
+    notes = json.loads((tmp_path / "s" / "sync_report.json").read_text())["notes"]
+    # corrupt bytes cost frame headers too: without --scanner their gaps make the header-order
+    # line numbers unsure from there on, and that is said as well (after the recorder's note)
+    assert notes[0] == note
+    assert len(notes) == 2
+    assert notes[1].startswith("lines numbered by frame-header order")
+    assert err == [f"sisa sync: warning: {n}" for n in notes]
 
 
 def test_process_puts_it_in_the_summary_and_the_report(faulty: Path,

@@ -248,10 +248,7 @@ class FileScan:
             self.schemas[record.id] = record
         elif isinstance(record, Channel) and record.id not in self.channels:
             schema = self.schemas.get(record.schema_id)
-            self.channels[record.id] = ChannelInfo(
-                record.id, record.topic, record.message_encoding,
-                schema.name if schema else "", schema.encoding if schema else "",
-                schema.data if schema else b"")
+            self.channels[record.id] = ChannelInfo.declared(record, schema)
 
     def _chunk(self, chunk: Chunk, start: int, end: int) -> list[tuple[ChannelInfo, Message]]:
         """All the chunk's messages, or none if the chunk is damaged."""

@@ -119,10 +119,7 @@ class LogFollower:
             self._schemas[record.id] = record
         elif isinstance(record, Channel) and record.id not in self._channels:
             schema = self._schemas.get(record.schema_id)
-            self._channels[record.id] = ChannelInfo(
-                record.id, record.topic, record.message_encoding,
-                schema.name if schema else "", schema.encoding if schema else "",
-                schema.data if schema else b"")
+            self._channels[record.id] = ChannelInfo.declared(record, schema)
         elif isinstance(record, Message):
             channel = self._channels.get(record.channel_id)
             if channel is not None:

@@ -10,6 +10,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
+from mcap.records import Channel, Schema
 
 from recorder.health import HealthTotals
 from recorder.messages import Topic
@@ -44,6 +45,13 @@ class ChannelInfo:
     schema_name: str
     schema_encoding: str
     schema_data: bytes
+
+    @classmethod
+    def declared(cls, channel: Channel, schema: Schema | None) -> ChannelInfo:
+        """The channel with its schema, or with none if the schema is not (yet) declared."""
+        return cls(channel.id, channel.topic, channel.message_encoding,
+                   schema.name if schema else "", schema.encoding if schema else "",
+                   schema.data if schema else b"")
 
 
 @dataclass(frozen=True)

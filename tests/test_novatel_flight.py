@@ -16,7 +16,7 @@ from emulators.truth import read_truth_csv
 from postproc.sync import SyncInput, SyncResult, read_sync_input, synchronise
 from recorder.columns import read_columns
 from recorder.messages import Topic
-from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns, rms
+from tests.postproc.test_sync import every_row_timed_under_a_microsecond
 
 ROOT = Path(__file__).resolve().parents[1]
 Flight = tuple[Path, Path, SyncInput, SyncResult]
@@ -67,14 +67,7 @@ def test_every_tag_is_the_truths(flight: Flight) -> None:
 
 def test_sisa_sync_times_every_record_and_line_well_under_a_microsecond(flight: Flight) -> None:
     run, out, inp, res = flight
-    e_ins = ok_errors_ns(res.ins.t_gps_ns, res.ins.status, ins_truth_ns(run, inp))
-    e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(run, res))
-    assert e_ins.size == res.ins.status.size > 30_000  # 100 % of the INS records
-    assert e_line.size == res.lines.status.size > 6_000  # 100 % of the lines
-    for e in (e_ins, e_line):
-        assert rms(e) < 1_000
-        assert int((np.abs(e) > WRONG_NS).sum()) == 0
-        assert np.abs(e).max() < 5_000
+    every_row_timed_under_a_microsecond(run, inp, res)
     # what `sisa sync` wrote is what the pipeline gives
     rows = [r.split(",") for r in (out / "line_times.csv").read_text(encoding="utf-8")
             .splitlines() if not r.startswith("#")][1:]

@@ -36,12 +36,10 @@ from postproc.sync.lines import LineTable
 from sisa.core.errors import ConfigError
 from sisa.wiring.simulation import simulate
 from tests.postproc.test_sync import ins_truth_ns, line_truth_ns, ok_errors_ns
+from tests.postproc.test_sync_faults import SHORT  # the fault matrix's short flight
+from tests.postproc.test_sync_faults import _merge as merged
 
 WRONG_NS = 5_000
-SHORT: dict[str, Any] = {
-    "block": {"strip_length_m": 600.0, "flying_height_agl_m": 150.0},
-    "flight": {"static_alignment_s": 20.0, "figure_eights": 0, "run_in_s": 5.0},
-}
 FLIGHT_S = 220.0  # faults are placed inside the short flight
 
 
@@ -95,19 +93,12 @@ def draw_mix(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
-def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
 def one_run(seed: int) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     for _ in range(20):
         mix = draw_mix(rng)
         try:
-            scn = scenario_from_table(_merge({"base": "bench", "seed": seed, **SHORT}, mix))
+            scn = scenario_from_table(merged({"base": "bench", "seed": seed, **SHORT}, mix))
             break
         except ConfigError:
             continue

@@ -11,15 +11,14 @@ import gc
 import math
 import signal
 import sys
-import threading
 import warnings
 from collections.abc import Callable, Sequence
-from types import FrameType
 from typing import Final, NoReturn, TextIO
 
 from sisa import __version__
-from sisa.commands import Terminated, say_error, warning_line
+from sisa.commands import say_error, warning_line
 from sisa.core.errors import InputError, SisaError
+from sisa.core.interrupt import Terminated, raise_if_stopped, stops_noted
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -128,10 +127,13 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
     _command[0] = args.command
     if batch_gc and not getattr(args, "real_time_loop", False):
         gc.set_threshold(*BATCH_GC_THRESHOLDS)
-    on_term = _terminate_like_ctrl_c()
     try:
-        _check_finite(args)
-        return handler(args)
+        with stops_noted():
+            _check_finite(args)
+            code = handler(args)
+            if code not in (130, 143):  # a stop the command did not answer: C code lost it
+                raise_if_stopped()
+            return code
     except Terminated:
         print(f"sisa {args.command}: terminated", file=sys.stderr)
         return 143
@@ -146,8 +148,6 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         return 130
     finally:
         _command[0] = None
-        if on_term is not None:
-            signal.signal(signal.SIGTERM, on_term)
 
 
 MAX_ERROR_CHARS = 2000  # an error line, whatever a message quotes (its inputs are cut already)
@@ -155,18 +155,6 @@ MAX_ERROR_CHARS = 2000  # an error line, whatever a message quotes (its inputs a
 
 def _cut(text: str) -> str:
     return text if len(text) <= MAX_ERROR_CHARS else text[:MAX_ERROR_CHARS - 1] + "…"
-
-
-def _raise_terminated(_sig: int, _frame: FrameType | None) -> None:
-    raise Terminated
-
-
-def _terminate_like_ctrl_c() -> signal.Handlers | Callable[..., object] | int | None:
-    """SIGTERM raises Terminated until the command returns (the real-time commands install
-    their own handler: they stop at their next loop turn). Returns the handler to restore."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 def _check_finite(args: argparse.Namespace) -> None:
@@ -187,7 +175,10 @@ def run() -> None:
     time on our 2-core VM. Everything is written and closed by now, so they are frozen out of
     its reach: they are freed with the process. Not in `main`, which tests call in-process."""
     warnings.showwarning = _one_line_warning
-    code = main(batch_gc=True)
+    try:
+        code = main(batch_gc=True)
+    except KeyboardInterrupt as exc:  # held back by C code past the command's end
+        code = 143 if isinstance(exc, Terminated) else 130
     gc.freeze()
     # The command is over. The interpreter gives signals their default action back as it shuts
     # down, so a late Ctrl-C or stop (`sisa bench` asking a child that had the terminal's own

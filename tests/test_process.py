@@ -458,3 +458,33 @@ def test_a_piped_process_shows_progress_while_it_works(processed, tmp_path):
     assert err.endswith("sisa process: interrupted\n"), err
     assert not (tmp_path / "again").exists()
     assert not list(tmp_path.iterdir())
+
+
+def test_a_ctrl_c_that_c_code_loses_is_raised_again(processed, tmp_path, monkeypatch):
+    """A Ctrl-C that came while numpy formatted the EO table was lost in numpy's loop: the run
+    finished with exit 0 and its outputs in place (found by a loop of Ctrl-Cs at random
+    moments; CI saw the same run die of SIGINT at exit). Lost here on purpose, the stop must
+    still end the command with 130 and nothing kept."""
+    import os
+    import signal
+    import time
+
+    import postproc.georef.exterior as exterior
+    from sisa.cli import main
+
+    write_rows = exterior._write_rows
+    swallowed = []
+
+    def losing_the_interrupt(fh, columns):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)  # the handler runs here
+        except KeyboardInterrupt:
+            swallowed.append(True)  # as C code that clears the error did
+        write_rows(fh, columns)
+
+    monkeypatch.setattr(exterior, "_write_rows", losing_the_interrupt)
+    run, _, _ = processed
+    assert main(["process", str(run), "--out", str(tmp_path / "again")]) == 130
+    assert swallowed
+    assert not list(tmp_path.iterdir())

@@ -56,6 +56,7 @@ from postproc.products.igm import (
 )
 from postproc.products.resample import Resampling, fractional_offsets, interpolate
 from sisa.core.errors import InputError
+from sisa.core.interrupt import raise_if_stopped
 from sisa.core.outdir import create_partial
 
 F64 = npt.NDArray[np.float64]
@@ -757,6 +758,7 @@ class TiffWriter:
             self._wait()
             self._pool.shutdown()
             self._ds.close()
+            raise_if_stopped()  # never put in place after a stop, even one C code lost
         except BaseException:
             self.abort()
             raise

@@ -19,11 +19,6 @@ if TYPE_CHECKING:
 SubParsers = argparse._SubParsersAction  # the type argparse gives subcommand registries
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
-    command was writing is removed, not left half-written (sisa.cli raises it)."""
-
-
 class Formatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the examples in --help laid out as written."""
 

@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, NamedTuple
 from sisa.commands import (
     ERROR_FD_ENV,
     SubParsers,
-    Terminated,
     add_command,
     add_force_arg,
     add_scenario_args,
@@ -42,6 +41,7 @@ from sisa.commands.emulate import (
 )
 from sisa.commands.progress import progress
 from sisa.core.errors import InputError, SisaError
+from sisa.core.interrupt import Terminated, stop_answered
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -233,6 +233,7 @@ def _run(args: argparse.Namespace) -> int:
             rec_end, emu_end = stop_after_hold(emu, rec, DRAIN_S / args.speed)
         except KeyboardInterrupt as exc:
             stopped = exc
+            stop_answered()  # what was recorded is kept, as said below
             restore = _ignore_stops()  # a second Ctrl-C must not cut the stopping short
             try:  # the recorder first, its devices still there; then the emulator
                 rec_end = _stop(rec, ask=True) if rec is not None else None

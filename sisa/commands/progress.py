@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, TextIO
 
+from sisa.core.interrupt import raise_if_stopped
+
 if TYPE_CHECKING:
     from rich.progress import Progress as RichProgress
     from rich.progress import TaskID
@@ -107,6 +109,7 @@ class Progress:
              rate: bool = True) -> None:
         """A new step: its count, rate and time left start again (`rate` False: a step that
         does not advance at a rate, e.g. paused, shows neither)."""
+        _checkpoint()
         self._close_step()
         self.label, self.total, self.unit, self.completed, self.note = label, total, unit, 0.0, ""
         self.rate = rate
@@ -136,12 +139,14 @@ class Progress:
             self._bar.update(self._task, total=total)
 
     def advance(self, n: float = 1) -> None:
+        _checkpoint()
         self.completed += n
         if self._bar is not None and self._task is not None:
             self._bar.advance(self._task, n)
 
     def update(self, *, completed: float | None = None, note: str | None = None) -> None:
         """Set the count (not add to it), and/or a note shown after the figures."""
+        _checkpoint()
         if completed is not None:
             self.completed = completed
         if note is not None:
@@ -290,3 +295,11 @@ def progress(command: str, label: str = "", total: float | None = None, unit: st
         yield bar
     finally:
         bar.close()
+
+
+def _checkpoint() -> None:
+    """The work's progress is where a stop (Ctrl-C) that C code lost is raised again
+    (`sisa.core.interrupt`); in the main thread only, not in a thread following a real-time
+    loop."""
+    if threading.current_thread() is threading.main_thread():
+        raise_if_stopped()

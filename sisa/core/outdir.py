@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, TypeVar, overload
 
 from sisa.core.errors import InputError, RecorderError
+from sisa.core.interrupt import raise_if_stopped
 
 T = TypeVar("T")
 SCRATCH_NAME_CHARS = 200  # of the output's name in its scratch name (names: 255 bytes)
@@ -67,6 +68,7 @@ def write_whole(final: Path, data: bytes | str, encoding: str = "utf-8") -> None
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data.encode(encoding) if isinstance(data, str) else data)
+        raise_if_stopped()
         os.replace(tmp, final)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -124,6 +126,7 @@ def staged_output_dir(out: Path, *, force: bool = False) -> Iterator[Path]:
         raise InputError(f"cannot write in {parent}: {exc.strerror}") from None
     try:
         yield scratch
+        raise_if_stopped()  # never put in place after a stop, even one C code lost
     except RecorderError as exc:  # the log it names went with the scratch folder: say so
         shutil.rmtree(scratch, ignore_errors=True)
         said = str(exc).replace(str(scratch), str(out))  # the run as the user named it

@@ -1,0 +1,72 @@
+"""A stop asked of a batch command (Ctrl-C, SIGTERM) is never lost.
+
+Python turns SIGINT into KeyboardInterrupt in the main thread at its next bytecode, or inside a
+C extension that calls back into Python. Not every extension checks for it there: numpy's
+string formatting (`np.char.mod`, numpy 2.4) went on with the interrupt pending, and some later
+call cleared it. `sisa process`, interrupted while it wrote an EO table, then finished with
+exit 0 and its outputs in place, or died of SIGINT as it exited (exit -2). So the handlers here
+also note the stop, and every checkpoint raises it again: each progress step and advance, and
+the moment an output is renamed into place, which therefore never happens after a stop.
+
+The real-time commands (record, emulate, replay, bench) install their own handlers, which stop
+them at their next loop turn; these then do nothing."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
+    command was writing is removed, not left half-written."""
+
+
+_noted: list[type[KeyboardInterrupt]] = []  # the stop asked for, once one was
+
+
+def stop_noted() -> type[KeyboardInterrupt] | None:
+    """KeyboardInterrupt or Terminated once a stop was asked for (since `stops_noted` began)."""
+    return _noted[0] if _noted else None
+
+
+def raise_if_stopped() -> None:
+    """A checkpoint: raise the stop asked for, if one was (again, if C code lost it)."""
+    if _noted:
+        raise _noted[0]
+
+
+def stop_answered() -> None:
+    """The command has answered the stop itself (`sisa bench` keeps a run stopped early): the
+    checkpoints let its outputs through, until another stop."""
+    _noted.clear()
+
+
+def _on_sigint(_sig: int, _frame: FrameType | None) -> None:
+    _noted[:] = _noted or [KeyboardInterrupt]
+    raise KeyboardInterrupt
+
+
+def _on_sigterm(_sig: int, _frame: FrameType | None) -> None:
+    _noted[:] = _noted or [Terminated]
+    raise Terminated
+
+
+@contextmanager
+def stops_noted() -> Iterator[None]:
+    """Ctrl-C raises KeyboardInterrupt and SIGTERM Terminated inside the block, both noted for
+    the checkpoints; the handlers before are put back after. Outside the main thread (a test
+    calling a command from a thread) signals cannot be handled: nothing is installed."""
+    _noted.clear()
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, _on_sigint), signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])

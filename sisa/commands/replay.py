@@ -11,6 +11,7 @@ import gc
 import os
 import queue
 import select
+import shutil
 import signal
 import sys
 import threading
@@ -26,10 +27,12 @@ from sisa.commands import (
     FLIGHT_HELP,
     SubParsers,
     add_command,
+    add_scenario_args,
     check_endpoints_path,
     check_port,
     flight_parts,
     say_warning,
+    scenario_from_args,
     write_endpoints,
 )
 from sisa.core.errors import ConfigError, InputError
@@ -58,6 +61,7 @@ SLACK_NS = 4_000_000  # read ahead only when the next item is this far away
 DISPLAY_SLACK_NS = 8_000_000  # draw the display (~0.5 ms, more at times) only with this much
 LOOKAHEAD_NS = 1_000_000_000  # items read ahead of the play position
 LOOP_GAP_NS = 1_000_000_000  # log time between the passes of a loop: a quiet second
+LIVE_STOP_S = 180.0  # --live: the recorder's end, its incremental sync's last pass included
 REALTIME_PRIORITY = 10  # SCHED_FIFO priority with --realtime (1..99; kernel threads use 50)
 CLIENT_SETTLE_S = 0.2  # after the pulse client connects: its reader thread starts
 MIN_RATE = 0.001  # --rate: slower plays a minute of flight for more than 16 hours
@@ -99,6 +103,12 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--realtime", action="store_true",
                         help="ask for real-time scheduling (SCHED_FIFO, as `chrt -f 10`): "
                              "keeps the timing on a loaded machine; needs the privilege")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="desk review of the live view: a `sisa record --live` on these "
+                        "ports, recording to a scratch file removed at the end, serves the "
+                        "flight over the Foxglove WebSocket protocol as the crew saw it "
+                        "(docs/live.md); give the flight's own --preset or --scenario")
+    add_scenario_args(parser, "with --live, the recorder's settings from this")
     parser.set_defaults(handler=_run, real_time_loop=True)  # see sisa.cli.BATCH_GC_THRESHOLDS
 
 
@@ -172,16 +182,29 @@ def _run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(0.0005)  # the pacing thread gets the GIL back within 0.5 ms
     if args.realtime:
         _realtime()  # before the ports: their threads inherit it
+    if args.live is not None:
+        from sisa.wiring.live import listen_address
+
+        listen_address(args.live)  # a bad address is refused before anything starts
+        scenario_from_args(args)  # and a scenario that does not load
     ports = _ReplayPorts(target, args.pulses_port)
+    recorder: _LiveRecorder | None = None
     try:
         _announce(ports.endpoints(), paths, span, args)
         if args.endpoints is not None:
             write_endpoints(args.endpoints, ports.endpoints())
         player = _Player(ports, survey, span, paths, args)
+        if args.live is not None:
+            recorder = _LiveRecorder(args, ports.endpoints(), player.wires)
+            player.watch = recorder.check
         with _Keyboard(enabled=not args.once) as keys:
             player.keys = keys
             player.run()
+        if recorder is not None:
+            recorder.stop()
     finally:
+        if recorder is not None:
+            recorder.close()
         ports.close()
     print(player.summary(), flush=True)
     refused = ports.pulses.refused_note() if ports.pulses is not None else None
@@ -218,6 +241,54 @@ def _announce(endpoints: dict[str, str], paths: list[Path], span: _Span,
     only = "" if args.wires is None else f" ({', '.join(sorted(args.wires))} only)"
     print(f"Replaying {paths[0]}{parts}{only}: {span.seconds:.1f} s at {args.rate:g}x real time"
           f"{', looped' if args.loop else ''}{keys}; Ctrl-C to stop.", flush=True)
+
+
+class _LiveRecorder:
+    """`sisa record --live` on the replay's own ports, into a scratch folder: the live view of
+    the recorded flight as the crew saw it in the air (the same recorder, sync filter, server
+    and incremental sync, not a second copy of them)."""
+
+    def __init__(self, args: argparse.Namespace, endpoints: dict[str, str],
+                 wires: set[str]) -> None:
+        import subprocess
+        import tempfile
+
+        self.scratch = Path(tempfile.mkdtemp(prefix="sisa-replay-live-"))
+        devices = [arg for wire in ("gps", "scanner", "ins", "pulses") if wire in wires
+                   for arg in (f"--{wire}", endpoints[wire])]
+        scenario = (["--scenario", str(args.scenario)] if args.scenario is not None else
+                    ["--preset", args.preset])
+        self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+            [sys.executable, "-m", "sisa.cli", "record", "--quiet", *devices, *scenario,
+             "--live", args.live, "--out", str(self.scratch / "flight.mcap")],
+            stdout=subprocess.DEVNULL)  # stderr is ours: the server's address, its summary
+
+    def check(self) -> None:
+        """Between items: a recorder that ended by itself (a port in use) ends the replay."""
+        if self.proc is not None and (code := self.proc.poll()) is not None:
+            self.proc = None
+            raise InputError(f"--live: sisa record ended (exit {code}) before the replay did")
+
+    def stop(self) -> None:
+        """Ask the recorder to end (its incremental sync's last pass included) and wait."""
+        import subprocess
+
+        if self.proc is None:
+            return
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=LIVE_STOP_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.proc = None
+
+    def close(self) -> None:
+        if self.proc is not None:  # the replay failed or was stopped hard: no last pass
+            self.proc.kill()
+            self.proc.wait()
+            self.proc = None
+        shutil.rmtree(self.scratch, ignore_errors=True)
 
 
 # --- ports ----------------------------------------------------------------------------------------
@@ -490,6 +561,7 @@ class _Player:
         self.loop: LoopEdges = LoopEdges(span.until_ns - span.from_ns + LOOP_GAP_NS)
         self.display = _Display(span, GpsClock(survey.gps_pairs), args.quiet)
         self.keys: _Keyboard | None = None
+        self.watch: Callable[[], None] | None = None  # between items: raises to end the replay
         self.counts = _Counts()
         self.schedule_stats = ScheduleStats()
         self.stopped = False
@@ -505,6 +577,8 @@ class _Player:
         """Keys and signals, between items."""
         if self._stop_flag:
             raise _StopError
+        if self.watch is not None:
+            self.watch()
         keys = self.keys
         while keys is not None and not keys.commands.empty():
             if keys.commands.get() == "quit":

@@ -8,6 +8,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import json
+import os
 import re
 import shutil
 import socket
@@ -403,3 +404,57 @@ def test_a_port_in_use_is_one_line_and_exit_2_before_anything_is_recorded(tmp_pa
         f"sisa record: error: --live 127.0.0.1:{port}: cannot serve: FoxgloveError: Failed to "
         "bind port: Address already in use (os error 98)"]
     assert not (tmp_path / "f.mcap").exists()
+
+
+def test_replay_live_serves_a_recorded_flight_as_the_crew_saw_it(
+        live_run: dict[str, Any], live_client: list[str], tmp_path: Path) -> None:
+    """`sisa replay --live`: desk review of a recorded flight through the same recorder, live
+    server and incremental sync; the independent client gets every channel, every message
+    holding to its schema, and the scratch recording is gone at the end."""
+    flight, port = live_run["run"] / "flight.mcap", _free_port()
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "sisa.cli", "replay", str(flight), "--once", "--rate", "2",
+         "--live", str(port), "--preset", "bench"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "TMPDIR": str(tmp_path)})
+    client = subprocess.Popen([*live_client, f"ws://127.0.0.1:{port}", "240"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = replay.communicate(timeout=300)
+        summary, client_err = client.communicate(timeout=60)
+    finally:
+        replay.kill()
+        client.kill()
+    assert replay.returncode == 0, err
+    assert client.returncode == 0, client_err
+    assert f"live view on ws://127.0.0.1:{port}" in err, err
+    assert "replay done" in out, out
+    seen = json.loads(summary)
+    assert seen["errors"] == []
+    logged = {str(t) for t in scan_log(flight).topics}
+    assert logged | LIVE_TOPICS <= set(seen["channels"])
+    for topic in logged | LIVE_TOPICS:
+        channel = seen["channels"][topic]
+        assert channel["received"] > 0, topic
+        assert channel["invalid"] == 0, (topic, channel["firstProblem"])
+    # the flight played again: its INS records and frame headers recorded and served again
+    for topic in (Topic.INS_RECORD, Topic.SCANNER_HEADER):
+        recorded = read_columns(flight, topic)["log_time_ns"].size
+        assert seen["channels"][str(topic)]["received"] >= recorded - 2, topic
+    assert not list(tmp_path.iterdir())  # the scratch recording went with the replay
+
+
+def test_replay_live_on_a_port_in_use_ends_in_one_line_and_exit_2(
+        live_run: dict[str, Any], tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = subprocess.run(
+            [sys.executable, "-m", "sisa.cli", "replay", str(live_run["run"] / "flight.mcap"),
+             "--once", "--live", str(port)], capture_output=True, text=True, timeout=120,
+            env={**os.environ, "TMPDIR": str(tmp_path)})
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.endswith("sisa replay: error: --live: sisa record ended (exit 2) before "
+                                "the replay did\n"), done.stderr
+    assert not list(tmp_path.iterdir())

@@ -52,7 +52,8 @@ def main() -> None:
         ground = photos.ecef(np.asarray(lat), np.asarray(lon), rng.uniform(150, 900, 400))
         got = project_to_photo(eo, i, ground, cam.interior)
         ref = photos.project_truth(ground, want["centre"][i], want["r_ek"][i], cam.interior)
-        worst = max(worst, float(np.hypot(got[0] - ref[0], got[1] - ref[1]).max()))
+        imaged = np.isfinite(got[0])  # (NaN outside the circle through the frame's corners)
+        worst = max(worst, float(np.hypot(got[0] - ref[0], got[1] - ref[1])[imaged].max()))
     print(f"ground → photo against the collinearity: max {worst:.1e} px")
     iop = cam.interior
     corner_col = np.array([-0.5, iop.width_px - 0.5, iop.width_px - 0.5, -0.5])

@@ -151,6 +151,10 @@ def photo_eo(traj: Trajectory, labels: Sequence[str], t_photo_gps_ns: npt.ArrayL
     t = checked_times(t_photo_gps_ns)
     names = checked_labels(labels, t.size)
     pose = exterior_orientation(traj, t, mounting, time_delay_ns=time_delay_ns)
+    # a pose the trajectory calls valid but gives as NaN (a source that marks no gaps) has none
+    finite = (np.isfinite(pose.centre_ecef_m).all(axis=1)
+              & np.isfinite(pose.r_ecef_from_camera).all(axis=(1, 2)))
+    pose = pose._replace(valid=pose.valid & finite)
     ok = pose.valid
     if not ok.any():
         lo, hi = traj.span_ns

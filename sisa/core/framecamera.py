@@ -24,6 +24,8 @@ Undistorting (pixel → ray) is Newton's method on the two distortion equations 
 distorted point: quadratic convergence wherever the distortion map's Jacobian stays positive,
 which `FrameInterior` checks over the whole frame (corners included) when it is built, so every
 point of the frame converges to < 1e-14 in normalised units (< 1e-9 px) within a few steps.
+Projecting (ray → pixel) is limited to the circle through the frame's corners: farther out the
+polynomial is not checked and may fold a ray from outside the field back into the image.
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ R_NOMINAL_K_TO_B: Final = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0,
 NEWTON_STEPS: Final = 30  # bound of the undistortion; a point of a checked frame needs < 10
 NEWTON_TOLERANCE: Final = 1e-14  # normalised image units (× f_px for pixels)
 CHECK_GRID: Final = 41  # points per side of the grid the distortion is checked on
+FIELD_MARGIN: Final = 1e-9  # relative, on the field radius: the corners themselves are in
 
 # Distortion: a coefficient beyond these is a typo (fisheye lenses need another model).
 MAX_RADIAL: Final = 10.0
@@ -109,10 +112,18 @@ class FrameInterior(StrictModel):
         if not ok.all():
             raise ValueError("the distortion cannot be inverted over the whole frame "
                              "(Newton's method does not converge at some of its points)")
-        if not (_jacobian_det(x, y, self) > 0.0).all():
+        r = np.linspace(0.0, float(np.hypot(x, y).max()), 4 * CHECK_GRID * CHECK_GRID)
+        radial_slope = 1.0 + r * r * (3 * self.k1 + r * r * (5 * self.k2 + 7 * self.k3 * r * r))
+        if not ((_jacobian_det(x, y, self) > 0.0).all() and (radial_slope > 0.0).all()):
             raise ValueError("the distortion folds the frame over (its Jacobian is not "
                              "positive everywhere): two rays would meet in one pixel")
         return self
+
+    def field_radius(self) -> float:
+        """Largest undistorted normalised radius in the frame (at a corner): beyond it the
+        distortion polynomial is not checked, and may fold far rays back into the image."""
+        x, y, _ = _undistort(*_normalised(self, *self.corners_px()), self)
+        return float(np.hypot(x, y).max())
 
 
 class FrameMounting(StrictModel):
@@ -200,12 +211,16 @@ def image_to_camera(col: npt.ArrayLike, row: npt.ArrayLike, interior: FrameInter
 
 def camera_to_image(direction_k: npt.ArrayLike, interior: FrameInterior) -> tuple[F64, F64]:
     """(col, row) where camera-frame directions (..., 3), any length, are imaged, distorted;
-    NaN for a direction not in front of the camera (z_k ≥ 0)."""
+    NaN for a direction not in front of the camera (z_k ≥ 0) or outside the circle through
+    the frame's corners (`FrameInterior.field_radius`), where the distortion polynomial, not
+    checked, could fold a far ray back into the image."""
     d = np.asarray(direction_k, np.float64)
     front = d[..., 2] < 0.0
     with np.errstate(divide="ignore", invalid="ignore"):
         x = np.where(front, d[..., 0] / -d[..., 2], np.nan)
         y = np.where(front, d[..., 1] / d[..., 2], np.nan)
+    outside = np.hypot(x, y) > interior.field_radius() * (1.0 + FIELD_MARGIN)
+    x, y = np.where(outside, np.nan, x), np.where(outside, np.nan, y)
     xd, yd = distort(x, y, interior)
     c_col, c_row = interior.principal_point
     return c_col + interior.focal_px * xd, c_row + interior.focal_px * yd

@@ -255,7 +255,9 @@ def test_ground_points_project_into_the_photo_as_the_collinearity_says(
         col_t, row_t = project_truth(ground, want["centre"][i], want["r_ek"][i], iop)
         inside = (col_t > -0.5) & (col_t < iop.width_px) & (row_t > -0.5) & (row_t < iop.height_px)
         assert inside.sum() > 100  # most of them fall in the frame
-        worst = max(worst, float(np.hypot(col - col_t, row - row_t).max()))
+        assert np.isfinite(col[inside]).all()
+        imaged = np.isfinite(col)  # (NaN only outside the circle through the corners)
+        worst = max(worst, float(np.hypot(col - col_t, row - row_t)[imaged].max()))
     assert worst < 0.01
 
 
@@ -266,6 +268,20 @@ def test_photos_outside_the_trajectory_or_in_a_gap_are_invalid_not_guessed() -> 
     assert eo.valid.tolist() == [False, True, False, False, False]
     assert np.isnan(eo.omega_rad[~eo.valid]).all()
     assert np.isnan(eo.easting_m[~eo.valid]).all()
+
+
+def test_a_nan_pose_the_trajectory_calls_valid_is_skipped_not_exported() -> None:
+    @dataclass(frozen=True)
+    class Careless(Flight):
+        def pose_at(self, t_gps_ns: npt.ArrayLike) -> Pose:
+            pose = Flight().pose_at(t_gps_ns)
+            pose.ins_ecef_m[1] = np.nan  # and valid left True
+            return pose._replace(valid=np.isfinite(pose.r_ecef_from_body).all(axis=(1, 2)))
+
+    eo = photo_eo(Careless(), LABELS[:3], T_PHOTOS[:3], CAMERA.mounting)
+    assert eo.valid.tolist() == [True, False, True]
+    assert np.isnan(eo.easting_m[1])
+    assert np.isfinite(eo.easting_m[[0, 2]]).all()
 
 
 @pytest.mark.parametrize(("times", "labels", "match"), [

@@ -68,9 +68,9 @@ def test_ray_to_pixel_to_ray_round_trip(iop: FrameInterior) -> None:
 def test_the_distortion_really_is_strong() -> None:
     """The round trips above would be trivial without distortion: ~60 px at the corners."""
     ray = image_to_camera(*STRONG.corners_px(), STRONG)
-    ideal = FrameInterior(**{**STRONG.model_dump(), "k1": 0.0, "k2": 0.0, "k3": 0.0,
-                             "p1": 0.0, "p2": 0.0})
-    col, row = camera_to_image(ray, ideal)
+    c_col, c_row = STRONG.principal_point  # where the rays would be imaged without distortion:
+    col = c_col + STRONG.focal_px * ray[:, 0] / -ray[:, 2]
+    row = c_row + STRONG.focal_px * -ray[:, 1] / -ray[:, 2]
     shift = np.hypot(col - STRONG.corners_px()[0], row - STRONG.corners_px()[1])
     assert shift.min() > 50.0
     assert shift.max() < 70.0
@@ -107,6 +107,21 @@ def test_a_direction_behind_the_camera_has_no_image() -> None:
     col, row = camera_to_image(np.array([[0.1, 0.1, 1.0], [0.0, 0.0, 0.0]]), STRONG)
     assert np.isnan(col).all()
     assert np.isnan(row).all()
+
+
+def test_a_far_ray_is_not_folded_back_into_the_image() -> None:
+    """STRONG's polynomial turns back ~55° off-axis: a ray at r = 1.86 (62°, far outside the
+    field of r = 0.35) would land at x_d ≈ 0.16, inside the frame, were projection not limited
+    to the frame's field."""
+    x = 1.86
+    xd, _ = distort(x, 0.0, STRONG)
+    assert 0.1 < float(xd) < 0.2  # the fold is real
+    col, row = camera_to_image(np.array([[x, 0.0, -1.0], [0.25, 0.19, -1.0]]), STRONG)
+    assert np.isnan(col[0])
+    assert np.isnan(row[0])
+    assert np.isfinite(col[1])  # just inside the corner: imaged
+    corners = image_to_camera(*STRONG.corners_px(), STRONG)
+    assert np.isfinite(camera_to_image(corners, STRONG)[0]).all()
 
 
 def test_nominal_mounting_looks_down_with_the_image_top_forward() -> None:

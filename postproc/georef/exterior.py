@@ -8,20 +8,20 @@ r^e_PC = r^e_INS(t) + R^e_b(t)·a^b, and a camera-frame vector maps to ECEF thro
 R^e_c = R^e_b(t)·R^b_c, with t = t_line + time_delay_ns (the line's true exposure is that much
 later than its tag; calibration estimates the delay). Rotations are composed as full matrices,
 never as angles added to angles; roll, pitch and heading are only reported. A line without a
-time (t < 0) or without a navigation pose is invalid, and its values are NaN.
+time (t < 0) or without a navigation pose is invalid, and its values are NaN. The frame
+camera's photos take their pose from the same function (`postproc.georef.photos`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Final, NamedTuple, TextIO
+from typing import Final, NamedTuple, Protocol, TextIO
 
 import numpy as np
 import numpy.typing as npt
 
 from postproc.georef.navigation import Trajectory, ecef_to_geodetic, gps_times, r_ecef_from_ned
 from sisa.core.frames import euler_from_body_to_ned
-from sisa.core.sensor import Mounting
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -49,6 +49,20 @@ EO_HEADER: Final = (
     "roll_deg,pitch_deg,heading_deg,r11,r12,r13,r21,r22,r23,r31,r32,r33\n")
 
 
+class CameraMount(Protocol):
+    """What the pose of a camera needs of its mounting: the scanner's `Mounting` and the
+    frame camera's `FrameMounting` both give it."""
+
+    @property
+    def lever_arm_m(self) -> tuple[float, float, float]:
+        """INS centre → perspective centre, body frame, metres."""
+        ...
+
+    def boresight_matrix(self) -> F64:
+        """R_c^b: camera frame → body frame, nominal mounting included."""
+        ...
+
+
 class LineEo(NamedTuple):
     """Exterior orientation of N lines; invalid rows are NaN."""
 
@@ -64,7 +78,7 @@ class LineEo(NamedTuple):
     valid: Bool
 
 
-def exterior_orientation(traj: Trajectory, t_line_gps_ns: npt.ArrayLike, mounting: Mounting, *,
+def exterior_orientation(traj: Trajectory, t_line_gps_ns: npt.ArrayLike, mounting: CameraMount, *,
                          time_delay_ns: int = 0) -> LineEo:
     """Pose of every line's perspective centre and camera, sampled at t_line + time_delay_ns."""
     t_line = gps_times(t_line_gps_ns)

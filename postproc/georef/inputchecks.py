@@ -75,7 +75,9 @@ def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, fl
     return float(lon), float(lat)
 
 
-def _utm_epsg(lon: float, lat: float) -> int:
+def utm_epsg(lon: float, lat: float) -> int:
+    """EPSG code of the WGS 84 UTM zone at (lon, lat) degrees (the regular zones: no
+    Norway/Svalbard exceptions)."""
     zone = int((lon + 180) // 6) % 60 + 1
     return (32600 if lat >= 0 else 32700) + zone
 
@@ -96,7 +98,7 @@ def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:
     k = max(scales, key=lambda v: abs(v - 1))
     return (f"EPSG:{crs.to_epsg()} ({crs.name}): a metre of its grid is {1 / k:.3f} m on the "
             f"ground at the DEM's centre ({lat:.2f}°, {lon:.2f}°): cell sizes, GSDs and "
-            f"distances in the products are grid metres; UTM there (--crs {_utm_epsg(lon, lat)}) "
+            f"distances in the products are grid metres; UTM there (--crs {utm_epsg(lon, lat)}) "
             "keeps them within 0.1 %")
 
 
@@ -136,7 +138,7 @@ def central_meridian_note(crs: CRS, lon: float, lat: float) -> str | None:
                 f"grid {1 / scale:.3f} m on the ground")
     else:
         said = "where its grid is far from true"
-    return f"{head}, {said}: UTM there is --crs {_utm_epsg(lon, lat)}"
+    return f"{head}, {said}: UTM there is --crs {utm_epsg(lon, lat)}"
 
 
 def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
@@ -154,4 +156,4 @@ def datum_shift_note(crs: CRS, lon: float, lat: float) -> str | None:
     return (f"EPSG:{crs.to_epsg()} ({crs.name}): PROJ knows no shift from WGS 84 to {datum} "
             f"at the DEM's centre ({lat:.2f}°, {lon:.2f}°), far from where this CRS is used, "
             f"and takes the two datums for one: the products can be metres to hundreds of "
-            f"metres off; UTM there (--crs {_utm_epsg(lon, lat)}) needs no shift")
+            f"metres off; UTM there (--crs {utm_epsg(lon, lat)}) needs no shift")

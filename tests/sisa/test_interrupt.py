@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -89,3 +90,29 @@ def test_a_stop_the_command_answered_lets_its_outputs_through(tmp_path):
         with staged_output_dir(tmp_path / "out") as scratch:
             (scratch / "flight.mcap").write_text("kept")
     assert (tmp_path / "out" / "flight.mcap").is_file()
+
+
+def test_python_m_sisa_exits_130_after_a_ctrl_c_cpython_marked_unhandled(tmp_path):
+    """A Ctrl-C during an import that runs code through CPython's PyRun_* API is marked
+    unhandled by CPython though main() handles it: `python -m sisa.cli` said `interrupted`
+    and died of SIGINT (-2) at exit. Here the mark is made as CPython makes it (a KeyboardInterrupt
+    through PyRun_SimpleString), then a real Ctrl-C interrupts the command's start."""
+    import subprocess
+    import sys
+
+    (tmp_path / "marked.py").write_text(
+        "import ctypes, os, signal\n"
+        "import sisa.cli as cli\n"
+        "build = cli.build_parser\n"
+        "def interrupted():\n"
+        "    ctypes.pythonapi.PyRun_SimpleString(b'raise KeyboardInterrupt')  # the mark\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    return build()\n"
+        "cli.build_parser = interrupted\n"
+        "cli.run()\n")
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-m", "marked", "scenario", "show", "bench"],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": f"{tmp_path}:{root}"})
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.endswith("sisa scenario: interrupted\n"), done.stderr

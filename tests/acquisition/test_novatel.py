@@ -47,6 +47,12 @@ from sisa.core.errors import DecodeError, EncodeError
 from sisa.core.timescale import NS_PER_S, NS_PER_WEEK, parse_gps_datetime
 from sisa.wiring.acqconfig import acquisition_config
 from tests.acquisition.corpus import nmea_0183
+from tests.acquisition.damaged_streams import (
+    MessageKind,
+    check_decoding,
+    damaged_streams,
+    nmea_kind,
+)
 
 T0 = parse_gps_datetime("2026-06-15T09:00:00")
 SENTENCES = nmea_0183.CORPUS.read_bytes().splitlines(keepends=True)[::7]
@@ -206,43 +212,18 @@ LOGS = st.one_of(
 )
 
 
-@st.composite
-def damaged_mixed_streams(draw: st.DrawFn) -> tuple[bytes, list[bytes], int]:
-    """NMEA sentences and NovAtel logs, some damaged (a byte changed, or cut short); returns
-    (stream, the good raws in order, the damaged count)."""
-    pieces, good, damaged = [], [], 0
-    for _ in range(draw(st.integers(1, 25))):
-        raw = draw(st.sampled_from(SENTENCES)) if draw(st.booleans()) else encode_log(draw(LOGS))
-        damage = draw(st.sampled_from(["none", "none", "none", "flip", "cut"]))
-        if damage == "none":
-            pieces.append(raw)
-            good.append(raw)
-            continue
-        index = draw(st.integers(1, raw.index(b"*") - 1))
-        if damage == "flip":  # a printable byte of the body changed: the checksum fails
-            old = raw[index]
-            new = draw(st.sampled_from([b for b in range(0x20, 0x7F)
-                                        if b not in b"$#*" and b != old]))
-            pieces.append(raw[:index] + bytes([new]) + raw[index + 1:])
-        else:  # cut short: the rest never sent
-            pieces.append(raw[:index])
-        damaged += 1
-    tail = SENTENCES[0]  # so that a damaged message at the end is ended by a good one
-    return b"".join([*pieces, tail]), [*good, tail], damaged
+MIXED = damaged_streams([nmea_kind(SENTENCES, b"$#*"), MessageKind(
+    LOGS.map(encode_log), lambda raw: (1, raw.index(b"*") - 1),
+    st.integers(0x20, 0x7E).filter(lambda b: b not in b"$#*"))], tail=SENTENCES[0])
 
 
 @settings(max_examples=300, deadline=None)
-@given(damaged_mixed_streams(), st.integers(1, 64))
+@given(MIXED, st.integers(1, 64))
 def test_a_damaged_mixed_stream_loses_no_good_message_and_says_how_many_it_lost(
         case: tuple[bytes, list[bytes], int], chunk: int) -> None:
-    stream, good, damaged = case
     decoder = NmeaNovatelStreamDecoder()
-    out = [d for i in range(0, len(stream), chunk) for d in decoder.feed(stream[i:i + chunk])]
-    out += decoder.finish()
-    assert [d.raw for d in out] == good
-    assert (damaged > 0) <= decoder.stats.errors <= damaged
+    check_decoding(decoder, case, chunk)
     assert decoder.stats.errors == sum(decoder.stats.refused.values())
-    assert sum(len(d.raw) for d in out) + decoder.stats.bytes_skipped == len(stream)
 
 
 def test_a_log_after_a_sentence_cut_short_and_a_sentence_after_a_log_cut_short() -> None:

@@ -39,6 +39,12 @@ from sisa.core.errors import DecodeError, EncodeError
 from sisa.core.timescale import NS_PER_S, NS_PER_WEEK, parse_gps_datetime
 from sisa.wiring.acqconfig import acquisition_config
 from tests.acquisition.corpus import nmea_0183
+from tests.acquisition.damaged_streams import (
+    MessageKind,
+    check_decoding,
+    damaged_streams,
+    nmea_kind,
+)
 
 T0 = parse_gps_datetime("2026-06-15T09:00:00")
 SENTENCES = nmea_0183.CORPUS.read_bytes().splitlines(keepends=True)[::7]
@@ -146,51 +152,16 @@ def test_an_unknown_message_is_kept_and_counted() -> None:
 # --------------------------------------------------------------------------- mixed streams
 
 
-@st.composite
-def damaged_mixed_streams(draw: st.DrawFn) -> tuple[bytes, list[bytes], int]:
-    """NMEA sentences and UBX frames, some damaged (a byte changed, or cut short); returns
-    (stream, the good raws in order, the damaged count)."""
-    pieces, good, damaged = [], [], 0
-    for _ in range(draw(st.integers(1, 25))):
-        if draw(st.booleans()):
-            raw = draw(st.sampled_from(SENTENCES))
-            body_end = raw.index(b"*")
-        else:
-            raw = encode_ubx(draw(MESSAGES))
-            body_end = len(raw) - 2
-        damage = draw(st.sampled_from(["none", "none", "none", "flip", "cut"]))
-        if damage == "none":
-            pieces.append(raw)
-            good.append(raw)
-            continue
-        index = draw(st.integers(1 if raw[0] == 0x24 else 6, body_end - 1))
-        if damage == "flip":  # a byte of the body changed: the checksum no longer matches
-            old = raw[index]
-            bytes_ok = (st.integers(0x20, 0x7E).filter(lambda b: b not in b"$*")
-                        if raw[0] == 0x24 else st.integers(0, 255))
-            new = draw(bytes_ok.filter(lambda b, old=old: b != old))
-            pieces.append(raw[:index] + bytes([new]) + raw[index + 1:])
-        else:  # cut short: the rest never sent
-            pieces.append(raw[:index])
-        damaged += 1
-    tail = SENTENCES[0]  # so that a damaged message at the end is ended by a good one
-    return b"".join([*pieces, tail]), [*good, tail], damaged
+MIXED = damaged_streams([nmea_kind(SENTENCES), MessageKind(
+    MESSAGES.map(encode_ubx), lambda raw: (6, len(raw) - 3), st.integers(0, 255))],
+    tail=SENTENCES[0])
 
 
 @settings(max_examples=300, deadline=None)
-@given(damaged_mixed_streams(), st.integers(1, 64))
+@given(MIXED, st.integers(1, 64))
 def test_a_damaged_mixed_stream_loses_no_good_message_and_says_how_many_it_lost(
         case: tuple[bytes, list[bytes], int], chunk: int) -> None:
-    stream, good, damaged = case
-    decoder = NmeaUbxStreamDecoder()
-    out = [d for i in range(0, len(stream), chunk) for d in decoder.feed(stream[i:i + chunk])]
-    out += decoder.finish()
-    assert [d.raw for d in out] == good
-    # one error at least per bad stretch, never more than the damaged messages (two damaged
-    # ones count once when one lies inside the length a damaged frame claimed)
-    assert (damaged > 0) <= decoder.stats.errors <= damaged
-    kept = sum(len(d.raw) for d in out)
-    assert kept + decoder.stats.bytes_skipped == len(stream)
+    check_decoding(NmeaUbxStreamDecoder(), case, chunk)
 
 
 def test_a_ubx_frame_right_after_a_sentence_cut_short_is_decoded() -> None:

@@ -167,12 +167,7 @@ def test_sisa_record_survives_a_gps_that_goes_away_and_comes_back(tmp_path: Path
         proc.send_signal(signal.SIGINT)  # Ctrl-C
         stdout, stderr = proc.communicate(timeout=20)
     finally:
-        for feeder in feeders:
-            feeder.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        ins.unplug()
+        _end(proc, feeders, ins)
         with contextlib.suppress(FileNotFoundError):
             gps.unplug()
     assert proc.returncode == 0, stderr
@@ -324,6 +319,17 @@ def _record(*args: str) -> subprocess.Popen[str]:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
 
 
+def _end(proc: subprocess.Popen[str], feeders: list[Feeder], ins: InsDevice) -> None:
+    """A test's clean-up: the feeders stopped, the recorder killed if still running, the INS
+    adapter unplugged."""
+    for feeder in feeders:
+        feeder.stop()
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate()
+    ins.unplug()
+
+
 def _wait_recording(out: Path, gps: PlugPty) -> None:
     deadline = time.monotonic() + 20
     while not out.exists() and time.monotonic() < deadline:  # its ports are open by then
@@ -416,12 +422,7 @@ def test_a_recording_stopped_while_a_device_is_away_exits_3(tmp_path: Path) -> N
         err.wait_for("gps lost", 5)
         _stop(proc)
     finally:
-        for feeder in feeders:
-            feeder.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        ins.unplug()
+        _end(proc, feeders, ins)
     stderr = err.join()
     assert proc.returncode == 3, stderr
     assert "recording ended with gps away for " in stderr, stderr

@@ -24,6 +24,7 @@ from tests.acquisition.test_reconnect import (
     Feeder,
     InsDevice,
     StderrLines,
+    _end,
     _nmea_epoch,
     _record,
     _stop,
@@ -115,12 +116,7 @@ def test_sisa_record_does_not_take_another_programs_pty_for_the_gps(tmp_path: Pa
         time.sleep(0.5)
         _stop(proc)
     finally:
-        for feeder in feeders:
-            feeder.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
-        ins.unplug()
+        _end(proc, feeders, ins)
     stderr = err.join()
     assert proc.returncode == 3, stderr  # it ended with the GPS away
     assert "gps reconnected" not in stderr

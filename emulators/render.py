@@ -38,6 +38,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from emulators.scenario import ScannerSettings
 from emulators.terrain import Scene, Terrain, bilinear_at
 from emulators.trajectory import TrajectoryState
+from sisa.core.framecamera import FrameMounting
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import Mounting
 
@@ -400,9 +401,11 @@ def _intersect_kernel(cam: Any, rot: Any, look: Any, exps: Any, coef: Any, box: 
 # ---------------------------------------------------------------------------------------------
 
 
-def camera_pose_ecef(state: TrajectoryState, mounting: Mounting) -> tuple[F64, F64]:
+def camera_pose_ecef(state: TrajectoryState, mounting: Mounting | FrameMounting
+                     ) -> tuple[F64, F64]:
     """Perspective centres (N, 3) and camera → ECEF rotations (N, 3, 3) at the INS states:
-    r^e = r^e_INS + R_b^e·a^b, R_c^e = R_n^e·R_b^n·R_c^b."""
+    r^e = r^e_INS + R_b^e·a^b, R_c^e = R_n^e·R_b^n·R_c^b (the scanner's or the frame
+    camera's mounting: each gives its own R_c^b, nominal mounting included)."""
     r_ne = ned_to_ecef_matrix(np.radians(state.lat_deg), np.radians(state.lon_deg))
     r_be = r_ne @ body_to_ned_matrix(state.roll_rad, state.pitch_rad, state.heading_rad)
     centre = state.ecef_m + r_be @ np.asarray(mounting.lever_arm_m, float)

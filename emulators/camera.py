@@ -13,6 +13,10 @@ What it does, and why:
   exposure, a photo message on its own serial port (acquisition.camera_photo). A lost pulse
   (fault `lost_pulse_fraction`) leaves the photo and its message; a lost photo number (fault
   `lost_photo_number_fraction`) leaves the photo and its pulse without a message.
+- A photo is rendered (`PhotoRenderer`) from the TRUE pose at its true mid-exposure time:
+  each pixel centre's ray from `sisa.core.framecamera.image_to_camera`, cast onto the DEM by
+  the scanner's ray caster, the scene sampled there and turned into DN by the scanner's
+  detector model, in the scene's bands (no motion blur: the pose is the mid-exposure one).
 - Truth (table `photos`) holds every exposure: its photo number, true mid-exposure time, which
   of its outputs went out, and its true exterior orientation from the truth trajectory
   (perspective centre `r^e = r^e_INS + R_b^e·a^b`, `emulators.render.camera_pose_ecef`, the
@@ -22,6 +26,7 @@ What it does, and why:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -29,21 +34,31 @@ import numpy.typing as npt
 from pyproj import Geod, Transformer
 
 from acquisition.camera_photo import PhotoMessage, encode_photo
-from emulators.render import camera_pose_ecef
+from emulators.render import (
+    GroundIntersector,
+    SensorResponse,
+    camera_pose_ecef,
+    dn_from_radiance,
+)
 from emulators.scenario import CameraSettings
-from emulators.trajectory import FlownStrip, TruthTrajectory
+from emulators.terrain import Scene, Terrain
+from emulators.trajectory import FlownStrip, TrajectoryState, TruthTrajectory
 from emulators.truth import TruthTable
 from sisa.core.errors import ConfigError
+from sisa.core.framecamera import image_to_camera
+from sisa.core.outdir import write_whole
 from sisa.core.timescale import NS_PER_S, seconds_since
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 Bool = npt.NDArray[np.bool_]
+U16 = npt.NDArray[np.uint16]
 
 _WGS84: Final = Geod(ellps="WGS84")
 WGS84_A_M: Final = float(_WGS84.a)
 WGS84_E2: Final = float(_WGS84.es)  # first eccentricity squared
 TRACK_STEP_S: Final = 0.1  # the track is integrated at the truth spline's node spacing
+RENDER_ROWS: Final = 64  # image rows cast and shaded at a time (memory per photo stays flat)
 _ECEF_TO_GEODETIC: Final = Transformer.from_crs(4978, 4979, always_xy=True)
 
 
@@ -201,3 +216,76 @@ def photo_truth(camera: CameraSettings, shots: CameraShots,
                  roll_deg=deg(state.roll_rad).tolist(), pitch_deg=deg(state.pitch_rad).tolist(),
                  heading_deg=deg(state.heading_rad).tolist())
     return table
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering a photo
+# ---------------------------------------------------------------------------------------------
+
+
+class PhotoRenderer:
+    """Renders whole photos from true poses: pixel rays → DEM → scene → DN, (rows, bands, cols)
+    BIL order. Built once per terrain (the ray caster's set-up is the costly part)."""
+
+    def __init__(self, camera: CameraSettings, terrain: Terrain, scene: Scene,
+                 rng: np.random.Generator, response: SensorResponse | None = None,
+                 intersector: GroundIntersector | None = None) -> None:
+        self.camera = camera
+        self.scene = scene
+        self.rng = rng
+        self.response = response or SensorResponse()
+        self.intersector = intersector or GroundIntersector(terrain)
+        self.missed_rays = 0
+
+    def _rows_look(self, row0: int, row1: int) -> F64:
+        iop = self.camera.model
+        cols, rows = np.meshgrid(np.arange(iop.width_px, dtype=np.float64),
+                                 np.arange(row0, row1, dtype=np.float64))
+        return np.ascontiguousarray(image_to_camera(cols.ravel(), rows.ravel(), iop).T)
+
+    def ground(self, state: TrajectoryState) -> F64:
+        """Ground (E, N, h) of every pixel of the photo at this one state, (rows, cols, 3), in
+        the terrain's CRS; NaN where a ray misses the DEM."""
+        if state.t_gps_ns.size != 1:
+            raise ValueError("a photo has one pose: give the state at one instant")
+        iop = self.camera.model
+        centre, r_ke = camera_pose_ecef(state, self.camera.mounting)
+        out = np.empty((iop.height_px, iop.width_px, 3))
+        for row0 in range(0, iop.height_px, RENDER_ROWS):
+            row1 = min(row0 + RENDER_ROWS, iop.height_px)
+            hits = self.intersector.intersect_lines(centre, r_ke, self._rows_look(row0, row1))
+            out[row0:row1] = hits[0].reshape(row1 - row0, iop.width_px, 3)
+        return out
+
+    def render(self, state: TrajectoryState) -> U16:
+        """DN of the photo at this one state, shape (rows, bands, cols)."""
+        hits = self.ground(state)
+        rows, cols = hits.shape[:2]
+        self.missed_rays += int(np.isnan(hits[..., 0]).sum())
+        rad = self.scene.radiance(hits[..., 0].ravel(), hits[..., 1].ravel())
+        return dn_from_radiance(rad.reshape(-1, rows, cols), self.rng, self.response)
+
+
+def photo_envi_header(cols: int, rows: int, bands: int, photo_number: int,
+                      t_mid_gps_ns: int) -> str:
+    """ENVI header of a rendered photo (raw DN, uint16 little-endian, BIL)."""
+    fields = {
+        "description": f"{{SISA emulated frame camera, photo {photo_number}, mid-exposure "
+                       f"{t_mid_gps_ns} GPS ns: raw DN, row 0 at the top of the image, column "
+                       "0 at its left}",
+        "samples": str(cols), "lines": str(rows), "bands": str(bands), "header offset": "0",
+        "file type": "ENVI Standard", "data type": "12", "interleave": "bil",
+        "byte order": "0", "data ignore value": "0",
+        "sensor type": "frame camera (emulated)",
+    }
+    return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+
+
+def write_photo(folder: Path, dn: U16, photo_number: int, t_mid_gps_ns: int) -> Path:
+    """`folder/photo_NNNNNN.bil` and its `.hdr`, each written whole; returns the .bil path."""
+    rows, bands, cols = dn.shape
+    bil = Path(folder) / f"photo_{photo_number:06d}.bil"
+    write_whole(bil, np.ascontiguousarray(dn, dtype="<u2").tobytes())
+    write_whole(bil.with_suffix(".hdr"),
+                photo_envi_header(cols, rows, bands, photo_number, t_mid_gps_ns))
+    return bil

@@ -622,13 +622,19 @@ class LineRenderer:
         self.rays += lines * pixels
         self.missed_rays += int(np.isnan(hits[..., 0]).sum())
         rad = self.scene.radiance(hits[..., 0].ravel(), hits[..., 1].ravel())
-        noise = self.rng.standard_normal((lines, self.scanner.bands, pixels), dtype=np.float32)
-        out = np.empty((lines, self.scanner.bands, pixels), np.uint16)
-        r = self.response
-        _to_dn(rad.reshape(-1, lines, pixels), noise,
-               np.array([r.dark_dn, r.gain_dn, r.electrons_per_dn, r.read_noise_dn,
-                         r.full_scale_dn]), out)
-        return out
+        return dn_from_radiance(rad.reshape(-1, lines, pixels), self.rng, self.response)
+
+
+def dn_from_radiance(radiance: F32, rng: np.random.Generator, response: SensorResponse) -> U16:
+    """Radiance factors (bands, lines, pixels) → DN (lines, bands, pixels), BIL order, with the
+    detector's noise drawn from `rng` (NaN, a ray that missed: DN 0)."""
+    bands, lines, pixels = radiance.shape
+    noise = rng.standard_normal((lines, bands, pixels), dtype=np.float32)
+    out = np.empty((lines, bands, pixels), np.uint16)
+    r = response
+    _to_dn(radiance, noise, np.array([r.dark_dn, r.gain_dn, r.electrons_per_dn,
+                                      r.read_noise_dn, r.full_scale_dn]), out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,8 +7,8 @@ What it does, and why:
 - The camera is on only over the strips, as the scanner records (one window per strip of the
   truth trajectory). Within a window it is triggered by an intervalometer (a photo every
   `trigger_interval_s`, the first at the window's start) or by the flight management system
-  (a photo every `trigger_distance_m` of horizontal track flown, the first at the window's
-  start). Photo numbers run on across strips from `first_photo_number` and wrap.
+  (a photo every `trigger_distance_m` of ground track flown, on the ellipsoid, the first at
+  the window's start). Photo numbers run on across strips from `first_photo_number` and wrap.
 - Per exposure it sends a pulse at mid-exposure, and, `message_latency_ms` after the end of the
   exposure, a photo message on its own serial port (acquisition.camera_photo). A lost pulse
   (fault `lost_pulse_fraction`) leaves the photo and its message; a lost photo number (fault
@@ -101,8 +101,9 @@ def _distance_times(traj: TruthTrajectory, strip: FlownStrip, distance_m: float)
 def exposure_times(camera: CameraSettings, traj: TruthTrajectory) -> tuple[I64, I64]:
     """(mid-exposure GPS ns, strip index) of every photo the camera takes over the strips, in
     time order: a photo every `trigger_interval_s` from each strip window's start to its end,
-    or every `trigger_distance_m` of horizontal track flown. A pure function of the settings and
-    the trajectory (no random draw)."""
+    or every `trigger_distance_m` of ground track flown (`track_distance_m`). A pure function of
+    the settings and the trajectory (no random draw); the camera's trigger delay and its jitter
+    are not modelled: the mid-exposure time is the trigger time."""
     times: list[I64] = []
     strips: list[I64] = []
     for strip in traj.strips:

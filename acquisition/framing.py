@@ -144,8 +144,11 @@ class StreamDecoder(Generic[M]):
     """Messages from a byte stream cut anywhere, for the framers given (see the module)."""
 
     def __init__(self, framers: Sequence[Framer[M]],
-                 policy: ErrorPolicy = ErrorPolicy.COUNT) -> None:
+                 policy: ErrorPolicy = ErrorPolicy.COUNT, *, filler: bytes = FILLER) -> None:
+        """`filler`: bytes tolerated between messages (CR and LF, where a text protocol may
+        run; none on a port that carries only binary messages)."""
         self.policy = policy
+        self._filler = filler
         self.stats = DecodeStats()
         self._by_lead = {lead: framer for framer in framers for lead in framer.leads}
         if len(self._by_lead) != sum(len(framer.leads) for framer in framers):
@@ -223,7 +226,7 @@ class StreamDecoder(Generic[M]):
         offset = self._base + self._pos
         self._pos = end
         self.stats.bytes_skipped += len(junk)
-        has_junk = bool(junk.strip(FILLER))
+        has_junk = bool(junk.strip(self._filler)) if self._filler else bool(junk)
         already_counted = self._in_bad_run
         self._in_bad_run = already_counted or has_junk
         if has_junk and not already_counted:

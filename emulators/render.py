@@ -38,6 +38,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from emulators.scenario import ScannerSettings
 from emulators.terrain import Scene, Terrain, bilinear_at
 from emulators.trajectory import TrajectoryState
+from sisa.core.framecamera import FrameMounting
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import Mounting
 
@@ -400,9 +401,11 @@ def _intersect_kernel(cam: Any, rot: Any, look: Any, exps: Any, coef: Any, box: 
 # ---------------------------------------------------------------------------------------------
 
 
-def camera_pose_ecef(state: TrajectoryState, mounting: Mounting) -> tuple[F64, F64]:
+def camera_pose_ecef(state: TrajectoryState, mounting: Mounting | FrameMounting
+                     ) -> tuple[F64, F64]:
     """Perspective centres (N, 3) and camera → ECEF rotations (N, 3, 3) at the INS states:
-    r^e = r^e_INS + R_b^e·a^b, R_c^e = R_n^e·R_b^n·R_c^b."""
+    r^e = r^e_INS + R_b^e·a^b, R_c^e = R_n^e·R_b^n·R_c^b (the scanner's or the frame
+    camera's mounting: each gives its own R_c^b, nominal mounting included)."""
     r_ne = ned_to_ecef_matrix(np.radians(state.lat_deg), np.radians(state.lon_deg))
     r_be = r_ne @ body_to_ned_matrix(state.roll_rad, state.pitch_rad, state.heading_rad)
     centre = state.ecef_m + r_be @ np.asarray(mounting.lever_arm_m, float)
@@ -619,13 +622,19 @@ class LineRenderer:
         self.rays += lines * pixels
         self.missed_rays += int(np.isnan(hits[..., 0]).sum())
         rad = self.scene.radiance(hits[..., 0].ravel(), hits[..., 1].ravel())
-        noise = self.rng.standard_normal((lines, self.scanner.bands, pixels), dtype=np.float32)
-        out = np.empty((lines, self.scanner.bands, pixels), np.uint16)
-        r = self.response
-        _to_dn(rad.reshape(-1, lines, pixels), noise,
-               np.array([r.dark_dn, r.gain_dn, r.electrons_per_dn, r.read_noise_dn,
-                         r.full_scale_dn]), out)
-        return out
+        return dn_from_radiance(rad.reshape(-1, lines, pixels), self.rng, self.response)
+
+
+def dn_from_radiance(radiance: F32, rng: np.random.Generator, response: SensorResponse) -> U16:
+    """Radiance factors (bands, lines, pixels) → DN (lines, bands, pixels), BIL order, with the
+    detector's noise drawn from `rng` (NaN, a ray that missed: DN 0)."""
+    bands, lines, pixels = radiance.shape
+    noise = rng.standard_normal((lines, bands, pixels), dtype=np.float32)
+    out = np.empty((lines, bands, pixels), np.uint16)
+    r = response
+    _to_dn(radiance, noise, np.array([r.dark_dn, r.gain_dn, r.electrons_per_dn,
+                                      r.read_noise_dn, r.full_scale_dn]), out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from emulators.block import STANDARD_GRAVITY_MPS2, block_extent_en_m, strip_line
 from recorder.settings import DEFAULT_HEADER_WINDOW_MS
 from sisa.core.bounded import read_settings_text, toml_loads
 from sisa.core.errors import ConfigError, one_line_text_problem, shown_value
+from sisa.core.framecamera import FrameInterior, FrameMounting
 from sisa.core.sensor import (
     Mounting,
     ScannerGeometry,
@@ -245,6 +246,58 @@ class ScannerSettings(ScannerGeometry):
         return self
 
 
+class CameraFaults(StrictModel):
+    """The frame camera's own faults, as rates; every one is written to the truth."""
+
+    lost_pulse_fraction: float = Field(
+        0.0, ge=0, le=1, description="exposures whose mid-exposure pulse never leaves the camera")
+    lost_photo_number_fraction: float = Field(
+        0.0, ge=0, le=1, description="exposures whose photo message is never sent")
+
+
+class CameraSettings(StrictModel):
+    """A digital frame camera beside the scanner (issue 37): its model, its mounting, when it
+    is triggered (only over the strips), and its wire timing (docs/frames.md, "Emulated
+    camera"). Optional: a scenario without `[camera]` has none."""
+
+    model: FrameInterior = Field(default_factory=FrameInterior)
+    mounting: FrameMounting = Field(default_factory=FrameMounting)
+    trigger_interval_s: float | None = Field(
+        None, gt=0, le=3600, description="a photo every this many seconds over each strip "
+        "(give this or trigger_distance_m)")
+    trigger_distance_m: float | None = Field(
+        None, gt=0, le=100_000, description="a photo every this many metres along track over "
+        "each strip (give this or trigger_interval_s)")
+    min_cycle_s: float = Field(
+        0.5, ge=0.05, le=60, description="the camera's shortest time between exposures; the "
+        "trigger may not ask for photos faster")
+    exposure_time_ms: float = Field(1.0, gt=0, le=1000, description="shutter open")
+    message_latency_ms: tuple[float, float] = Field(
+        (20.0, 40.0), description="exposure end → photo message on the wire: uniform between "
+        "these")
+    photo_counter_bits: int = Field(16, ge=8, le=32, description="photo number width (wraps)")
+    first_photo_number: int = Field(1, ge=0, le=2**32 - 1)
+    faults: CameraFaults = Field(default_factory=CameraFaults)
+
+    @model_validator(mode="after")
+    def _trigger_and_timing(self) -> CameraSettings:
+        if (self.trigger_interval_s is None) == (self.trigger_distance_m is None):
+            raise ValueError("give one of trigger_interval_s and trigger_distance_m")
+        if self.trigger_interval_s is not None and self.trigger_interval_s < self.min_cycle_s:
+            raise ValueError(f"trigger_interval_s = {self.trigger_interval_s:g} is shorter than "
+                             f"the camera's min_cycle_s = {self.min_cycle_s:g}")
+        if self.exposure_time_ms > 1000.0 * self.min_cycle_s:
+            raise ValueError(f"exposure_time_ms = {self.exposure_time_ms:g} must be ≤ "
+                             f"min_cycle_s = {self.min_cycle_s:g} s")
+        lo, hi = self.message_latency_ms
+        if not 0 <= lo <= hi <= 10_000:
+            raise ValueError(f"message_latency_ms = ({lo}, {hi}) needs 0 ≤ min ≤ max ≤ 10000")
+        if self.first_photo_number >= 1 << self.photo_counter_bits:
+            raise ValueError(f"first_photo_number = {self.first_photo_number} needs fewer than "
+                             f"photo_counter_bits = {self.photo_counter_bits} bits")
+        return self
+
+
 _AttitudeSigmaArcsec = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_SIGMA_ARCSEC)]
 _AttitudeDriftArcsecPerH = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_DRIFT_ARCSEC_PER_H)]
 
@@ -401,6 +454,8 @@ class Scenario(StrictModel):
     mounting: Mounting = Mounting()
     sisa: SisaSettings = SisaSettings()
     faults: FaultProfile = FaultProfile()
+    camera: CameraSettings | None = Field(
+        None, description="a frame camera beside the scanner; none unless this table is given")
 
     @model_validator(mode="after")
     def _all_finite_and_bounded(self) -> Scenario:
@@ -411,7 +466,22 @@ class Scenario(StrictModel):
         _check_gps_link(self)
         _check_flight_duration(self)
         _check_terrain_size(self)
+        _check_camera_cycle(self)
         return self
+
+
+def _check_camera_cycle(scn: Scenario) -> None:
+    """A trigger distance flown at the block's ground speed must not ask the camera for photos
+    faster than it can take them."""
+    cam = scn.camera
+    if cam is None or cam.trigger_distance_m is None:
+        return
+    interval_s = cam.trigger_distance_m / scn.block.ground_speed_mps
+    if interval_s < cam.min_cycle_s:
+        raise ValueError(
+            f"camera.trigger_distance_m: {cam.trigger_distance_m:g} m at "
+            f"{scn.block.ground_speed_kmh:g} km/h (block.ground_speed_kmh) is a photo every "
+            f"{interval_s:.3g} s, faster than camera.min_cycle_s = {cam.min_cycle_s:g} s")
 
 
 def turn_rate_deg_s(scn: Scenario) -> float:

@@ -1,4 +1,5 @@
-"""The three emulated devices of one scenario, wired together with the fault injector.
+"""The three emulated devices of one scenario, wired together with the fault injector (and,
+with a `[camera]` table, the frame camera's truth: its outputs are not wired yet).
 
 Each device draws from its own random stream derived from the scenario seed, so adding a device or
 a fault never changes what another device does.
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.pulses import Edge, PulseLine
+from emulators.camera import CameraShots, photo_truth, plan_shots
 from emulators.faults import SpuriousPulses, WireFaults, fault_table
 from emulators.gps import GpsReceiver
 from emulators.ins import InsEmulator
@@ -35,6 +37,7 @@ class Stream(IntEnum):
     SCANNER = 3
     WIRE = 4
     SPURIOUS = 5
+    CAMERA = 6
 
 
 class EmulatedSystem:
@@ -67,6 +70,12 @@ class EmulatedSystem:
                 self.traj.t_start_ns, self.traj.t_end_ns, self._rng(Stream.SPURIOUS),
                 self.faults, round(scn.faults.spurious_pps_near_second_ms * 1e6)))
         self.wire = WireFaults(scn.faults, self._rng(Stream.WIRE), self.faults)
+        # the frame camera (issue 37), truth only so far: its outputs reach no port yet
+        self.camera_shots: CameraShots | None = None
+        self._camera_truth: list[TruthTable] = []
+        if scn.camera is not None:
+            self.camera_shots = plan_shots(scn.camera, self.traj, self._rng(Stream.CAMERA))
+            self._camera_truth.append(photo_truth(scn.camera, self.camera_shots, self.traj))
 
     def _rng(self, stream: Stream) -> np.random.Generator:
         return np.random.default_rng([self.scn.seed, int(stream)])
@@ -83,7 +92,8 @@ class EmulatedSystem:
         return wrapped
 
     def truth_tables(self) -> list[TruthTable]:
-        return [*self.gps.tables, *self.ins.tables, *self.scanner.tables, self.faults]
+        return [*self.gps.tables, *self.ins.tables, *self.scanner.tables, *self._camera_truth,
+                self.faults]
 
     def write_truth(self, folder: Path) -> None:
         """Every truth table into `folder`, each whole or not at all. On a disk error (a full

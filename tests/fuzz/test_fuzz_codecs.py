@@ -1,5 +1,5 @@
 """Fuzzing the streaming decoders: NMEA/Ashtech, NovAtel ASCII logs (with NMEA on one port),
-scanner frame headers, pulse edges (bytes) and
+scanner frame headers, the frame camera's photo messages, pulse edges (bytes) and
 the INS record assembler (CAN frames).
 
 Seeds are valid streams made by the encoders the emulators use; they are then damaged (bits
@@ -22,6 +22,9 @@ import can
 import pytest
 from hypothesis import strategies as st
 
+from acquisition.camera_photo import MESSAGE_BYTES as PHOTO_BYTES
+from acquisition.camera_photo import SYNC as PHOTO_SYNC
+from acquisition.camera_photo import PhotoMessage, PhotoStreamDecoder, encode_photo
 from acquisition.codec import Decoded, DecodeStats, ErrorPolicy
 from acquisition.ins_can import (
     FRAME_BYTES,
@@ -106,6 +109,10 @@ HEADER_MESSAGES = st.lists(st.builds(
     st.integers(0, 2**32 - 1), st.integers(0, 2**32 - 1), st.sampled_from(ScannerMode),
     st.integers(0, 2**16 - 1), st.integers(1, 288)), min_size=1, max_size=MAX_MESSAGES)
 
+PHOTO_MESSAGES = st.lists(st.builds(
+    lambda *v: encode_photo(PhotoMessage(*v), photo_counter_bits=32),
+    st.integers(0, 2**32 - 1), st.integers(1, 1_000_000)), min_size=1, max_size=MAX_MESSAGES)
+
 EDGE_MESSAGES = st.lists(st.builds(
     lambda *v: encode_edge(Edge(*v)),
     st.sampled_from(PulseLine), st.integers(0, 2**32 - 1), st.integers(-(2**63), 2**63 - 1)),
@@ -149,11 +156,15 @@ SCANNER = ByteCodec(
     "scanner_header", HeaderStreamDecoder, HEADER_MESSAGES, lambda d: len(d._buf),
     HEADER_BYTES - 1, lambda d: d.flush(),
     (SYNC, SYNC + b"\x0d", SYNC[:1], b"\x0d", b"\xff\xff"), SYNC[:1])
+CAMERA = ByteCodec(
+    "camera_photo", PhotoStreamDecoder, PHOTO_MESSAGES, lambda d: d.buffered_bytes,
+    PHOTO_BYTES - 1, lambda d: d.finish(),
+    (PHOTO_SYNC, PHOTO_SYNC + b"\x08", PHOTO_SYNC[:1], b"\x08", b"\xff\xff"), PHOTO_SYNC[:1])
 PULSES = ByteCodec(
     "pulse_edges", EdgeStreamDecoder, EDGE_MESSAGES, lambda d: len(d._buf), EDGE_SIZE - 1,
     lambda d: None, (b"PL", b"PL\x01\x00", b"P", b"\x00" * 4), b"P",
     same_counts_any_chunking=False)
-BYTE_CODECS = (NMEA, NOVATEL, SCANNER, PULSES)
+BYTE_CODECS = (NMEA, NOVATEL, SCANNER, CAMERA, PULSES)
 
 
 @dataclass(frozen=True)
@@ -602,6 +613,7 @@ def test_a_worst_case_garbage_chunk_is_decoded_in_linear_time() -> None:
     for codec, fake in ((NMEA, b"$" * 65536), (NOVATEL, b"#" * 65536),
                         (NOVATEL, (b"#" + b"A" * (MAX_LOG_BYTES - 2)) * 16),
                         (SCANNER, (SYNC + b"\x0d") * 21845),
+                        (CAMERA, (PHOTO_SYNC + b"\x08") * 21845),
                         (PULSES, b"PL" * 32768)):
         start = time.perf_counter()
         got = feed_counting(codec, [fake], finish=True)

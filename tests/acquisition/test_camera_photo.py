@@ -7,7 +7,7 @@ from __future__ import annotations
 import itertools
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from acquisition.camera_photo import (
@@ -120,7 +120,7 @@ def test_first_photo_message_proves_the_port() -> None:
 def damaged_streams(draw: st.DrawFn) -> tuple[bytes, list[bytes], int]:
     """Photo messages, some damaged (a byte changed anywhere, sync included; or cut short);
     returns (stream, the good raws in order, the damaged count)."""
-    pieces, good, damaged = [], [], 0
+    pieces, good, damaged, cuts = [], [], 0, []
     for _ in range(draw(st.integers(1, 30))):
         raw = encode_photo(draw(MESSAGES), photo_counter_bits=32)
         damage = draw(st.sampled_from(["none", "none", "none", "flip", "cut"]))
@@ -133,10 +133,15 @@ def damaged_streams(draw: st.DrawFn) -> tuple[bytes, list[bytes], int]:
             new = draw(st.integers(0, 255).filter(lambda b, old=raw[index]: b != old))
             pieces.append(raw[:index] + bytes([new]) + raw[index + 1:])
         else:
+            cuts.append((sum(map(len, pieces)), raw))
             pieces.append(raw[:draw(st.integers(1, len(raw) - 1))])
         damaged += 1
     tail = encode_photo(PhotoMessage(0, 1))  # so that damage at the end is ended by a message
-    return b"".join([*pieces, tail]), [*good, tail], damaged
+    stream = b"".join([*pieces, tail])
+    # not damage: a message cut short whose lost bytes the next message begins with (its last
+    # byte 0xC5, the next one's sync) is whole again in the stream, and takes that byte
+    assume(all(stream[at:at + len(raw)] != raw for at, raw in cuts))
+    return stream, [*good, tail], damaged
 
 
 @settings(max_examples=400, deadline=None)
@@ -154,6 +159,20 @@ def test_a_damaged_stream_loses_no_good_message_and_counts_every_damaged_one(
     assert sum(decoder.stats.refused.values()) == decoder.stats.errors
     assert sum(len(d.raw) for d in out) + decoder.stats.bytes_skipped == len(stream)
 
+
+
+def test_a_message_cut_by_its_last_byte_before_the_next_sync_is_whole_again() -> None:
+    """Found by the property test above: a message ending in 0xC5, cut by that byte, is
+    completed by the next message's first sync byte into itself. The stream holds it whole,
+    so it is decoded; the next message, without its first byte, is lost and counted."""
+    whole = encode_photo(PhotoMessage(0xD6, 0x01A20E))
+    assert whole[-1] == SYNC[0]
+    after, tail = encode_photo(PhotoMessage(1, 2)), encode_photo(PhotoMessage(3, 4))
+    decoder = PhotoStreamDecoder()
+    out = decoder.feed(whole[:-1] + after + tail) + decoder.finish()
+    assert [d.raw for d in out] == [whole, tail]
+    assert decoder.stats.errors == 1
+    assert decoder.stats.bytes_skipped == len(after) - 1
 
 @given(st.lists(st.binary(max_size=40), max_size=20))
 def test_noise_never_raises_and_every_byte_is_accounted_for(chunks: list[bytes]) -> None:

@@ -62,22 +62,29 @@ class Pty:
                 os.close(fd)
 
 
+PTY_WAIT_S = 10.0  # for a pty number another process holds
+
+
 def _open_pty(name: str | None) -> tuple[int, int]:
     """A new pty pair; with `name`, the one the kernel numbers so (a number just freed is the
     lowest free one: the next to be given), or the test is skipped if another process took it."""
     if name is None:
         return pty.openpty()
-    held: list[int] = []
-    try:
-        for _ in range(64):
-            master, slave = pty.openpty()
-            if os.ttyname(slave) == name:
-                return master, slave
-            held += [master, slave]
-    finally:
-        for fd in held:
-            os.close(fd)
-    pytest.skip(f"{name} was taken by another process")
+    deadline = time.monotonic() + PTY_WAIT_S
+    while True:
+        held: list[int] = []
+        try:
+            for _ in range(64):
+                master, slave = pty.openpty()
+                if os.ttyname(slave) == name:
+                    return master, slave
+                held += [master, slave]
+        finally:
+            for fd in held:
+                os.close(fd)
+        if time.monotonic() > deadline:
+            pytest.skip(f"{name} was held by another process for {PTY_WAIT_S:g} s")
+        time.sleep(0.05)  # another test worker holds it for now: tests close their ptys soon
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ from typing import Any
 from acquisition.checksums import crc16_ccitt_false
 from acquisition.codec import ErrorKind, ErrorPolicy, RefusedError
 from acquisition.fields import Field, Layout, WireType
-from acquisition.framing import MORE, Cut, StreamDecoder, Verdict
+from acquisition.framing import MORE, Cut, StreamDecoder, Verdict, cut_at_sync
 from sisa.core.errors import EncodeError
 
 SYNC = b"\xc5\x5c"
@@ -94,11 +94,9 @@ def decode_photo(raw: bytes) -> PhotoMessage:
 def cut_photo(buffer: bytearray, start: int, at_end: bool) -> Cut:
     """A stream framer's verdict on buffer[start:], where buffer[start] is SYNC[0] (a message
     still short at the end of the stream is left to the stream's `unfinished`)."""
+    if (sync := cut_at_sync(buffer, start, SYNC)) is not None:
+        return sync
     have = len(buffer) - start
-    if have < len(SYNC):
-        return MORE
-    if buffer[start + 1] != SYNC[1]:
-        return Cut(Verdict.NOT_A_START, 1)
     if have < len(SYNC) + 1:
         return MORE
     if buffer[start + len(SYNC)] != BODY.size_bytes:

@@ -105,6 +105,19 @@ def cut_at_line_end(buffer: bytearray, start: int, at_end: bool, stop: re.Patter
             return Cut(Verdict.WHOLE, at + 1 - start)  # an LF after it is filler
         return MORE  # an LF may follow
     return at
+
+
+def cut_at_sync(buffer: bytearray, start: int, sync: bytes) -> Cut | None:
+    """The verdict on a binary message's two sync bytes, buffer[start] being sync[0]: MORE
+    while the second has not come, NOT_A_START when it is not sync[1]; None when both hold,
+    for the protocol to go on (a UBX frame, a camera photo message)."""
+    if len(buffer) - start < 2:
+        return MORE
+    if buffer[start + 1] != sync[1]:
+        return Cut(Verdict.NOT_A_START, 1)
+    return None
+
+
 # members as module names: an Enum class's attribute lookup is slow enough to show in a loop
 # that runs once per byte of garbage
 _MORE, _WHOLE, _DAMAGED = Verdict.MORE, Verdict.WHOLE, Verdict.DAMAGED

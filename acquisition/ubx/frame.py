@@ -21,7 +21,7 @@ from __future__ import annotations
 from enum import StrEnum
 
 from acquisition.codec import ErrorKind, RefusedError
-from acquisition.framing import MORE, Cut, Verdict
+from acquisition.framing import MORE, Cut, Verdict, cut_at_sync
 from sisa.core.errors import EncodeError
 
 SYNC = b"\xb5\x62"
@@ -76,11 +76,9 @@ def split_frame(raw: bytes) -> tuple[int, int, bytes]:
 def cut_frame(buffer: bytearray, start: int, at_end: bool) -> Cut:
     """A stream framer's verdict on buffer[start:], where buffer[start] is SYNC[0] (a frame
     still short at the end of the stream is left to the stream's `unfinished`)."""
+    if (sync := cut_at_sync(buffer, start, SYNC)) is not None:
+        return sync
     have = len(buffer) - start
-    if have < len(SYNC):
-        return MORE
-    if buffer[start + 1] != SYNC[1]:
-        return Cut(Verdict.NOT_A_START, 1)
     if have < HEADER_BYTES:
         return MORE
     length = int.from_bytes(buffer[start + LENGTH_AT:start + HEADER_BYTES], "little")

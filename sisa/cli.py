@@ -19,7 +19,15 @@ from typing import Final, NoReturn, TextIO
 from sisa import __version__
 from sisa.commands import say_error, warning_line
 from sisa.core.errors import InputError, SisaError
-from sisa.core.interrupt import Terminated, raise_if_stopped, stops_noted
+from sisa.core.interrupt import (
+    INTERRUPTED_EXIT,
+    STOPPED_EXITS,
+    TERMINATED_EXIT,
+    Terminated,
+    exit_code,
+    raise_if_stopped,
+    stops_noted,
+)
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -119,7 +127,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         named = next((a for a in (sys.argv[1:] if argv is None else argv)
                       if not a.startswith("-")), None)
         print(f"sisa{'' if named is None else ' ' + named}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED_EXIT
     args.command_line = list(sys.argv[1:] if argv is None else argv)  # as typed, for records
     handler: Handler | None = getattr(args, "handler", None)
     if handler is None:
@@ -132,12 +140,12 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         with stops_noted():
             _check_finite(args)
             code = handler(args)
-            if code not in (130, 143):  # a stop the command did not answer: C code lost it
+            if code not in STOPPED_EXITS:  # a stop the command did not answer: C code lost it
                 raise_if_stopped()
             return code
     except Terminated:
         print(f"sisa {args.command}: terminated", file=sys.stderr)
-        return 143
+        return TERMINATED_EXIT
     except SisaError as exc:
         say_error(f"sisa {args.command}: error: {_cut(str(exc))}")
         return 2
@@ -146,7 +154,7 @@ def main(argv: Sequence[str] | None = None, *, batch_gc: bool = False) -> int:
         return 0
     except KeyboardInterrupt:
         print(f"sisa {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED_EXIT
     finally:
         _command[0] = None
 
@@ -179,8 +187,8 @@ def run() -> None:
     try:
         code = main(batch_gc=True)
     except KeyboardInterrupt as exc:  # held back by C code past the command's end
-        code = 143 if isinstance(exc, Terminated) else 130
-    if code in (130, 143):
+        code = exit_code(exc)
+    if code in STOPPED_EXITS:
         _forget_handled_interrupt()
     gc.freeze()
     # The command is over. The interpreter gives signals their default action back as it shuts

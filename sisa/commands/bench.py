@@ -41,7 +41,7 @@ from sisa.commands.emulate import (
 )
 from sisa.commands.progress import progress
 from sisa.core.errors import InputError, SisaError
-from sisa.core.interrupt import Terminated, stop_answered
+from sisa.core.interrupt import Terminated, exit_code, stop_answered
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
@@ -294,7 +294,7 @@ def _run(args: argparse.Namespace) -> int:
     if stopped is not None:
         print(f"sisa bench: {'terminated' if isinstance(stopped, Terminated) else 'interrupted'}"
               f": the run so far is kept in {args.out}", file=sys.stderr)
-        return 143 if isinstance(stopped, Terminated) else 130
+        return exit_code(stopped)
     return 0
 
 

@@ -15,14 +15,25 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Final
 
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM (timeout, a batch scheduler, systemd): unwinds like Ctrl-C, so whatever a
     command was writing is removed, not left half-written."""
+
+
+INTERRUPTED_EXIT: Final = 130  # 128 + SIGINT, as a shell says a Ctrl-C
+TERMINATED_EXIT: Final = 143  # 128 + SIGTERM
+STOPPED_EXITS: Final = (INTERRUPTED_EXIT, TERMINATED_EXIT)
+
+
+def exit_code(stop: KeyboardInterrupt) -> int:
+    """A stopped command's exit code: 143 for SIGTERM, 130 for Ctrl-C."""
+    return TERMINATED_EXIT if isinstance(stop, Terminated) else INTERRUPTED_EXIT
 
 
 _noted: list[type[KeyboardInterrupt]] = []  # the stop asked for, once one was
@@ -45,14 +56,14 @@ def stop_answered() -> None:
     _noted.clear()
 
 
-def _on_sigint(_sig: int, _frame: FrameType | None) -> None:
-    _noted[:] = _noted or [KeyboardInterrupt]
-    raise KeyboardInterrupt
+def _noting(kind: type[KeyboardInterrupt]) -> Callable[[int, FrameType | None], None]:
+    """A signal handler that notes `kind` (the first stop asked for stays) and raises it."""
 
+    def handler(_sig: int, _frame: FrameType | None) -> None:
+        _noted[:] = _noted or [kind]
+        raise kind
 
-def _on_sigterm(_sig: int, _frame: FrameType | None) -> None:
-    _noted[:] = _noted or [Terminated]
-    raise Terminated
+    return handler
 
 
 @contextmanager
@@ -64,7 +75,8 @@ def stops_noted() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.signal(signal.SIGINT, _on_sigint), signal.signal(signal.SIGTERM, _on_sigterm)
+    before = (signal.signal(signal.SIGINT, _noting(KeyboardInterrupt)),
+              signal.signal(signal.SIGTERM, _noting(Terminated)))
     try:
         yield
     finally:

@@ -109,14 +109,15 @@ class Trajectory(Protocol):
 # --- geodesy (pyproj) ------------------------------------------------------------------------
 
 @cache
-def _transformer(src: int, dst: int) -> Transformer:
+def transformer(src: int, dst: int) -> Transformer:
+    """pyproj's transformer between two EPSG codes (x = longitude or easting), built once."""
     return Transformer.from_crs(src, dst, always_xy=True)
 
 
 def geodetic_to_ecef(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike,
                      height_m: npt.ArrayLike) -> F64:
     """WGS84 ECEF metres, shape (..., 3), of geodetic points (ellipsoidal heights)."""
-    x, y, z = _transformer(4979, 4978).transform(np.asarray(lon_deg, np.float64),
+    x, y, z = transformer(4979, 4978).transform(np.asarray(lon_deg, np.float64),
                                                  np.asarray(lat_deg, np.float64),
                                                  np.asarray(height_m, np.float64))
     return np.stack([np.asarray(x), np.asarray(y), np.asarray(z)], axis=-1)
@@ -125,7 +126,7 @@ def geodetic_to_ecef(lat_deg: npt.ArrayLike, lon_deg: npt.ArrayLike,
 def ecef_to_geodetic(ecef_m: npt.ArrayLike) -> tuple[F64, F64, F64]:
     """(lat_deg, lon_deg, height_m) of ECEF points, shape (..., 3)."""
     p = np.asarray(ecef_m, np.float64)
-    lon, lat, h = _transformer(4978, 4979).transform(p[..., 0], p[..., 1], p[..., 2])
+    lon, lat, h = transformer(4978, 4979).transform(p[..., 0], p[..., 1], p[..., 2])
     return np.asarray(lat), np.asarray(lon), np.asarray(h)
 
 

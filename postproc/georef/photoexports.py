@@ -16,6 +16,7 @@ not at all, and an existing one is refused unless `force`.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
@@ -46,40 +47,46 @@ def _angles_deg(eo: PhotoEo, i: int) -> list[str]:
             for a in (eo.omega_rad, eo.phi_rad, eo.kappa_rad)]
 
 
-def write_photo_csv(path: Path, eo: PhotoEo, sigma: PhotoSigma, *, geodetic: bool = False,
-                    force: bool = False) -> int:
-    """The reference CSV (columns CSV_MAP_COLUMNS, or CSV_GEODETIC_COLUMNS if `geodetic`);
+def _write_table(path: Path, eo: PhotoEo, first_line: str, separator: str,
+                 row: Callable[[int], list[str]], force: bool) -> int:
+    """`first_line`, then `row(i)` of every valid photo joined by `separator`, written whole;
     returns the photos written."""
     path = Path(path)
     refuse_existing(path, force=force)
     rows = _valid_rows(eo, str(path))
-    lines = [",".join(CSV_GEODETIC_COLUMNS if geodetic else CSV_MAP_COLUMNS)]
+    write_whole(path, "\n".join([first_line, *(separator.join(row(i)) for i in rows)]) + "\n")
+    return len(rows)
+
+
+def write_photo_csv(path: Path, eo: PhotoEo, sigma: PhotoSigma, *, geodetic: bool = False,
+                    force: bool = False) -> int:
+    """The reference CSV (columns CSV_MAP_COLUMNS, or CSV_GEODETIC_COLUMNS if `geodetic`);
+    returns the photos written."""
     acc = [METRE_FMT.format(sigma.horizontal_m), METRE_FMT.format(sigma.vertical_m),
            DEGREE_FMT.format(sigma.attitude_deg)]
-    for i in rows:
+
+    def row(i: int) -> list[str]:
         if geodetic:
             xy = [DEGREE_FMT.format(eo.pose.lat_deg[i]), DEGREE_FMT.format(eo.pose.lon_deg[i])]
         else:
             xy = [METRE_FMT.format(eo.easting_m[i]), METRE_FMT.format(eo.northing_m[i])]
-        lines.append(",".join([eo.labels[i], *xy, METRE_FMT.format(eo.pose.height_m[i]),
-                               *_angles_deg(eo, i), *acc]))
-    write_whole(path, "\n".join(lines) + "\n")
-    return len(rows)
+        return [eo.labels[i], *xy, METRE_FMT.format(eo.pose.height_m[i]), *_angles_deg(eo, i),
+                *acc]
+
+    head = ",".join(CSV_GEODETIC_COLUMNS if geodetic else CSV_MAP_COLUMNS)
+    return _write_table(path, eo, head, ",", row, force)
 
 
 def write_odm_geo(path: Path, eo: PhotoEo, sigma: PhotoSigma, *, force: bool = False) -> int:
     """OpenDroneMap's geo.txt in the map CRS; returns the photos written."""
-    path = Path(path)
-    refuse_existing(path, force=force)
-    rows = _valid_rows(eo, str(path))
-    lines = [f"EPSG:{eo.epsg}"]
-    for i in rows:
-        lines.append(" ".join([
-            eo.labels[i], METRE_FMT.format(eo.easting_m[i]), METRE_FMT.format(eo.northing_m[i]),
-            METRE_FMT.format(eo.pose.height_m[i]), *_angles_deg(eo, i),
-            METRE_FMT.format(sigma.horizontal_m), METRE_FMT.format(sigma.vertical_m)]))
-    write_whole(path, "\n".join(lines) + "\n")
-    return len(rows)
+
+    def row(i: int) -> list[str]:
+        return [eo.labels[i], METRE_FMT.format(eo.easting_m[i]),
+                METRE_FMT.format(eo.northing_m[i]), METRE_FMT.format(eo.pose.height_m[i]),
+                *_angles_deg(eo, i), METRE_FMT.format(sigma.horizontal_m),
+                METRE_FMT.format(sigma.vertical_m)]
+
+    return _write_table(path, eo, f"EPSG:{eo.epsg}", " ", row, force)
 
 
 def sidecar(eo: PhotoEo, i: int, sigma: PhotoSigma, camera: FrameCamera) -> dict[str, Any]:

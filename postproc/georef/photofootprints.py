@@ -18,12 +18,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from pyproj import Transformer
 
 from postproc.georef.dem import Dem
+from postproc.georef.navigation import transformer
 from postproc.georef.photos import PhotoEo
 from postproc.georef.raycast import intersect
-from postproc.products import write_footprints_geojson
+from postproc.products import signed_area, write_footprints_geojson
 from sisa.core.errors import InputError
 from sisa.core.framecamera import FrameInterior, image_to_camera
 from sisa.core.outdir import refuse_existing
@@ -56,9 +56,7 @@ def photo_corners(dem: Dem, eo: PhotoEo, interior: FrameInterior) -> PhotoCorner
 
 def _feature(label: str, t_gps_ns: int, lon: F64, lat: F64, h: F64) -> dict[str, Any]:
     ring = np.stack([lon, lat], axis=1)
-    x, y = ring[:, 0], ring[:, 1]
-    area2 = float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))  # shoelace, CCW > 0
-    if area2 < 0:
+    if signed_area(np.vstack([ring, ring[:1]])) < 0:  # RFC 7946: counter-clockwise
         ring = ring[::-1]
     coords = [[float(a), float(b)] for a, b in ring]
     return {"type": "Feature",
@@ -78,8 +76,8 @@ def write_photo_footprints(path: Path, dem: Dem, eo: PhotoEo, interior: FrameInt
     if rows.size == 0:
         raise InputError(f"{path}: no photo has all four corners on the DEM (or a pose); "
                          "nothing written")
-    to_geo = Transformer.from_crs(dem.epsg, 4326, always_xy=True)
-    lon, lat = to_geo.transform(corners.easting_m[rows], corners.northing_m[rows])
+    lon, lat = transformer(dem.epsg, 4326).transform(corners.easting_m[rows],
+                                                     corners.northing_m[rows])
     lon, lat = np.asarray(lon), np.asarray(lat)
     features = [_feature(eo.labels[i], int(eo.pose.t_gps_ns[i]), lon[k], lat[k],
                          corners.height_m[i]) for k, i in enumerate(rows.tolist())]

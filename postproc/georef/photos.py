@@ -27,17 +27,16 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from functools import cache
 from typing import Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import Field
-from pyproj import Proj, Transformer
+from pyproj import Proj
 
 from postproc.georef.exterior import CameraMount, LineEo, exterior_orientation
 from postproc.georef.inputchecks import utm_epsg
-from postproc.georef.navigation import Trajectory, gps_times
+from postproc.georef.navigation import Trajectory, gps_times, transformer
 from sisa.core.errors import InputError, shown_value
 from sisa.core.framecamera import FrameInterior, camera_to_image
 from sisa.core.frames import ned_to_ecef_matrix
@@ -112,11 +111,6 @@ def checked_times(t_photo_gps_ns: npt.ArrayLike) -> npt.NDArray[np.int64]:
     return t
 
 
-@cache
-def _to_map(epsg: int) -> Transformer:
-    return Transformer.from_crs(4326, epsg, always_xy=True)
-
-
 def grid_convergence_rad(epsg: int, lat_deg: F64, lon_deg: F64) -> F64:
     """γ of a projected CRS at geodetic points: the angle from true north clockwise to grid
     north (positive east of a northern UTM zone's central meridian)."""
@@ -166,7 +160,7 @@ def photo_eo(traj: Trajectory, labels: Sequence[str], t_photo_gps_ns: npt.ArrayL
     east, north, gamma = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
     r_mk = np.full((n, 3, 3), np.nan)
     lat, lon = pose.lat_deg[ok], pose.lon_deg[ok]
-    e, nn = _to_map(epsg).transform(lon, lat)
+    e, nn = transformer(4326, epsg).transform(lon, lat)
     east[ok], north[ok] = e, nn
     gamma[ok] = grid_convergence_rad(epsg, lat, lon)
     r_mk[ok] = r_map_from_ecef(lat, lon, gamma[ok]) @ pose.r_ecef_from_camera[ok]

@@ -6,7 +6,11 @@ in SISA is numba. Why two: docs/conventions.md, "Compiled loops". Other stages a
 use only the names below.
 """
 
-from postproc.products.footprints import footprint_feature, write_footprints_geojson
+from postproc.products.footprints import (
+    footprint_feature,
+    signed_area,
+    write_footprints_geojson,
+)
 from postproc.products.igm import (
     CutShortWarning,
     EnviRaster,
@@ -35,5 +39,5 @@ __all__ = [
     "Resampling", "RgbView",
     "SwathIndex", "common_lines", "footprint_feature", "igm_bounds", "igm_epsg",
     "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify", "read_rgb",
-    "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",
+    "signed_area", "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",
 ]

@@ -124,7 +124,9 @@ def simplify(points: F64, tolerance_m: float) -> F64:
     return points[keep]
 
 
-def _signed_area(ring: F64) -> float:
+def signed_area(ring: F64) -> float:
+    """Shoelace area of a closed ring (n + 1, 2), first point repeated last: > 0 when it runs
+    counter-clockwise (RFC 7946's exterior rings)."""
     x, y = ring[:, 0], ring[:, 1]
     return 0.5 * float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]))
 
@@ -143,7 +145,7 @@ def footprint_polygon(igm: IgmSource, *, tolerance_m: float = TOLERANCE_M) -> Fo
              simplify(np.concatenate(edges.right)[::-1], tolerance_m),
              simplify(edges.first_xy[::-1], tolerance_m)]
     ring = np.concatenate([s[:-1] for s in sides] + [sides[0][:1]])
-    if _signed_area(ring) < 0:
+    if signed_area(ring) < 0:
         ring = ring[::-1].copy()
     return Footprint(ring, edges.lines, edges.first, edges.last)
 
@@ -163,7 +165,7 @@ def footprint_feature(igm: IgmSource, epsg: int, *, properties: Mapping[str, Any
         lon, lat = to_geo.transform(fp.ring_m[:, 0], fp.ring_m[:, 1])
         lon = np.round(np.asarray(lon), COORD_DECIMALS)
         lat = np.round(np.asarray(lat), COORD_DECIMALS)
-        if _signed_area(np.stack([lon, lat], axis=1)) < 0:
+        if signed_area(np.stack([lon, lat], axis=1)) < 0:
             lon, lat = lon[::-1], lat[::-1]
         area, _ = Geod(ellps="WGS84").polygon_area_perimeter(lon[:-1], lat[:-1])
         props["area_m2"] = round(abs(float(area)), 1)

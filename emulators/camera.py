@@ -39,6 +39,7 @@ from emulators.render import (
     SensorResponse,
     camera_pose_ecef,
     dn_from_radiance,
+    raw_dn_envi_header,
 )
 from emulators.scenario import CameraSettings
 from emulators.terrain import Scene, Terrain
@@ -270,16 +271,11 @@ class PhotoRenderer:
 def photo_envi_header(cols: int, rows: int, bands: int, photo_number: int,
                       t_mid_gps_ns: int) -> str:
     """ENVI header of a rendered photo (raw DN, uint16 little-endian, BIL)."""
-    fields = {
-        "description": f"{{SISA emulated frame camera, photo {photo_number}, mid-exposure "
-                       f"{t_mid_gps_ns} GPS ns: raw DN, row 0 at the top of the image, column "
-                       "0 at its left}",
-        "samples": str(cols), "lines": str(rows), "bands": str(bands), "header offset": "0",
-        "file type": "ENVI Standard", "data type": "12", "interleave": "bil",
-        "byte order": "0", "data ignore value": "0",
-        "sensor type": "frame camera (emulated)",
-    }
-    return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+    return raw_dn_envi_header(
+        description=f"SISA emulated frame camera, photo {photo_number}, mid-exposure "
+                    f"{t_mid_gps_ns} GPS ns: raw DN, row 0 at the top of the image, column "
+                    "0 at its left",
+        samples=cols, lines=rows, bands=bands, sensor_type="frame camera (emulated)")
 
 
 def write_photo(folder: Path, dn: U16, photo_number: int, t_mid_gps_ns: int) -> Path:

@@ -642,6 +642,27 @@ def dn_from_radiance(radiance: F32, rng: np.random.Generator, response: SensorRe
 # ---------------------------------------------------------------------------------------------
 
 
+def raw_dn_envi_header(*, description: str, samples: int, lines: int, bands: int,
+                       sensor_type: str, extra: dict[str, str] | None = None) -> str:
+    """ENVI header of an emulated raw-DN BIL image (data type 12 = uint16, byte order 0 =
+    little-endian, DN 0 = no data: a ray that missed the DEM), then the `extra` fields."""
+    fields = {
+        "description": f"{{{description}}}",
+        "samples": str(samples),
+        "lines": str(lines),
+        "bands": str(bands),
+        "header offset": "0",
+        "file type": "ENVI Standard",
+        "data type": "12",
+        "interleave": "bil",
+        "byte order": "0",
+        "data ignore value": "0",
+        "sensor type": sensor_type,
+        **(extra or {}),
+    }
+    return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+
+
 def read_envi_header(hdr_path: str | Path) -> dict[str, str]:
     """Fields of an ENVI header as raw strings (braces stripped), lower-case keys."""
     text = Path(hdr_path).read_text(encoding="utf-8")

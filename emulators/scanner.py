@@ -36,7 +36,7 @@ import numpy.typing as npt
 
 from acquisition.pulses import Edge, PulseLine
 from acquisition.scanner_header import FrameHeader, ScannerMode, encode_header
-from emulators.render import LineRenderer
+from emulators.render import LineRenderer, raw_dn_envi_header
 from emulators.runtime import Device, Output, Port
 from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
@@ -244,30 +244,21 @@ def _reason(exc: OSError) -> str:
 
 
 def envi_header(pixels: int, lines: int, bands: int, segment: int, lines_csv: str) -> str:
-    """ENVI header of a raw-DN BIL segment (data type 12 = uint16, byte order 0 = little)."""
+    """ENVI header of a raw-DN BIL segment, with its bands' wavelengths."""
     centres = band_centres_nm(bands)
     fwhm = (WAVELENGTH_RANGE_NM[1] - WAVELENGTH_RANGE_NM[0]) / bands
-    fields = {
-        "description": f"{{SISA emulated pushbroom scanner (CASI-501 class), recording segment "
-                       f"{segment}: raw DN, one line per recorded frame, lines in recording "
-                       f"order; frame counter of every line in {lines_csv}}}",
-        "samples": str(pixels),
-        "lines": str(lines),
-        "bands": str(bands),
-        "header offset": "0",
-        "file type": "ENVI Standard",
-        "data type": "12",
-        "interleave": "bil",
-        "byte order": "0",
-        "data ignore value": "0",
-        "sensor type": "CASI-501 class (emulated)",
-        "wavelength units": "Nanometers",
-        "wavelength": "{" + ", ".join(f"{c:.2f}" for c in centres) + "}",
-        "fwhm": "{" + ", ".join(f"{fwhm:.2f}" for _ in centres) + "}",
-        # names without the wavelength: GDAL appends it ("band 1 (495.00 Nanometers)")
-        "band names": "{" + ", ".join(f"band {i + 1}" for i in range(len(centres))) + "}",
-    }
-    return "ENVI\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
+    return raw_dn_envi_header(
+        description=f"SISA emulated pushbroom scanner (CASI-501 class), recording segment "
+                    f"{segment}: raw DN, one line per recorded frame, lines in recording "
+                    f"order; frame counter of every line in {lines_csv}",
+        samples=pixels, lines=lines, bands=bands, sensor_type="CASI-501 class (emulated)",
+        extra={
+            "wavelength units": "Nanometers",
+            "wavelength": "{" + ", ".join(f"{c:.2f}" for c in centres) + "}",
+            "fwhm": "{" + ", ".join(f"{fwhm:.2f}" for _ in centres) + "}",
+            # names without the wavelength: GDAL appends it ("band 1 (495.00 Nanometers)")
+            "band names": "{" + ", ".join(f"band {i + 1}" for i in range(len(centres))) + "}",
+        })
 
 
 def _lines_csv_doc(bil_name: str, frame_counter_bits: int) -> str:

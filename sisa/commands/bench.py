@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 from sisa.commands import (
     ERROR_FD_ENV,
@@ -31,6 +31,7 @@ from sisa.commands import (
     say_warning,
     scenario_from_args,
 )
+from sisa.commands.children import Ended, stop_child
 from sisa.commands.emulate import (
     HELD_FAILED_LINE,
     HELD_LINE,
@@ -100,16 +101,6 @@ def wait_for_endpoints(path: Path, proc: subprocess.Popen[str],
                             f"sisa emulate exited early with code {proc.returncode}")
         time.sleep(0.05)
     raise SisaError("sisa emulate did not announce its ports in time")
-
-
-class Ended(NamedTuple):
-    """A child process that has ended: its exit code, what it last wrote to its pipes, and
-    its error line (without its `sisa CMD: error: `), if it said one."""
-
-    code: int
-    stdout: str
-    stderr: str
-    error: str = ""
 
 
 class ErrorLine:
@@ -236,15 +227,15 @@ def _run(args: argparse.Namespace) -> int:
             stop_answered()  # what was recorded is kept, as said below
             restore = _ignore_stops()  # a second Ctrl-C must not cut the stopping short
             try:  # the recorder first, its devices still there; then the emulator
-                rec_end = _stop(rec, ask=True) if rec is not None else None
-                emu_end = _stop(emu, ask=True) if emu is not None else None
+                rec_end = stop_child(rec, ask=True) if rec is not None else None
+                emu_end = stop_child(emu, ask=True) if emu is not None else None
             finally:
                 restore()
         finally:  # both have ended by now, unless something went wrong: then ask them
             if rec is not None:
-                _stop(rec, ask=True)
+                stop_child(rec, ask=True)
             if emu is not None:
-                _stop(emu, ask=True)
+                stop_child(emu, ask=True)
 
         def shown(text: str) -> str:  # the run's files where they are kept
             return text.replace(str(run / "emulator"), str(args.out)).replace(str(run),
@@ -403,22 +394,5 @@ def stop_after_hold(emu: subprocess.Popen[str], rec: subprocess.Popen[str], drai
     if any(line.rstrip("\n") in (HELD_LINE, HELD_FAILED_LINE) for line in emu.stdout):
         held.set()
         time.sleep(drain_s)
-        return _stop(rec, ask=True), _stop(emu, ask=True)
-    return _stop(rec, ask=True), _stop(emu)
-
-
-def _stop(proc: subprocess.Popen[str], grace_s: float = 15.0, *, ask: bool = False) -> Ended:
-    """Wait for a process that should end by itself (with `ask`, at once: ask it with SIGTERM,
-    which a child still starting dies of silently and a running one takes as a stop), then
-    ask it, then insist; with what it wrote to its pipes from then on."""
-    if not ask:
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            out, err = proc.communicate(timeout=grace_s)
-            return Ended(proc.returncode, out or "", err or "")
-    proc.send_signal(signal.SIGTERM)
-    try:
-        out, err = proc.communicate(timeout=grace_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, err = proc.communicate()
-    return Ended(proc.returncode, out or "", err or "")
+        return stop_child(rec, ask=True), stop_child(emu, ask=True)
+    return stop_child(rec, ask=True), stop_child(emu)

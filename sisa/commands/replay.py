@@ -62,6 +62,7 @@ DISPLAY_SLACK_NS = 8_000_000  # draw the display (~0.5 ms, more at times) only w
 LOOKAHEAD_NS = 1_000_000_000  # items read ahead of the play position
 LOOP_GAP_NS = 1_000_000_000  # log time between the passes of a loop: a quiet second
 LIVE_STOP_S = 180.0  # --live: the recorder's end, its incremental sync's last pass included
+LIVE_CHECK_S = 0.5  # --live: how often the replay looks whether its recorder still runs
 REALTIME_PRIORITY = 10  # SCHED_FIFO priority with --realtime (1..99; kernel threads use 50)
 CLIENT_SETTLE_S = 0.2  # after the pulse client connects: its reader thread starts
 MIN_RATE = 0.001  # --rate: slower plays a minute of flight for more than 16 hours
@@ -258,30 +259,30 @@ class _LiveRecorder:
                    for arg in (f"--{wire}", endpoints[wire])]
         scenario = (["--scenario", str(args.scenario)] if args.scenario is not None else
                     ["--preset", args.preset])
-        self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+        self.proc: subprocess.Popen[str] | None = subprocess.Popen(
             [sys.executable, "-m", "sisa.cli", "record", "--quiet", *devices, *scenario,
              "--live", args.live, "--out", str(self.scratch / "flight.mcap")],
-            stdout=subprocess.DEVNULL)  # stderr is ours: the server's address, its summary
+            stdout=subprocess.DEVNULL, text=True)  # stderr is ours: the address, the summary
+        self._next_check_s = 0.0
 
     def check(self) -> None:
-        """Between items: a recorder that ended by itself (a port in use) ends the replay."""
-        if self.proc is not None and (code := self.proc.poll()) is not None:
+        """Between items, at most every LIVE_CHECK_S: a recorder that ended by itself (a port
+        in use) ends the replay."""
+        now = time.monotonic()
+        if self.proc is None or now < self._next_check_s:
+            return
+        self._next_check_s = now + LIVE_CHECK_S
+        if (code := self.proc.poll()) is not None:
             self.proc = None
             raise InputError(f"--live: sisa record ended (exit {code}) before the replay did")
 
     def stop(self) -> None:
         """Ask the recorder to end (its incremental sync's last pass included) and wait."""
-        import subprocess
+        from sisa.commands.children import stop_child
 
-        if self.proc is None:
-            return
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            self.proc.wait(timeout=LIVE_STOP_S)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        self.proc = None
+        if self.proc is not None:
+            stop_child(self.proc, LIVE_STOP_S, ask=True)
+            self.proc = None
 
     def close(self) -> None:
         if self.proc is not None:  # the replay failed or was stopped hard: no last pass

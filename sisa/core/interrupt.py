@@ -69,7 +69,8 @@ def _noting(kind: type[KeyboardInterrupt]) -> Callable[[int, FrameType | None], 
 @contextmanager
 def stops_noted() -> Iterator[None]:
     """Ctrl-C raises KeyboardInterrupt and SIGTERM Terminated inside the block, both noted for
-    the checkpoints; the handlers before are put back after. Outside the main thread (a test
+    the checkpoints; after it, the handlers before are put back and the stop is
+    forgotten (the block's caller has answered it). Outside the main thread (a test
     calling a command from a thread) signals cannot be handled: nothing is installed."""
     _noted.clear()
     if threading.current_thread() is not threading.main_thread():
@@ -82,3 +83,4 @@ def stops_noted() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, before[0])
         signal.signal(signal.SIGTERM, before[1])
+        _noted.clear()  # the block's stop ends with it: no checkpoint after it raises it

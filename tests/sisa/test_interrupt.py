@@ -116,3 +116,14 @@ def test_python_m_sisa_exits_130_after_a_ctrl_c_cpython_marked_unhandled(tmp_pat
                           env={**os.environ, "PYTHONPATH": f"{tmp_path}:{root}"})
     assert done.returncode == 130, done.stderr
     assert done.stderr.endswith("sisa scenario: interrupted\n"), done.stderr
+
+
+def test_a_stop_ends_with_its_block(tmp_path):
+    """A stop noted in one command's block must not stop what runs after it in the same
+    process (tests run commands in-process: the next one's outputs were refused)."""
+    with stops_noted():
+        _lose(signal.SIGINT)
+    raise_if_stopped()
+    with staged_output_dir(tmp_path / "out") as scratch:
+        (scratch / "product.txt").write_text("kept")
+    assert (tmp_path / "out" / "product.txt").is_file()

@@ -8,6 +8,7 @@ import base64
 import json
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,7 @@ def _columns(props: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[Column
 
 def _column_values(objs: list[dict[str, Any]], path: tuple[str, ...]) -> list[Any]:
     if len(path) == 1:
-        return [o[path[0]] for o in objs]
+        return list(map(itemgetter(path[0]), objs))
     values = []
     for o in objs:
         v: Any = o
@@ -59,7 +60,7 @@ def _column_values(objs: list[dict[str, Any]], path: tuple[str, ...]) -> list[An
 
 
 def _to_array(values: list[Any], dtype: Any, b64: bool) -> npt.NDArray[Any]:
-    if dtype is np.int64 and not all(type(v) is int for v in values):
+    if dtype is np.int64 and not set(map(type, values)) <= {int}:
         raise TypeError("a value of an integer field is not an integer")  # numpy would truncate
     if b64 or dtype is object:
         arr = np.empty(len(values), dtype=object)

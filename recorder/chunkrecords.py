@@ -103,3 +103,15 @@ def _message_columns(data: bytes, at: npt.NDArray[np.int64]) -> ChunkMessages:
         field(0, "<u2").astype(np.uint16), field(2, "<u4").astype(np.uint32),
         field(6, "<u8").astype(np.uint64), field(14, "<u8").astype(np.uint64),
         start, at + RECORD_HEAD + lengths)
+
+
+def check_message_index(body: bytes) -> None:
+    """ValueError unless `body` frames as a Message Index record (channel id u16, then a u32
+    byte count of (log time, offset) u64 pairs within the rest; fields a later MCAP version
+    appends may follow): what parsing it would check, at a thousandth of the cost (a long log
+    holds one per channel and chunk)."""
+    if len(body) < 6:
+        raise ValueError(f"a message index of {len(body)} bytes")
+    entries_bytes = int.from_bytes(body[2:6], "little")
+    if entries_bytes > len(body) - 6 or entries_bytes % 16:
+        raise ValueError(f"a message index's entries ({entries_bytes} bytes) do not fit it")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import base64
 import json
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from operator import itemgetter
 from typing import Any
 
@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 import orjson
 
+from recorder.chunkrecords import ChunkMessages
 from recorder.framing import Paths
 from recorder.messages import Topic
 from recorder.parts import MissingPartWarning
@@ -188,6 +189,18 @@ class _TopicBatches:
         return columns
 
 
+def _wanted_in(batches: Mapping[str, _TopicBatches], channels: Mapping[int, ChannelInfo],
+               chunk: ChunkMessages) -> Iterator[tuple[_TopicBatches, ChannelInfo,
+                                                       ChunkMessages]]:
+    """A chunk's messages on each wanted topic's channel, with the topic's batches."""
+    ids = chunk.channel_id
+    for channel_id in np.unique(ids).tolist():
+        channel = channels[channel_id]
+        batch = batches.get(channel.topic)
+        if batch is not None:
+            yield batch, channel, chunk.take(np.flatnonzero(ids == channel_id))
+
+
 def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None], *,
                 notes: list[str] | None = None) -> dict[str, dict[str, npt.NDArray[Any]]]:
     """Several topics as numpy columns in ONE streaming pass (each pass over a long log costs
@@ -208,14 +221,9 @@ def read_topics(path_or_paths: Paths, wanted: Mapping[str, Sequence[str] | None]
 
     try:  # an error names the file (the part being read) and the topic
         for channels, chunk in reader.raw_batches():
-            ids = chunk.channel_id
-            for channel_id in np.unique(ids).tolist():
-                channel = channels[channel_id]
-                batch = batches.get(channel.topic)
-                if batch is not None:
-                    topic = channel.topic
-                    on = chunk.take(np.flatnonzero(ids == channel_id))
-                    batch.add_many(channel, on.log_time.tolist(), on.payloads(), on_bad)
+            for batch, channel, on in _wanted_in(batches, channels, chunk):
+                topic = channel.topic
+                batch.add_many(channel, on.log_time.tolist(), on.payloads(), on_bad)
         out = {}
         for topic, batch in batches.items():
             out[topic] = batch.result(topic, on_bad)
@@ -257,6 +265,11 @@ class GrowingColumns:
         batch = self._batches.get(channel.topic)
         if batch is not None:
             batch.add(channel, log_time, data, self._on_bad)
+
+    def add_chunk(self, channels: Mapping[int, ChannelInfo], chunk: ChunkMessages) -> None:
+        """A chunk's messages (`recorder.follow.LogFollower.poll_batches`)."""
+        for batch, channel, on in _wanted_in(self._batches, channels, chunk):
+            batch.add_many(channel, on.log_time.tolist(), on.payloads(), self._on_bad)
 
     def columns(self) -> dict[str, dict[str, npt.NDArray[Any]]]:
         out = {}

@@ -26,7 +26,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import CRCValidationError
 
-from recorder.chunkrecords import ChunkMessages, split_chunk
+from recorder.chunkrecords import ChunkMessages, check_message_index, split_chunk
 from recorder.framing import (
     DECLARATION_MAX,
     KNOWN_OPCODES,
@@ -154,7 +154,7 @@ class FileScan:
                 continue
             try:
                 if head[0] == Opcode.MESSAGE_INDEX:  # nothing a pass uses: checked, not parsed
-                    _check_message_index(body)
+                    check_message_index(body)
                     record: object = None
                 else:
                     record = next(iter_records(head + body, self.limit, emit_chunks=True))
@@ -361,14 +361,3 @@ class FileScan:
         if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:  # (a parser's words may quote the
             self.fstats.problems.append(shown_text(text, 300))  # file: escaped, cut)
 
-
-def _check_message_index(body: bytes) -> None:
-    """ValueError unless `body` frames as a Message Index record (channel id u16, then a u32
-    byte count of (log time, offset) u64 pairs within the rest; fields a later MCAP version
-    appends may follow): what parsing it would check, at a thousandth of the cost (a long log
-    holds one per channel and chunk)."""
-    if len(body) < 6:
-        raise ValueError(f"a message index of {len(body)} bytes")
-    entries_bytes = int.from_bytes(body[2:6], "little")
-    if entries_bytes > len(body) - 6 or entries_bytes % 16:
-        raise ValueError(f"a message index's entries ({entries_bytes} bytes) do not fit it")

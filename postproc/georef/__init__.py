@@ -47,6 +47,7 @@ from postproc.georef.photoexports import (
 from postproc.georef.photofootprints import PhotoCorners, photo_corners, write_photo_footprints
 from postproc.georef.photoortho import PhotoGeo, PhotoOrthos, cast_photos, photo_orthos
 from postproc.georef.photos import PhotoEo, PhotoSigma, photo_eo, project_to_photo
+from postproc.georef.phototimes import PhotoTimes, photo_label, read_photo_times
 from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
 from postproc.georef.report import Provenance, write_report
 from postproc.georef.segmentproducts import segment_products
@@ -58,12 +59,13 @@ __all__ = [
     "CALIBRATED_SUFFIX", "CSV_GEODETIC_COLUMNS", "CSV_MAP_COLUMNS", "LEAP_SECONDS_RANGE",
     "MAX_GAP_LIMIT_S", "NAV_WANTED", "PLAUSIBLE_HEIGHTS_M", "AntennaFixes", "CastStats", "Dem",
     "GeorefJob", "GeorefOptions", "GeorefResult", "GroundPoints", "Handoff", "InsSamples",
-    "PhotoCorners", "PhotoEo", "PhotoGeo", "PhotoOrthos", "PhotoSigma", "Pose", "Provenance",
-    "SegmentResult", "SegmentSkip", "SensorModel", "Skipped", "Trajectory", "cast_photos",
-    "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "flight_summary",
+    "PhotoCorners", "PhotoEo", "PhotoGeo", "PhotoOrthos", "PhotoSigma", "PhotoTimes", "Pose",
+    "Provenance", "SegmentResult", "SegmentSkip", "SensorModel", "Skipped", "Trajectory",
+    "cast_photos", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "flight_summary",
     "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_handoff", "merged_wanted",
-    "nav_from_columns", "ortho_cell_m", "photo_corners", "photo_eo", "photo_orthos",
-    "project_to_photo", "reference_intersect", "registrations", "save_handoff", "segment_image",
-    "segment_products", "segment_raster", "segment_rasters", "write_footprints", "write_odm_geo",
-    "write_photo_csv", "write_photo_footprints", "write_photo_sidecars", "write_report",
+    "nav_from_columns", "ortho_cell_m", "photo_corners", "photo_eo", "photo_label", "photo_orthos",
+    "project_to_photo", "read_photo_times", "reference_intersect", "registrations", "save_handoff",
+    "segment_image", "segment_products", "segment_raster", "segment_rasters", "write_footprints",
+    "write_odm_geo", "write_photo_csv", "write_photo_footprints", "write_photo_sidecars",
+    "write_report",
 ]

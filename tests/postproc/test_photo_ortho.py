@@ -24,9 +24,9 @@ from emulators.camera import PhotoRenderer, exposure_times, write_photo
 from emulators.scenario import CameraSettings, Scenario, scenario_from_table
 from emulators.terrain import Scene, Terrain, ground_points
 from emulators.trajectory import TruthTrajectory
-from postproc.georef import Dem, PhotoOrthos, Pose, photo_eo, photo_orthos
+from postproc.georef import Dem, PhotoOrthos, photo_eo, photo_orthos
 from sisa.core.framecamera import FrameMounting
-from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.wiring.photogcp import TruthNavigation
 
 F64 = npt.NDArray[np.float64]
 
@@ -38,24 +38,6 @@ CAMERA: dict[str, Any] = {
     "mounting": {"lever_arm_m": [0.4, -0.2, 0.3], "boresight_arcsec": [300.0, -200.0, 600.0]}}
 PHOTOS = slice(10, 13)  # three consecutive photos of the first strip (~60 % forward overlap)
 SHIFTS = range(-2, 3)  # cells
-
-
-@dataclass(frozen=True)
-class TruthNavigation:
-    """The true trajectory as a post-processing Trajectory (the pose the EO samples)."""
-
-    traj: TruthTrajectory
-
-    @property
-    def span_ns(self) -> tuple[int, int]:
-        return self.traj.t_start_ns, self.traj.t_end_ns
-
-    def pose_at(self, t_gps_ns: npt.ArrayLike) -> Pose:
-        t = np.asarray(t_gps_ns, np.int64)
-        st = self.traj.state(t)
-        r_be = ned_to_ecef_matrix(np.radians(st.lat_deg), np.radians(st.lon_deg)) @ \
-            body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
-        return Pose(t, st.ecef_m, r_be, np.ones(t.size, np.bool_))
 
 
 @dataclass(frozen=True)

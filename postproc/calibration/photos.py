@@ -12,8 +12,10 @@ number, `line` its row and `pixel` its column (0-based, pixel centres, rows down
 timed by the photo times table; everything else is the scanner's: the same points (control,
 tie seen in two photos, check), the same rows (image, control, DEM, priors), the same
 Gauss–Newton with the points eliminated, the same data snooping and σ. Per-strip groups
-(`gps_strip`, `attitude`, `drift`) are per photo here. The navigation's stated accuracy is not
-modelled for photos (their σ leave the GPS error out, as the scanner's did without it).
+(`gps_strip`, `attitude`, `drift`) are per photo here. The trajectory's stated accuracy
+(`navigation`) becomes the scanner's Gauss–Markov model of the GPS error, one chain of knots
+over the photos' times: at 900 m a 3 cm GPS error turns a ray by 7″, which the σ of a few
+tens of photos must carry.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from postproc.calibration.adjust import Adjustment, CalibrationOptions, adjust
 from postproc.calibration.data import GroundPoints, ImageObservations
 from postproc.calibration.framemodel import FrameCameraModel
 from postproc.calibration.model import DELAY_GRID_MS, ObsGeometry
+from postproc.calibration.navigation import NavigationAccuracy, NavKnots, build_knots
 from postproc.calibration.params import Group, Layout, State, build_layout
 from postproc.calibration.problem import Problem
 from postproc.calibration.setup import (
@@ -60,6 +63,8 @@ class PhotoCalibrationInput:
     camera: FrameCamera  # the starting values (and everything not estimated)
     dem: Dem | Surface | None = None
     time_delay_ms: float = 0.0  # a photo's true exposure is this much after its time
+    # the trajectory's stated accuracy; None: σ leave the navigation's own error out
+    navigation: NavigationAccuracy | None = None
 
 
 @dataclass
@@ -79,11 +84,25 @@ class PhotoCalibrationResult:
     notes: list[str] = field(default_factory=list)
 
 
-def start_state(camera: FrameCamera, delay_ms: float, n_photos: int) -> State:
+def start_state(camera: FrameCamera, delay_ms: float, n_photos: int, n_knots: int = 0
+                ) -> State:
     """The camera file's boresight and delay; self-calibration and every correction zero."""
     z = np.zeros((n_photos, 3))
     return State(np.array(camera.mounting.boresight_arcsec, np.float64), np.zeros(3),
-                 float(delay_ms), np.zeros(3), np.zeros(3), z, z.copy(), z.copy())
+                 float(delay_ms), np.zeros(3), np.zeros(3), z, z.copy(), z.copy(),
+                 np.zeros((n_knots, 3)))
+
+
+def _knots(inp: PhotoCalibrationInput, t_ns: npt.NDArray[np.int64], notes: Notes
+           ) -> NavKnots | None:
+    """The navigation model's knots over the photos' times: one chain of the stated accuracy
+    from the first photo to the last (the photos are one 'segment' to it: the GPS error of
+    photos seconds apart is one process, whichever strip they are on)."""
+    if inp.navigation is None or not inp.navigation.modelled or t_ns.size == 0:
+        notes.add(1, "trajectory without a stated accuracy: σ leave out the navigation's own "
+                  "error (give --nav-sigma-m)")
+        return None
+    return build_knots({0: inp.navigation}, {0: (int(t_ns.min()), int(t_ns.max()))})
 
 
 def _usable(inp: PhotoCalibrationInput, notes: Notes) -> ImageObservations:
@@ -120,13 +139,18 @@ def build_photos(inp: PhotoCalibrationInput, opt: CalibrationOptions) -> Adjustm
     adj_pts, _ = split_points(obs, inp.points, notes, opt.check_heights)
     a_obs = obs.select(np.isin(obs.point_id, adj_pts.ids))
     photos = sorted(set(a_obs.segment.tolist()))
+    t_obs = inp.times.time_of(a_obs.segment)
+    knots = _knots(inp, t_obs, notes)
+    n_knots = 0 if knots is None else knots.count
     layout = build_layout(opt.groups, photos, start_state(inp.camera, inp.time_delay_ms,
-                                                          len(photos)), opt.priors)
+                                                          len(photos), n_knots),
+                          opt.priors, knots)
     origin = np.mean(adj_pts.ecef_m[adj_pts.kind == "control"], axis=0)
     n = len(a_obs)
+    nav = None if knots is None else knots.weights(np.zeros(n, np.int64), t_obs)
     geom = ObsGeometry(adj_pts.index_of(a_obs.point_id, "observations"),
-                       layout.seg_index(a_obs.segment), inp.times.time_of(a_obs.segment),
-                       np.zeros(n), np.ones(n), a_obs.line, a_obs.pixel, a_obs.sigma_px)
+                       layout.seg_index(a_obs.segment), t_obs, np.zeros(n), np.ones(n),
+                       a_obs.line, a_obs.pixel, a_obs.sigma_px, nav)
     model = FrameCameraModel(inp.traj, inp.camera, geom, origin,
                              DELAY_GRID_MS if Group.DELAY in opt.groups else None)
     surface: Surface | None = (None if inp.dem is None else DemSurface(inp.dem)
@@ -163,7 +187,9 @@ def calibrate_photos(inp: PhotoCalibrationInput, opt: CalibrationOptions | None 
     adj = build_photos(inp, opt)
     sol, blunders = adjust(adj, opt)
     pb = adj.problem
-    sigma0, cov, _ = posterior(sol)
+    sigma0, cov_all, _ = posterior(sol)
+    keep = pb.layout.reported
+    cov = cov_all[np.ix_(keep, keep)]
     sig = np.sqrt(np.diag(cov))
     corr = cov / np.outer(sig, sig) if sig.size else cov
     st = pb.layout.unpack(sol.theta)
@@ -177,7 +203,8 @@ def calibrate_photos(inp: PhotoCalibrationInput, opt: CalibrationOptions | None 
               "tie_points": int(((pb.points.kind == "tie") & pb.point_active).sum()),
               "parameters": int(sol.theta.size), "rows": int(sol.lin.r.size)}
     dof = int(sol.lin.r.size - sol.theta.size - 3 * int(pb.point_active.sum()))
-    return PhotoCalibrationResult(pb.layout, sol.theta, st, sig, corr, sigma0, dof,
+    return PhotoCalibrationResult(pb.layout.only_reported(), sol.theta[keep], st, sig, corr,
+                                  sigma0, dof,
                                   sol.iterations, calibrated_camera(inp.camera, st),
                                   (float(rms[0]), float(rms[1])), counts, blunders,
                                   adj.notes.lines)

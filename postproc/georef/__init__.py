@@ -46,6 +46,7 @@ from postproc.georef.photoexports import (
 )
 from postproc.georef.photofootprints import PhotoCorners, photo_corners, write_photo_footprints
 from postproc.georef.photoortho import PhotoGeo, PhotoOrthos, cast_photos, photo_orthos
+from postproc.georef.photoproducts import load_camera, photo_products
 from postproc.georef.photos import PhotoEo, PhotoSigma, photo_eo, project_to_photo
 from postproc.georef.phototimes import PhotoTimes, photo_label, read_photo_times
 from postproc.georef.raycast import CastStats, GroundPoints, intersect, reference_intersect
@@ -62,10 +63,10 @@ __all__ = [
     "PhotoCorners", "PhotoEo", "PhotoGeo", "PhotoOrthos", "PhotoSigma", "PhotoTimes", "Pose",
     "Provenance", "SegmentResult", "SegmentSkip", "SensorModel", "Skipped", "Trajectory",
     "cast_photos", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "flight_summary",
-    "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_handoff", "merged_wanted",
+    "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_camera", "load_handoff", "merged_wanted",
     "nav_from_columns", "ortho_cell_m", "photo_corners", "photo_eo", "photo_label", "photo_orthos",
-    "project_to_photo", "read_photo_times", "reference_intersect", "registrations", "save_handoff",
-    "segment_image", "segment_products", "segment_raster", "segment_rasters", "write_footprints",
-    "write_odm_geo", "write_photo_csv", "write_photo_footprints", "write_photo_sidecars",
-    "write_report",
+    "photo_products", "project_to_photo", "read_photo_times", "reference_intersect",
+    "registrations", "save_handoff", "segment_image", "segment_products", "segment_raster",
+    "segment_rasters", "write_footprints", "write_odm_geo", "write_photo_csv",
+    "write_photo_footprints", "write_photo_sidecars", "write_report",
 ]

@@ -14,20 +14,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
 from emulators.camera import PhotoRenderer, write_photo
 from emulators.render import camera_pose_ecef
-from emulators.scenario import CameraSettings
-from emulators.terrain import Scene, Terrain
+from emulators.scenario import CameraSettings, Scenario
+from emulators.terrain import Scene, Terrain, ground_points
 from emulators.trajectory import TruthTrajectory
 from postproc.calibration import ImageObservations
-from postproc.georef import Pose, geodetic_to_ecef, photo_label
-from sisa.core.framecamera import camera_to_image
+from postproc.georef import PhotoTimes, Pose, geodetic_to_ecef, photo_label
+from sisa.core.errors import InputError
+from sisa.core.framecamera import R_NOMINAL_K_TO_B, camera_to_image
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
+from sisa.wiring.gcpsim import effective_boresight_arcsec, flight_truth
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -123,5 +125,61 @@ def measure_control(camera: CameraSettings, traj: TruthTrajectory, terrain: Terr
     return PhotoMeasurements(obs, np.array(projected, np.float64).reshape(n, 2), written)
 
 
-def photo_labels(numbers: I64) -> list[str]:
-    return [photo_label(int(k)) for k in numbers.tolist()]
+MARKER_RADIUS_PX: Final = 9.0  # the centroid window: inside a marker's dark square at ~1 m
+
+
+def simulate_photo_control(run: Path, scn: Scenario, times: PhotoTimes, *, sigma_px: float,
+                           seed: int) -> tuple[ImageObservations, dict[str, Any]]:
+    """Markers measured in the photos of a simulated run (`measure_control` on the photos its
+    truth times), and what the simulation knows: the boresight the data see (the scenario's,
+    composed with the run's INS attitude error), the centroids' error against the true
+    projections."""
+    if scn.camera is None:
+        raise InputError(f"{run / 'scenario.toml'}: no [camera]: no photos to calibrate")
+    flight = flight_truth(run)
+    terrain = Terrain.from_scenario(scn)
+    pts = ground_points(scn, terrain)
+    scene = Scene.from_scenario(scn, terrain, pts)
+    timed = times.timed()
+    meas = measure_control(scn.camera, flight.traj, terrain, scene, pts, timed.photo_number,
+                           timed.t_mid_gps_ns, np.random.default_rng([seed, RENDER_STREAM]),
+                           radius_px=MARKER_RADIUS_PX, sigma_px=sigma_px)
+    off = np.hypot(meas.obs.pixel - meas.projected_px[:, 0],
+                   meas.obs.line - meas.projected_px[:, 1])
+    t_obs = times.time_of(meas.obs.segment)
+    seen = effective_boresight_arcsec(flight, t_obs, scn.camera.mounting, R_NOMINAL_K_TO_B)
+    truth = {"boresight_arcsec": list(seen),
+             "scenario_boresight_arcsec": list(scn.camera.mounting.boresight_arcsec),
+             "centroid_error_rms_px": float(np.sqrt(np.mean(off ** 2))) if off.size else None}
+    return meas.obs, {"simulated": True, "truth": truth}
+
+
+MAX_RENDER_PIXELS: Final = 400_000_000  # a run's photos rendered by `sisa process`, at most
+RENDER_STREAM: Final = 37  # the photos' detector noise: a random stream of their own
+
+
+def render_run_photos(scn: Scenario, numbers: I64, t_ns: I64, folder: Path
+                      ) -> dict[str, Path]:
+    """Every photo (numbers, TRUE mid-exposure times) of a simulated run rendered from its
+    truth into `folder` (photo_NNNNNN.bil/.hdr): what the camera would have recorded.
+    InputError when they hold more than MAX_RENDER_PIXELS pixels in all (a 100-megapixel
+    camera: minutes a photo)."""
+    camera = scn.camera
+    if camera is None:
+        raise InputError("the scenario has no [camera]: no photos to render")
+    pixels = camera.model.width_px * camera.model.height_px * int(t_ns.size)
+    if pixels > MAX_RENDER_PIXELS:
+        raise InputError(f"{t_ns.size} photos of {camera.model.width_px} x "
+                         f"{camera.model.height_px} pixels are too many to render here "
+                         f"({pixels / 1e6:.0f} Mpx, at most {MAX_RENDER_PIXELS / 1e6:.0f}): "
+                         "give the photos")
+    traj = TruthTrajectory.from_scenario(scn)
+    terrain = Terrain.from_scenario(scn)
+    scene = Scene.from_scenario(scn, terrain, ground_points(scn, terrain))
+    renderer = PhotoRenderer(camera, terrain, scene,
+                             np.random.default_rng([scn.seed, RENDER_STREAM]))
+    out: dict[str, Path] = {}
+    for k, t in zip(numbers.tolist(), t_ns.tolist(), strict=True):
+        dn = renderer.render(traj.state(np.array([t], np.int64)))
+        out[photo_label(k)] = write_photo(folder, dn, k, t)
+    return out

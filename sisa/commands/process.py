@@ -218,6 +218,12 @@ def _run(args: argparse.Namespace) -> int:
         photos = _photo_inputs(args, run, scn, tmp, bar)
         summary = (None if photos is None else
                    run_photos(tmp, result, options, photos, bar, command="process"))
+        if summary is not None and (run / "truth" / "photos.csv").is_file():
+            from sisa.wiring.photogcp import photo_eo_accuracy
+
+            summary["accuracy"] = photo_eo_accuracy(run / "truth" / "photos.csv",
+                                                    tmp / "photos" / "sidecars")
+            write_json(tmp / "photos" / "photo_summary.json", summary)
         bar.step("accuracy against truth")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         _say_what_is_not_judged(run, acc)
@@ -231,7 +237,8 @@ def _run(args: argparse.Namespace) -> int:
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,
                      headline=rows, provenance=_provenance(args, run, parts, options),
-                     sensor_toml=options.sensor.to_toml(), sensor_name=options.sensor.name)
+                     sensor_toml=options.sensor.to_toml(), sensor_name=options.sensor.name,
+                     photos=summary)
     print(f"report: {out / 'report.html'}")
     for name, value in rows:
         print(f"  {name}: {value}")

@@ -12,6 +12,8 @@ tests and benchmarks that want the images' error alone.
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
@@ -24,6 +26,7 @@ from emulators.render import camera_pose_ecef
 from emulators.scenario import CameraSettings, Scenario
 from emulators.terrain import Scene, Terrain, ground_points
 from emulators.trajectory import TruthTrajectory
+from emulators.truth import read_truth_csv
 from postproc.calibration import ImageObservations
 from postproc.georef import PhotoTimes, Pose, geodetic_to_ecef, photo_label
 from sisa.core.errors import InputError
@@ -152,6 +155,38 @@ def simulate_photo_control(run: Path, scn: Scenario, times: PhotoTimes, *, sigma
              "scenario_boresight_arcsec": list(scn.camera.mounting.boresight_arcsec),
              "centroid_error_rms_px": float(np.sqrt(np.mean(off ** 2))) if off.size else None}
     return meas.obs, {"simulated": True, "truth": truth}
+
+
+def photo_eo_accuracy(truth_csv: Path, sidecars: Path) -> dict[str, Any]:
+    """Each photo's EO (its sidecar JSON) against the run's truth (truth/photos.csv): RMS of
+    the perspective centre's error horizontally and vertically (local level at the centre) and
+    of the body attitude's roll, pitch and heading (arcsec)."""
+    truth = read_truth_csv(truth_csv)
+    row = {int(k): i for i, k in enumerate(truth["photo_number"].tolist())}
+    d_enu: list[F64] = []
+    d_att: list[list[float]] = []
+    for path in sorted(Path(sidecars).glob("photo_*.json")):
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        i = row.get(int(doc["label"].split("_")[1]))
+        if i is None:
+            continue
+        pc, att = doc["perspective_centre"], doc["attitude"]
+        est = np.array([pc["x_ecef_m"], pc["y_ecef_m"], pc["z_ecef_m"]])
+        true = np.array([truth[k][i] for k in ("x_ecef_m", "y_ecef_m", "z_ecef_m")])
+        r_ne = ned_to_ecef_matrix(math.radians(pc["lat_deg"]), math.radians(pc["lon_deg"]))
+        d_enu.append(np.asarray(r_ne.T @ (est - true)))
+        d_att.append([3600.0 * (((att[f"{k}_deg"] - truth[f"{k}_deg"][i]) + 180.0) % 360.0
+                                - 180.0) for k in ("roll", "pitch", "heading")])
+    if not d_enu:
+        return {"photos": 0}
+    ned, a = np.array(d_enu), np.array(d_att)
+    rms = np.sqrt(np.mean(a ** 2, axis=0))
+    return {"photos": len(d_enu),
+            "position_rms_m": {"horizontal": float(np.sqrt(np.mean(ned[:, 0] ** 2
+                                                                    + ned[:, 1] ** 2))),
+                               "vertical": float(np.sqrt(np.mean(ned[:, 2] ** 2)))},
+            "attitude_rms_arcsec": {"roll": float(rms[0]), "pitch": float(rms[1]),
+                                    "heading": float(rms[2])}}
 
 
 MAX_RENDER_PIXELS: Final = 400_000_000  # a run's photos rendered by `sisa process`, at most

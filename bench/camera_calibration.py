@@ -22,21 +22,15 @@ from typing import Any, Final
 
 import numpy as np
 
-from emulators.camera import exposure_times
-from emulators.scenario import scenario_from_table
-from emulators.terrain import Scene, Terrain, ground_points
-from emulators.trajectory import TruthTrajectory
 from postproc.calibration import (
     CalibrationOptions,
-    GroundPoints,
     Group,
     PhotoCalibrationInput,
     PriorSigmas,
     calibrate_photos,
 )
-from postproc.georef import PhotoTimes, geodetic_to_ecef
 from sisa.core.framecamera import FrameCamera, FrameMounting
-from sisa.wiring.photogcp import TruthNavigation, measure_control
+from sisa.wiring.photogcp import TruthNavigation, simulate_block
 
 TRUE_BORESIGHT_ARCSEC: Final = (300.0, -200.0, 600.0)
 CAMERA: Final[dict[str, Any]] = {
@@ -46,31 +40,17 @@ CAMERA: Final[dict[str, Any]] = {
               "principal_point_px": [3.0, -2.0]},
     "mounting": {"lever_arm_m": [0.4, -0.2, 0.3],
                  "boresight_arcsec": list(TRUE_BORESIGHT_ARCSEC)}}
-MARKER_RADIUS_PX: Final = 9.0  # the bench's markers are ~22 px across at 1 m
 SIGMA_PX: Final = 0.04  # the centroids' stated precision (0.036 px RMS measured, seed 1)
 GCP_SIGMA_M: Final = (0.01, 0.01)  # the simulated survey is exact
 
 
 def one_seed(seed: int, groups: tuple[Group, ...]) -> dict[str, Any]:
-    scn = scenario_from_table({"base": "bench", "seed": seed, "camera": CAMERA})
-    assert scn.camera is not None
-    traj = TruthTrajectory.from_scenario(scn)
-    terrain = Terrain.from_scenario(scn)
-    pts = ground_points(scn, terrain)
-    scene = Scene.from_scenario(scn, terrain, pts)
-    t_ns, _ = exposure_times(scn.camera, traj)
-    numbers = np.arange(t_ns.size, dtype=np.int64)
-    meas = measure_control(scn.camera, traj, terrain, scene, pts, numbers, t_ns,
-                           np.random.default_rng(seed), radius_px=MARKER_RADIUS_PX,
+    block = simulate_block({"base": "bench", "seed": seed, "camera": CAMERA},
                            sigma_px=SIGMA_PX)
-    off = np.hypot(meas.obs.pixel - meas.projected_px[:, 0],
-                   meas.obs.line - meas.projected_px[:, 1])
-    points = GroundPoints(pts["id"].astype(str), pts["kind"].astype(str),
-                          geodetic_to_ecef(pts["lat_deg"], pts["lon_deg"], pts["height_m"]))
-    nominal = FrameCamera(interior=scn.camera.model,
-                          mounting=FrameMounting(lever_arm_m=scn.camera.mounting.lever_arm_m))
-    inp = PhotoCalibrationInput(TruthNavigation(traj), PhotoTimes(numbers, t_ns), points,
-                                meas.obs, nominal)
+    nominal = FrameCamera(interior=block.camera.model,
+                          mounting=FrameMounting(lever_arm_m=block.camera.mounting.lever_arm_m))
+    inp = PhotoCalibrationInput(TruthNavigation(block.traj), block.times, block.points,
+                                block.obs, nominal)
     res = calibrate_photos(inp, CalibrationOptions(
         groups=groups, gcp_sigma_m=GCP_SIGMA_M, priors=PriorSigmas(principal_point_x_um=None)))
     truth = dict(zip(("omega", "phi", "kappa"), TRUE_BORESIGHT_ARCSEC, strict=True))
@@ -82,7 +62,7 @@ def one_seed(seed: int, groups: tuple[Group, ...]) -> dict[str, Any]:
                        "truth": want, "z": (est - want) / sig})
     return {"seed": seed, "observations": res.counts["observations_used"],
             "photos": res.counts["photos"], "sigma0": res.sigma0,
-            "centroid_error_rms_px": float(np.sqrt(np.mean(off ** 2))),
+            "centroid_error_rms_px": block.centroid_error_rms_px,
             "parameters": params}
 
 

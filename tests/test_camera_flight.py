@@ -5,8 +5,6 @@ mosaic) → `sisa georef --camera` on the same inputs → `sisa calibrate --fram
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ import rasterio
 from emulators.scenario import load_scenario
 from emulators.terrain import Scene, Terrain, ground_points
 from tests.postproc.test_photo_ortho import correlation_by_shift, peak_offset_cells
+from tests.test_process import _sisa
 
 SHORT_WITH_CAMERA = """
 base = "bench"
@@ -41,14 +40,6 @@ principal_point_px = [3.0, -2.0]
 lever_arm_m = [0.4, -0.2, 0.3]
 boresight_arcsec = [300.0, -200.0, 600.0]
 """
-
-
-def _sisa(*args: Any, check: bool = True) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run([sys.executable, "-m", "sisa.cli", *map(str, args)],
-                          capture_output=True, text=True, timeout=900)
-    if check:
-        assert proc.returncode == 0, proc.stderr
-    return proc
 
 
 @pytest.fixture(scope="module")

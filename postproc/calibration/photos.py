@@ -42,7 +42,7 @@ from postproc.calibration.setup import (
     split_points,
     start_coordinates,
 )
-from postproc.calibration.solve import posterior
+from postproc.calibration.solve import posterior, reported
 from postproc.calibration.surface import DemSurface, Surface
 from postproc.georef import Dem, PhotoTimes, Trajectory
 from sisa.core.errors import InputError
@@ -189,9 +189,7 @@ def calibrate_photos(inp: PhotoCalibrationInput, opt: CalibrationOptions | None 
     pb = adj.problem
     sigma0, cov_all, _ = posterior(sol)
     keep = pb.layout.reported
-    cov = cov_all[np.ix_(keep, keep)]
-    sig = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(sig, sig) if sig.size else cov
+    _, sig, corr = reported(cov_all, keep)
     st = pb.layout.unpack(sol.theta)
     used = pb.obs_in()
     res = pb.image_residuals(st, sol.x_m) * pb.row_sigma

@@ -29,7 +29,7 @@ from postproc.calibration.adjust import (
 )
 from postproc.calibration.conditioning import Scales, assess
 from postproc.calibration.model import line_model
-from postproc.calibration.solve import Solution, covariance, posterior
+from postproc.calibration.solve import Solution, covariance, posterior, reported
 from postproc.georef import SensorModel
 from sisa.core.sensor import ARCSEC_RAD
 
@@ -103,9 +103,7 @@ def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, so
     dof = int(sol.lin.r.size - n_par)
     sigma0, cov_all, shares = posterior(sol)
     keep = pb.layout.reported
-    cov = cov_all[np.ix_(keep, keep)]
-    sig = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(sig, sig) if sig.size else cov
+    cov, sig, corr = reported(cov_all, keep)
     st = pb.layout.unpack(sol.theta)
     resid = _image_table(adj, sol)
     for b in blunders:

@@ -217,3 +217,12 @@ def posterior(sol: Solution) -> tuple[float, F64, F64]:
     shares = np.stack([np.einsum("ij,ji->i", cov @ n, cov) / var  # diag(C·N·C)
                        for n in (n_obs, n_nav, n_prior)], axis=1)
     return sigma0, np.asarray(cov, np.float64), np.asarray(shares, np.float64)
+
+
+def reported(cov_all: F64, keep: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
+    """(covariance, σ, correlation) of the parameters a result reports (`Layout.reported`:
+    the navigation knots left out) from the whole covariance."""
+    cov = cov_all[np.ix_(keep, keep)]
+    sig = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sig, sig) if sig.size else cov
+    return np.asarray(cov, np.float64), np.asarray(sig, np.float64), np.asarray(corr, np.float64)

@@ -21,13 +21,13 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from emulators.camera import PhotoRenderer, write_photo
+from emulators.camera import PhotoRenderer, exposure_times, write_photo
 from emulators.render import camera_pose_ecef
-from emulators.scenario import CameraSettings, Scenario
+from emulators.scenario import CameraSettings, Scenario, scenario_from_table
 from emulators.terrain import Scene, Terrain, ground_points
 from emulators.trajectory import TruthTrajectory
 from emulators.truth import read_truth_csv
-from postproc.calibration import ImageObservations
+from postproc.calibration import GroundPoints, ImageObservations
 from postproc.georef import PhotoTimes, Pose, geodetic_to_ecef, photo_label
 from sisa.core.errors import InputError
 from sisa.core.framecamera import R_NOMINAL_K_TO_B, camera_to_image
@@ -155,6 +155,43 @@ def simulate_photo_control(run: Path, scn: Scenario, times: PhotoTimes, *, sigma
              "scenario_boresight_arcsec": list(scn.camera.mounting.boresight_arcsec),
              "centroid_error_rms_px": float(np.sqrt(np.mean(off ** 2))) if off.size else None}
     return meas.obs, {"simulated": True, "truth": truth}
+
+
+@dataclass(frozen=True)
+class SimulatedBlock:
+    """A simulated block's photos measured (`measure_control`), with what an adjustment of
+    them takes and what the truth says of the measurements."""
+
+    camera: CameraSettings
+    traj: TruthTrajectory
+    times: PhotoTimes
+    points: GroundPoints  # control and check, at their true coordinates
+    obs: ImageObservations
+    centroid_error_rms_px: float  # the centroids against the true projections
+
+
+def simulate_block(table: dict[str, Any], *, sigma_px: float, first_photo: int = 0
+                   ) -> SimulatedBlock:
+    """A scenario (`table`, as scenario_from_table takes it, with a [camera]) flown, every photo
+    that sees a ground point rendered and its markers measured (seeded by the scenario)."""
+    scn = scenario_from_table(table)
+    if scn.camera is None:
+        raise InputError("the scenario has no [camera]: no photos to measure")
+    traj = TruthTrajectory.from_scenario(scn)
+    terrain = Terrain.from_scenario(scn)
+    pts = ground_points(scn, terrain)
+    scene = Scene.from_scenario(scn, terrain, pts)
+    t_ns, _ = exposure_times(scn.camera, traj)
+    numbers = np.arange(first_photo, first_photo + t_ns.size, dtype=np.int64)
+    meas = measure_control(scn.camera, traj, terrain, scene, pts, numbers, t_ns,
+                           np.random.default_rng(scn.seed), radius_px=MARKER_RADIUS_PX,
+                           sigma_px=sigma_px)
+    off = np.hypot(meas.obs.pixel - meas.projected_px[:, 0],
+                   meas.obs.line - meas.projected_px[:, 1])
+    points = GroundPoints(pts["id"].astype(str), pts["kind"].astype(str),
+                          geodetic_to_ecef(pts["lat_deg"], pts["lon_deg"], pts["height_m"]))
+    return SimulatedBlock(scn.camera, traj, PhotoTimes(numbers, t_ns), points, meas.obs,
+                          float(np.sqrt(np.mean(off ** 2))) if off.size else math.nan)
 
 
 def photo_eo_accuracy(truth_csv: Path, sidecars: Path) -> dict[str, Any]:

@@ -9,21 +9,15 @@ adjustment), starting from zero.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pytest
 
-from emulators.camera import exposure_times
-from emulators.scenario import CameraSettings, scenario_from_table
-from emulators.terrain import Scene, Terrain, ground_points
-from emulators.trajectory import TruthTrajectory
+from emulators.scenario import CameraSettings
 from postproc.calibration import (
     CalibrationOptions,
-    GroundPoints,
     Group,
-    ImageObservations,
     PhotoCalibrationInput,
     PriorSigmas,
     calibrate_photos,
@@ -33,10 +27,10 @@ from postproc.calibration.framemodel import FrameCameraModel
 from postproc.calibration.model import ObsGeometry
 from postproc.calibration.params import build_layout
 from postproc.calibration.photos import start_state
-from postproc.georef import PhotoTimes, geodetic_to_ecef, photo_eo, project_to_photo
+from postproc.georef import PhotoTimes, photo_eo, project_to_photo
 from sisa.core.errors import InputError
 from sisa.core.framecamera import FrameCamera, FrameMounting
-from sisa.wiring.photogcp import TruthNavigation, measure_control
+from sisa.wiring.photogcp import SimulatedBlock, TruthNavigation, simulate_block
 
 TRUE_BORESIGHT = (300.0, -200.0, 600.0)
 CAMERA: dict[str, Any] = {
@@ -47,34 +41,10 @@ CAMERA: dict[str, Any] = {
     "mounting": {"lever_arm_m": [0.4, -0.2, 0.3], "boresight_arcsec": list(TRUE_BORESIGHT)}}
 
 
-@dataclass(frozen=True)
-class Block:
-    camera: CameraSettings
-    traj: TruthTrajectory
-    times: PhotoTimes
-    points: GroundPoints
-    obs: ImageObservations
-    centroid_error_px: float
-
-
 @pytest.fixture(scope="module")
-def block() -> Block:
-    scn = scenario_from_table({"base": "bench", "seed": 2, "camera": CAMERA})
-    assert scn.camera is not None
-    traj = TruthTrajectory.from_scenario(scn)
-    terrain = Terrain.from_scenario(scn)
-    pts = ground_points(scn, terrain)
-    scene = Scene.from_scenario(scn, terrain, pts)
-    t_ns, _ = exposure_times(scn.camera, traj)
-    numbers = np.arange(100, 100 + t_ns.size, dtype=np.int64)
-    meas = measure_control(scn.camera, traj, terrain, scene, pts, numbers, t_ns,
-                           np.random.default_rng(2), radius_px=9.0, sigma_px=0.04)
-    off = np.hypot(meas.obs.pixel - meas.projected_px[:, 0],
-                   meas.obs.line - meas.projected_px[:, 1])
-    points = GroundPoints(pts["id"].astype(str), pts["kind"].astype(str),
-                          geodetic_to_ecef(pts["lat_deg"], pts["lon_deg"], pts["height_m"]))
-    return Block(scn.camera, traj, PhotoTimes(numbers, t_ns), points, meas.obs,
-                 float(np.sqrt(np.mean(off ** 2))))
+def block() -> SimulatedBlock:
+    return simulate_block({"base": "bench", "seed": 2, "camera": CAMERA}, sigma_px=0.04,
+                          first_photo=100)
 
 
 def _nominal(camera: CameraSettings) -> FrameCamera:
@@ -82,7 +52,7 @@ def _nominal(camera: CameraSettings) -> FrameCamera:
                        mounting=FrameMounting(lever_arm_m=camera.mounting.lever_arm_m))
 
 
-def test_the_frame_model_projects_as_the_photo_eo_does(block: Block) -> None:
+def test_the_frame_model_projects_as_the_photo_eo_does(block: SimulatedBlock) -> None:
     """Every control point in every photo: the adjustment's projection at the true boresight
     against project_to_photo on photo_eo's pose (two implementations), < 1e-6 px."""
     cam = FrameCamera(interior=block.camera.model, mounting=block.camera.mounting)
@@ -112,7 +82,7 @@ def test_the_frame_model_projects_as_the_photo_eo_does(block: Block) -> None:
     assert np.abs(row[inside] - want_row[inside]).max() < 1e-6
 
 
-def test_the_boresight_is_recovered_from_measured_markers(block: Block) -> None:
+def test_the_boresight_is_recovered_from_measured_markers(block: SimulatedBlock) -> None:
     """Started from zero; within 3σ of the truth (measured 2026-11-29, seed 2: see
     docs/calibration.md, "The frame camera", for the bench over seeds)."""
     inp = PhotoCalibrationInput(TruthNavigation(block.traj), block.times, block.points,
@@ -120,7 +90,7 @@ def test_the_boresight_is_recovered_from_measured_markers(block: Block) -> None:
     res = calibrate_photos(inp, CalibrationOptions(
         groups=(Group.BORESIGHT,), gcp_sigma_m=(0.01, 0.01),
         priors=PriorSigmas(principal_point_x_um=None)))
-    assert block.centroid_error_px < 0.1
+    assert block.centroid_error_rms_px < 0.1
     assert res.counts["observations_used"] >= 20
     z = (res.theta - np.array(TRUE_BORESIGHT)) / res.sigma
     print("boresight", res.theta.round(2), "±", res.sigma.round(2), "z", z.round(2))
@@ -132,7 +102,7 @@ def test_the_boresight_is_recovered_from_measured_markers(block: Block) -> None:
     assert FrameCamera.model_validate(doc["camera"]) == res.camera
 
 
-def test_a_photo_without_a_time_is_left_out_and_said(block: Block) -> None:
+def test_a_photo_without_a_time_is_left_out_and_said(block: SimulatedBlock) -> None:
     times = PhotoTimes(block.times.photo_number,
                        np.where(np.arange(block.times.photo_number.size) % 2 == 0,
                                 block.times.t_mid_gps_ns, -1))
@@ -144,7 +114,7 @@ def test_a_photo_without_a_time_is_left_out_and_said(block: Block) -> None:
     assert res.counts["observations"] == len(block.obs)
 
 
-def test_no_control_in_any_photo_is_one_error(block: Block) -> None:
+def test_no_control_in_any_photo_is_one_error(block: SimulatedBlock) -> None:
     keep = block.points.kind != "control"
     obs = block.obs.select(np.isin(block.obs.point_id, block.points.ids[keep]))
     inp = PhotoCalibrationInput(TruthNavigation(block.traj), block.times, block.points, obs,

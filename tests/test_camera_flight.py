@@ -5,6 +5,8 @@ mosaic) → `sisa georef --camera` on the same inputs → `sisa calibrate --fram
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -16,7 +18,6 @@ import rasterio
 from emulators.scenario import load_scenario
 from emulators.terrain import Scene, Terrain, ground_points
 from tests.postproc.test_photo_ortho import correlation_by_shift, peak_offset_cells
-from tests.test_process import _sisa
 
 SHORT_WITH_CAMERA = """
 base = "bench"
@@ -40,6 +41,15 @@ principal_point_px = [3.0, -2.0]
 lever_arm_m = [0.4, -0.2, 0.3]
 boresight_arcsec = [300.0, -200.0, 600.0]
 """
+
+
+def _sisa(*args: Any, check: bool = True) -> subprocess.CompletedProcess[str]:
+    """A `sisa` command in a child process; 15 min (a camera flight renders its photos)."""
+    proc = subprocess.run([sys.executable, "-m", "sisa.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=900)
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +77,15 @@ def test_process_makes_the_cameras_products(processed: tuple[Path, Path, str]) -
     for name in ("photo_eo.csv", "geo.txt", "footprints.geojson"):
         assert (photos / name).is_file()
     assert len(list((photos / "sidecars").glob("*.json"))) == n
+    # the EO against the truth: phase GPS (cm) and the INS's ~10″
+    acc = summary["accuracy"]
+    assert acc["photos"] == n
+    assert acc["position_rms_m"]["horizontal"] < 0.3
+    assert max(acc["attitude_rms_arcsec"].values()) < 60.0
+    report = (out / "report.html").read_text(encoding="utf-8")
+    assert "<h2>Frame camera</h2>" in report
+    assert 'alt="Photo mosaic on its map grid' in report
+    assert "Map of the trajectory and the photos&#x27; footprints" in report
 
 
 def test_the_photo_mosaic_aligns_with_the_scene(processed: tuple[Path, Path, str]) -> None:

@@ -93,7 +93,7 @@ def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
     photos yet), its photos from RUN/photos/ or rendered from the truth into
     OUT/photos/images/."""
     from postproc.georef import read_photo_times
-    from sisa.wiring.photogcp import render_run_photos
+    from sisa.wiring.photogcp import render_run_photos, too_many_to_render
 
     camera = camera_of(scn, nominal=args.nominal)
     if camera is None:
@@ -108,10 +108,15 @@ def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
     check_photo_cell(args.photo_cell)
     if (run / "photos").is_dir():
         return PhotoInputs(camera, times, photo_images(run / "photos", times), args.photo_cell)
+    timed = times.timed()
+    why = None if scn.camera is None else too_many_to_render(scn.camera,
+                                                             int(timed.photo_number.size))
+    if why is not None:  # the EO, exports and footprints are made all the same
+        say_warning("process", f"photos: {why}: no photo orthos")
+        return PhotoInputs(camera, times, None, args.photo_cell)
     bar.step("photos: rendering them from the truth")
     images = out / "photos" / "images"
     images.mkdir(parents=True)
-    timed = times.timed()
     rendered = render_run_photos(scn, timed.photo_number, timed.t_mid_gps_ns, images)
     return PhotoInputs(camera, times, rendered, args.photo_cell)
 
@@ -245,6 +250,6 @@ def _run(args: argparse.Namespace) -> int:
     for line in split_lines(bar, time.perf_counter() - started,
                             time.process_time() - cpu_started):
         print(line)
-    lost = [text for text in (losses(result), None if summary is None else
-                              photo_losses(summary, images_given=True)) if text]
+    lost = [text for text in (losses(result), None if summary is None or photos is None else
+                              photo_losses(summary, photos.images is not None)) if text]
     return 0 if not lost else finished_with_losses("process", "; ".join(lost))

@@ -230,6 +230,16 @@ MAX_RENDER_PIXELS: Final = 400_000_000  # a run's photos rendered by `sisa proce
 RENDER_STREAM: Final = 37  # the photos' detector noise: a random stream of their own
 
 
+def too_many_to_render(camera: CameraSettings, photos: int) -> str | None:
+    """Why `photos` photos of this camera are not rendered here (None: they are)."""
+    pixels = camera.model.width_px * camera.model.height_px * photos
+    if pixels <= MAX_RENDER_PIXELS:
+        return None
+    return (f"{photos} photos of {camera.model.width_px} x {camera.model.height_px} pixels are "
+            f"too many to render here ({pixels / 1e6:.0f} Mpx, at most "
+            f"{MAX_RENDER_PIXELS / 1e6:.0f}): give them in RUN/photos/")
+
+
 def render_run_photos(scn: Scenario, numbers: I64, t_ns: I64, folder: Path
                       ) -> dict[str, Path]:
     """Every photo (numbers, TRUE mid-exposure times) of a simulated run rendered from its
@@ -239,12 +249,8 @@ def render_run_photos(scn: Scenario, numbers: I64, t_ns: I64, folder: Path
     camera = scn.camera
     if camera is None:
         raise InputError("the scenario has no [camera]: no photos to render")
-    pixels = camera.model.width_px * camera.model.height_px * int(t_ns.size)
-    if pixels > MAX_RENDER_PIXELS:
-        raise InputError(f"{t_ns.size} photos of {camera.model.width_px} x "
-                         f"{camera.model.height_px} pixels are too many to render here "
-                         f"({pixels / 1e6:.0f} Mpx, at most {MAX_RENDER_PIXELS / 1e6:.0f}): "
-                         "give the photos")
+    if (why := too_many_to_render(camera, int(t_ns.size))) is not None:
+        raise InputError(why)
     traj = TruthTrajectory.from_scenario(scn)
     terrain = Terrain.from_scenario(scn)
     scene = Scene.from_scenario(scn, terrain, ground_points(scn, terrain))

@@ -14,6 +14,7 @@ mcap package's own reader would fail on it.
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +58,13 @@ class ChunkMessages:
         return ChunkMessages(self.data, self.channel_id[index], self.sequence[index],
                              self.log_time[index], self.publish_time[index],
                              self.start[index], self.end[index])
+
+    def messages(self) -> Iterator[Message]:
+        """The messages one at a time, as the mcap package's records."""
+        for m in zip(self.channel_id.tolist(), self.sequence.tolist(), self.log_time.tolist(),
+                     self.publish_time.tolist(), self.payloads(), strict=True):
+            yield Message(channel_id=m[0], sequence=m[1], log_time=m[2], publish_time=m[3],
+                          data=m[4])
 
     def payloads(self) -> list[bytes]:
         data = self.data

@@ -86,15 +86,6 @@ class FileScan:
             if fs.complete:
                 fs.bytes_readable = source.position
 
-    def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
-        """Every readable message, one at a time, with its channel."""
-        for channels, batch in self.batches():
-            for m in zip(batch.channel_id.tolist(), batch.sequence.tolist(),
-                         batch.log_time.tolist(), batch.publish_time.tolist(),
-                         batch.payloads(), strict=True):
-                yield channels[m[0]], Message(channel_id=m[0], sequence=m[1], log_time=m[2],
-                                              publish_time=m[3], data=m[4])
-
     def records(self, fh: BinaryIO, source: WholeRecords) -> Iterator[tuple[int, object]]:
         """Top-level records with their offsets, each parsed from its own bytes only, so damage
         inside a record (an inner length gone wrong) is skipped with it instead of running on

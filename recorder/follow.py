@@ -70,12 +70,8 @@ class LogFollower:
 
     def poll(self) -> list[tuple[ChannelInfo, Message]]:
         """The messages of the records completed since the last call (none if nothing new)."""
-        return [(channels[m[0]], Message(channel_id=m[0], sequence=m[1], log_time=m[2],
-                                         publish_time=m[3], data=m[4]))
-                for channels, batch in self.poll_batches()
-                for m in zip(batch.channel_id.tolist(), batch.sequence.tolist(),
-                             batch.log_time.tolist(), batch.publish_time.tolist(),
-                             batch.payloads(), strict=True)]
+        return [(channels[msg.channel_id], msg) for channels, batch in self.poll_batches()
+                for msg in batch.messages()]
 
     def poll_batches(self) -> list[tuple[Mapping[int, ChannelInfo], ChunkMessages]]:
         """As `poll`, a chunk at a time (columns over its bytes), with the channels the

@@ -96,11 +96,8 @@ class LogReader:
     def raw(self) -> Iterator[tuple[ChannelInfo, Message]]:
         """Every readable message, in file order, with its channel."""
         for channels, batch in self.raw_batches():
-            for m in zip(batch.channel_id.tolist(), batch.sequence.tolist(),
-                         batch.log_time.tolist(), batch.publish_time.tolist(),
-                         batch.payloads(), strict=True):
-                yield channels[m[0]], Message(channel_id=m[0], sequence=m[1], log_time=m[2],
-                                              publish_time=m[3], data=m[4])
+            for msg in batch.messages():
+                yield channels[msg.channel_id], msg
 
     def raw_batches(self) -> Iterator[tuple[Mapping[int, ChannelInfo], ChunkMessages]]:
         """Every readable message, in file order, a chunk at a time (columns over its bytes),
@@ -294,18 +291,25 @@ def scan_log(path_or_paths: Paths) -> LogStats:
     reader = LogReader(path_or_paths)
     decoders = _Decoders()
     health = reader.stats.health
-    for channel, msg in reader.raw():
-        if channel.topic == Topic.HEALTH:
-            report = decoders.decode(channel, msg.data)
-            if report is None:
-                health.unreadable += 1
-                reader.stats.note_bad(channel.topic, msg.log_time,
-                                      decoders.problem(channel, msg.data) or "does not decode")
-            else:
-                health.add(report)
-        elif channel.message_encoding == MESSAGE_ENCODING and (
-                why := message_problem(msg.data)) is not None:
-            reader.stats.note_bad(channel.topic, msg.log_time, why)
+    for channels, chunk in reader.raw_batches():
+        ids = chunk.channel_id
+        for channel_id in np.unique(ids).tolist():
+            channel = channels[channel_id]
+            if channel.topic != Topic.HEALTH and channel.message_encoding != MESSAGE_ENCODING:
+                continue
+            on = chunk.take(np.flatnonzero(ids == channel_id))
+            for log_time, data in zip(on.log_time.tolist(), on.payloads(), strict=True):
+                if channel.topic == Topic.HEALTH:
+                    report = decoders.decode(channel, data)
+                    if report is None:
+                        health.unreadable += 1
+                        reader.stats.note_bad(channel.topic, log_time,
+                                              decoders.problem(channel, data) or
+                                              "does not decode")
+                    else:
+                        health.add(report)
+                elif (why := message_problem(data)) is not None:
+                    reader.stats.note_bad(channel.topic, log_time, why)
     return reader.stats
 
 

@@ -18,7 +18,7 @@ import tomllib
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
@@ -36,7 +36,7 @@ from sisa.core.sensor import (
 )
 from sisa.core.timescale import parse_gps_datetime
 
-PRESETS = ("bench", "garrotxa", "bellmunt")
+PRESETS = ("bench", "garrotxa", "bellmunt", "bench_camera")
 
 # --- limits that keep every derived time, duration and array bounded -----------------------------
 
@@ -246,6 +246,13 @@ class ScannerSettings(ScannerGeometry):
         return self
 
 
+# a photo message's window (CameraSettings.message_window_ms) is widened by these, ms: before
+# the camera's shortest latency (host clock steps), after its longest and the read interval
+# (wire, USB, queueing)
+CAMERA_WINDOW_EARLY_MS: Final = 1.0
+CAMERA_WINDOW_LATE_MS: Final = 5.0
+
+
 class CameraFaults(StrictModel):
     """The frame camera's own faults, as rates; every one is written to the truth."""
 
@@ -253,6 +260,13 @@ class CameraFaults(StrictModel):
         0.0, ge=0, le=1, description="exposures whose mid-exposure pulse never leaves the camera")
     lost_photo_number_fraction: float = Field(
         0.0, ge=0, le=1, description="exposures whose photo message is never sent")
+    spurious_pulse_rate_hz: float = Field(
+        0.0, ge=0, le=100, description="pulses on the camera's pulse line that no exposure "
+        "made (Poisson)")
+    on_frame_fraction: float = Field(
+        0.0, ge=0, le=1, description="exposures moved onto a scanner frame's mid-exposure: "
+        "the camera's pulse and the scanner's pulse at once (the sync unit's event input "
+        "takes one)")
 
 
 class CameraSettings(StrictModel):
@@ -292,10 +306,33 @@ class CameraSettings(StrictModel):
         lo, hi = self.message_latency_ms
         if not 0 <= lo <= hi <= 10_000:
             raise ValueError(f"message_latency_ms = ({lo}, {hi}) needs 0 ≤ min ≤ max ≤ 10000")
+        width_ms = self.message_window_ms(0.0)
+        if width_ms[1] - width_ms[0] >= 1000.0 * self.min_cycle_s:
+            raise ValueError(
+                f"message_latency_ms = {self.message_latency_ms}: a photo message may reach the "
+                f"recorder anywhere in a window {width_ms[1] - width_ms[0]:g} ms wide, not "
+                f"shorter than min_cycle_s = {self.min_cycle_s:g} s: two pulses could fall in "
+                "one message's window and no photo number could be tied to its pulse")
         if self.first_photo_number >= 1 << self.photo_counter_bits:
             raise ValueError(f"first_photo_number = {self.first_photo_number} needs fewer than "
                              f"photo_counter_bits = {self.photo_counter_bits} bits")
         return self
+
+    def message_window_ms(self, read_interval_ms: float) -> tuple[float, float]:
+        """When a photo message may reach the recorder after its pulse (mid-exposure → read,
+        host clock): half the exposure and the stated latency, widened by
+        CAMERA_WINDOW_EARLY_MS before and the read interval + CAMERA_WINDOW_LATE_MS after
+        (wire, USB, queueing)."""
+        half_ms = self.exposure_time_ms / 2
+        lo, hi = self.message_latency_ms
+        return (half_ms + lo - CAMERA_WINDOW_EARLY_MS,
+                half_ms + hi + read_interval_ms + CAMERA_WINDOW_LATE_MS)
+
+    def photo_rate_hz(self, ground_speed_mps: float) -> float:
+        """Photos a second while triggered: by interval, or by distance at this speed."""
+        if self.trigger_interval_s is not None:
+            return 1.0 / self.trigger_interval_s
+        return ground_speed_mps / (self.trigger_distance_m or math.inf)
 
 
 _AttitudeSigmaArcsec = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_SIGMA_ARCSEC)]
@@ -506,12 +543,17 @@ def _check_turn_rate(scn: Scenario) -> None:
 
 def gps_event_rate_hz(scn: Scenario) -> float:
     """Pulses a second the sync unit sends to the receiver's event input at most: 1 of n frame
-    pulses in mode 2 (held to the receiver's maximum event rate), one-bits in mode 1 if sent."""
+    pulses in mode 2 (held to the receiver's maximum event rate), one-bits in mode 1 if sent,
+    and a frame camera's pulses (the input takes none faster than its maximum rate)."""
     from emulators.block import resolve_one_of_n  # emulators.block imports this module
 
     mode2 = min(1000.0 / scn.scanner.line_period_ms / resolve_one_of_n(scn),
                 scn.gps.max_event_rate_hz)
-    return max(mode2, 1.0 if scn.sisa.event_input_in_mode1 else 0.0)
+    rate = max(mode2, 1.0 if scn.sisa.event_input_in_mode1 else 0.0)
+    if scn.camera is not None:  # the camera's pulses share the input (at most its rate)
+        rate = min(rate + scn.camera.photo_rate_hz(scn.block.ground_speed_mps),
+                   scn.gps.max_event_rate_hz)
+    return rate
 
 
 def gps_serial_load(scn: Scenario) -> tuple[float, float]:

@@ -63,6 +63,8 @@ def dispatch(acq: Acquisition, item: Arrival) -> None:
             acq.on_can_garbled(item.t_host_ns, garbled.lines, garbled.bytes_skipped)
     elif source == "gps":
         acq.on_gps_bytes(item.t_host_ns, cast(bytes, payload))
+    elif source == "camera":
+        acq.on_camera_bytes(item.t_host_ns, cast(bytes, payload))
     else:
         acq.on_scanner_bytes(item.t_host_ns, cast(bytes, payload))
 

@@ -150,13 +150,16 @@ def _run(args: argparse.Namespace) -> int:
                          "records one; `sisa sync` times a run without images)")
     from emulators.scenario import load_scenario
     from postproc.georef import write_report
+    from sisa.core.framecamera import FrameCamera
     from sisa.core.jsonio import write_json
     from sisa.wiring.accuracy import run_accuracy
 
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
     options = dataclasses.replace(options_from_args(args, sensor_of(scn, nominal=args.nominal)),
-                                  leap_seconds_fallback=scn.block.leap_seconds)
+                                  leap_seconds_fallback=scn.block.leap_seconds,
+                                  camera=None if scn.camera is None else FrameCamera(
+                                      interior=scn.camera.model, mounting=scn.camera.mounting))
     out = args.out if args.out is not None else run / "process"
     parts = flight_parts([run / "flight.mcap"])
     with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:

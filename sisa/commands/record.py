@@ -57,6 +57,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--ins", help="INS CAN bus as INTERFACE:CHANNEL (slcan:/dev/pts/6, "
                         "socketcan:can0, virtual:sisa)")
     parser.add_argument("--pulses", help="timing-board edge link, tcp://127.0.0.1:PORT")
+    parser.add_argument("--camera", help="frame camera photo-number serial port (its "
+                        "mid-exposure pulses come on the edge link)")
     parser.add_argument("--out", type=new_file_arg, required=True, help="new MCAP file")
     add_scenario_args(parser, "settings (rates, leap seconds, sync unit) from this")
     parser.add_argument("--split-minutes", type=float, default=None,
@@ -86,9 +88,9 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.writer import FlightRecorder
     from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
-    if not any((args.gps, args.scanner, args.ins, args.pulses)):
+    if not any((args.gps, args.scanner, args.ins, args.pulses, args.camera)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
-                         "--pulses")
+                         "--pulses, --camera")
     if name_taken(args.out, "--out"):
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     _check_options(args)
@@ -97,7 +99,8 @@ def _run(args: argparse.Namespace) -> int:
     live = _start_live(args, scn) if args.live is not None else None
     try:
         sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
-                              read_interval_s=config.read_interval_ns / 1e9)
+                              read_interval_s=config.read_interval_ns / 1e9,
+                              camera_port=args.camera)
     except BaseException:
         if live is not None:
             live.close()
@@ -172,7 +175,7 @@ def _check_options(args: argparse.Namespace) -> None:
         listen_address(args.live)  # a bad address is refused before anything starts
     if args.pulses:
         args.pulses = pulse_endpoint(args.pulses)
-    ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins")
+    ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins", "camera")
              if getattr(args, name)]
     seen: dict[str, str] = {}
     for name, spec in ports:

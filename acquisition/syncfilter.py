@@ -886,7 +886,10 @@ class SyncFilter:
         tol = self.config.spacing_tolerance_ns
         both_pps = source is PulseSource.PPS and last_source is PulseSource.PPS
         need = self.config.event_period_ns + (-tol if both_pps else tol)
-        return out_ns - last_ns >= need
+        gap = out_ns - last_ns
+        if PulseSource.CAMERA in (source, last_source):
+            gap = abs(gap)  # two links: a camera edge may be handled before an earlier ppf
+        return gap >= need
 
     def _try_forward(self, board_ns: int, t_host_ns: int, source: PulseSource,
                      to_gps_event: bool, frame_index: int = -1) -> _PendingForward | None:

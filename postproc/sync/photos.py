@@ -27,7 +27,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from postproc.sync.clockmap import ClockMap
+from postproc.sync.clockmap import BOARD_SIGMA_FLOOR_S, ClockMap
 from postproc.sync.flightlog import CameraColumns
 from postproc.sync.pulses import (
     GATE_DELAY_NS,
@@ -115,8 +115,10 @@ def pulse_times(cam: CameraColumns, ttt: I64, casi: SisaPulses, board: ClockMap 
     use_board = near & ~has_tag
     t[use_board] = by_board[use_board] - GATE_DELAY_NS
     x = (out_board[use_board] - board.epoch_ns).astype(np.float64) / NS_PER_S
-    # the line's own error there (its residual scatter is the PPS edges', not the board's)
-    sigma[use_board] = board.line.sigma * NS_PER_S * np.sqrt(board.line.leverage(x))
+    # the line's own error there: the PPS edges' scatter (at least their floor: PTT rounding,
+    # PPS jitter) through the fit's leverage; the board's own stamp adds nothing
+    point_s = max(board.line.sigma, BOARD_SIGMA_FLOOR_S)
+    sigma[use_board] = point_s * NS_PER_S * np.sqrt(board.line.leverage(x))
     source[use_board] = PhotoTimeSource.BOARD
     return PulseTimes(t, sigma, source, int(np.count_nonzero(disagree)))
 

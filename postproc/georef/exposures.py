@@ -40,6 +40,10 @@ def write_photo_eo(out_dir: Path, photos: PhotoTimes, traj: Trajectory, camera: 
     if named > usable.sum():
         notes.append(f"{named - int(usable.sum())} of {named} photos have no time (the sync "
                      "flagged them: photo_times.csv says why): no EO for them")
+    loose = int(np.count_nonzero(photos.status == PhotoStatus.NO_PHOTO_NUMBER))
+    if loose:
+        notes.append(f"{loose} camera pulses have no photo number (a lost photo message, or a "
+                     "pulse the camera never made): timed in photo_times.csv, no EO")
     if keep.size < numbers.size:
         notes.append(f"{numbers.size - keep.size} photos repeat an earlier photo number (the "
                      "camera's counter wrapped): only the first of each has an EO")

@@ -32,7 +32,7 @@ def board_of(t_gps_ns: int) -> int:
     return t_gps_ns - GPS0 + BOARD0
 
 
-def the_board_map():  # noqa: ANN201 - a ClockMap
+def the_board_map():
     seconds = GPS0 + S * np.arange(60, dtype=np.int64)
     board = board_map(seconds - GPS0 + BOARD0, seconds, np.zeros(60, dtype=np.bool_), seconds,
                       np.ones(60, dtype=np.bool_))

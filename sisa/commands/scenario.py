@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     show = add_command(inner, "show", "print the resolved scenario (TOML) and its derived figures",
                        "sisa scenario show bellmunt   (or: sisa scenario show my-flight.toml)")
     show.add_argument("scenario", metavar="NAME|FILE",
-                      help="preset name (bench, garrotxa, bellmunt) or scenario TOML file")
+                      help="preset name (bench, garrotxa, bellmunt, bench_camera) or scenario "
+                      "TOML file")
     show.set_defaults(handler=_show)
     schema = add_command(inner, "schema", "print the JSON schema of scenario files",
                          "sisa scenario schema > scenario.schema.json")

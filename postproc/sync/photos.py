@@ -140,9 +140,11 @@ def photo_times(cam: CameraColumns, pulses: PulseTimes, window_ms: tuple[float, 
     window_ns = (round(window_ms[0] * 1e6), round(window_ms[1] * 1e6))
     order = np.argsort(cam.pulse_t_host_ns, kind="stable")
     index, count = tie_messages(cam.photo_t_host_ns, cam.pulse_t_host_ns[order], window_ns)
-    pulse_of = np.where(index >= 0, order[np.maximum(index, 0)], -1)
+    pulse_of = np.full(index.size, -1, dtype=np.int64)
+    pulse_of[index >= 0] = order[index[index >= 0]]
     claims = np.bincount(pulse_of[pulse_of >= 0], minlength=cam.pulse_board_ns.size)
-    tied = (pulse_of >= 0) & (claims[np.maximum(pulse_of, 0)] == 1)
+    tied = pulse_of >= 0
+    tied[tied] = claims[pulse_of[tied]] == 1
     m = cam.photo_number.size
     status = np.full(m, int(PhotoStatus.AMBIGUOUS), dtype=np.int64)
     status[count == 0] = PhotoStatus.NO_PULSE

@@ -106,6 +106,11 @@ def _run(args: argparse.Namespace) -> int:
         untied = untimed_lines_note(result.report["lines"], flight)
         if untied is not None:  # was said only as a count
             notes.append(untied)
+        photos = result.report.get("photos")
+        if photos is not None and photos["photo_messages"] and not photos["camera_pulses"]:
+            notes.append(f"the log has {photos['photo_messages']} photo messages from the "
+                         "frame camera and not one camera pulse: no photo is timed (is its "
+                         "pulse line connected to the sync unit?)")
         result.report["notes"] = notes
         write_report(out / "sync_report.json", result.report)
     for note in notes:  # a segment left out by its lines file was gone without a word

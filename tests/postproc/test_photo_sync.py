@@ -207,3 +207,17 @@ def test_the_photo_times_give_each_photo_its_true_pose(tmp_path: Path) -> None:
     assert np.abs(table["height_m"] - truth["height_m"][rows]).max() < 0.01
     assert (tmp_path / "out" / "photos" / "geo.txt").read_text().startswith("EPSG:32631\n")
     assert len(list((tmp_path / "out" / "photos" / "sidecars").glob("photo_*.json"))) == len(rows)
+
+
+def test_sisa_sync_says_when_the_camera_pulse_line_is_dead(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]
+                                                            ) -> None:
+    from sisa.cli import main
+
+    simulate(scenario(5, {"lost_pulse_fraction": 1.0}), tmp_path / "run", images=False)
+    code = main(["sync", str(tmp_path / "run" / "flight.mcap"), "--out",
+                 str(tmp_path / "sync")])
+    assert code == 3
+    err = capsys.readouterr().err
+    assert "not one camera pulse" in err
+    assert "of 40 photos not timed" in err

@@ -126,3 +126,20 @@ def test_one_pulse_claimed_by_two_messages_times_neither() -> None:
     rows, _ = photo_times(cam, pt, WINDOW_MS)
     assert rows.status.tolist() == [PhotoStatus.AMBIGUOUS, PhotoStatus.AMBIGUOUS]
     assert rows.t_gps_ns.tolist() == [-1, -1]
+
+
+@pytest.mark.parametrize(("pulses", "messages"), [([], [5]), ([5], []), ([], [])])
+def test_pulses_without_messages_and_messages_without_pulses(pulses: list[int],
+                                                             messages: list[int]) -> None:
+    board = the_board_map()
+    t = [GPS0 + k * S for k in pulses]
+    cam = camera(t, [True] * len(t), [GPS0 + k * S + 30 * MS for k in messages],
+                 list(range(1, len(messages) + 1)))
+    pt = pulse_times(cam, i64([x + GATE_DELAY_NS for x in t]), no_casi_tags(), board,
+                     ttt_window_ns=50_000, max_board_gap_s=120.0, agree_floor_ns=2_000,
+                     tag_lsb_ns=100)
+    rows, report = photo_times(cam, pt, WINDOW_MS)
+    assert rows.status.tolist() == ([PhotoStatus.NO_PHOTO_NUMBER] * len(t)
+                                    + [PhotoStatus.NO_PULSE] * len(messages))
+    assert rows.t_gps_ns.tolist() == t + [-1] * len(messages)
+    assert report["camera_pulses"] == len(t)

@@ -140,7 +140,8 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
                                  max_board_gap_s=cfg.max_board_gap_s,
                                  agree_floor_ns=cfg.board_agree_floor_ns,
-                                 tag_lsb_ns=cfg.tag_lsb_ns)
+                                 tag_lsb_ns=cfg.tag_lsb_ns,
+                                 host_tags=not inp.camera.pulse_to_gps_event.any())
     epoch = flight_epoch_ns(inp, host)
     ins_times, sol = solve_ins(inp.ins, pulses, host, epoch, cfg)
     line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)

@@ -143,3 +143,25 @@ def test_pulses_without_messages_and_messages_without_pulses(pulses: list[int],
                                     + [PhotoStatus.NO_PULSE] * len(messages))
     assert rows.t_gps_ns.tolist() == t + [-1] * len(messages)
     assert report["camera_pulses"] == len(t)
+
+
+def test_without_a_board_map_a_frame_pulse_ties_no_tag_on_host_time_beside_a_camera() -> None:
+    """With no PPS to map the board, a frame pulse's tag was tied on host time within 300 ms;
+    with camera pulses on the same event input, the nearest tag there may be a photo's."""
+    from postproc.sync.clockmap import fit_clock_map
+    from postproc.sync.flightlog import GpsTimes, SisaColumns
+    from postproc.sync.pulses import sisa_pulses
+
+    t_fwd = GPS0 + 10 * S
+    empty, none = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.bool_)
+    sisa = SisaColumns(empty, empty, empty, none, i64([t_fwd + 37 * MS]), i64([0]),
+                       i64([board_of(t_fwd)]), i64([2]), np.array([True]), np.array([True]),
+                       i64([-1]), i64([7]), i64([4]), 1)
+    photo_tag = t_fwd + 120 * MS  # the frame pulse's own tag was lost; a photo's is near
+    gps = GpsTimes(empty, empty, i64([photo_tag + 37 * MS]), i64([photo_tag]), np.array([False]))
+    host = fit_clock_map(GPS0 + 37 * MS + S * np.arange(20, dtype=np.int64),
+                         GPS0 + S * np.arange(20, dtype=np.int64), 1e-3)
+    for host_tags, want in ((True, photo_tag), (False, -1)):
+        got, _ = sisa_pulses(sisa, gps, None, host, ttt_window_ns=50_000,
+                             max_board_gap_s=120.0, host_tags=host_tags)
+        assert got.t_gps_ns.tolist() == [want]

@@ -359,9 +359,11 @@ def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
                 "earlier timeline)" if acq.timeline_restarts else "")
     per_link = ", ".join(f"{name} {link.disconnects}/{link.reconnects}"
                          for name, link in acq.links.items() if link.disconnects)
+    camera = (f", photo messages {s['camera'].messages}, camera pulses "
+              f"{s['camera_pulse'].messages}" if "camera" in s else "")
     print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
           f"frame headers {s['scanner'].messages}, PPS {s['pps'].messages}, ppf "
-          f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
+          f"{s['ppf'].messages}{camera}; {errors} decode errors, {drops} drops, {late} late edges, "
           f"{lost} disconnects, {back} reconnects"
           f"{f' ({per_link} lost/back)' if per_link else ''}, "
           f"{acq.session + 1} sync session(s)"

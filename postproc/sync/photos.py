@@ -33,8 +33,8 @@ from postproc.sync.pulses import (
     GATE_DELAY_NS,
     PulseSource,
     SisaPulses,
-    _ttt_match,
     board_agreement_ns,
+    ttt_match,
 )
 from sisa.core.timescale import NS_PER_S
 
@@ -104,7 +104,7 @@ def pulse_times(cam: CameraColumns, ttt: I64, casi: SisaPulses, board: ClockMap 
     near = np.asarray(board.gap_s(out_board) <= max_board_gap_s, dtype=np.bool_)
     claimed = casi.t_gps_ns[casi.source == PulseSource.TTT]
     free = np.sort(np.setdiff1d(ttt, claimed))
-    tag = _ttt_match(by_board, near & cam.pulse_to_gps_event, free, ttt_window_ns)
+    tag = ttt_match(by_board, near & cam.pulse_to_gps_event, free, ttt_window_ns)
     tolerance = board_agreement_ns(board, out_board, agree_floor_ns, tag_lsb_ns)
     has_tag = tag >= 0
     disagree = has_tag & (np.abs(tag - by_board) > tolerance)

@@ -82,7 +82,7 @@ def board_agreement_ns(board: ClockMap, board_ns: I64, floor_ns: int, tag_lsb_ns
                       dtype=np.float64)
 
 
-def _ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64:
+def ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64:
     """The TTT tag nearest each wanted estimate, if within the window; each tag used once."""
     out = np.full(estimate_ns.shape, -1, dtype=np.int64)
     if ttt_ns.size == 0:
@@ -103,10 +103,10 @@ def _tags(sisa: SisaColumns, ttt: I64, board: ClockMap | None, by_board: I64,
     """The TTT tag of each forward sent to the event input: through the board map, or on host
     time (a wider window) when the log has no PTT to build one and `host_tags` allows it."""
     if board is not None:
-        return _ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, window_ns)
+        return ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, window_ns)
     if not host_tags:
         return np.full(sisa.fwd_board_ns.shape, -1, dtype=np.int64)
-    return _ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
+    return ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
                       HOST_TTT_WINDOW_NS)
 
 

@@ -15,26 +15,22 @@ photo number that pulse was. Every value is little-endian, the CRC included:
 | 7      | 4    | exposure_time_us | u32  | exposure (shutter open) time, 1 µs – 1 s       |
 | 11     | 2    | crc              | u16  | CRC-16/CCITT-FALSE over bytes 2–10             |
 
-The CRC covers the length byte as well as the body. Every message has the same length, so a
-damaged one (wrong length byte, CRC that fails) is refused as far as its sync, and whatever fails
-inside the 13 bytes it would span is the same error: a good message that begins inside them is
-still decoded.
+The framing (sync, length, CRC over the length byte and the body, resynchronisation, refusals
+by reason) is the one `acquisition.crcframe` declares, shared with the scanner's frame header.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
 
-from acquisition.checksums import crc16_ccitt_false
-from acquisition.codec import ErrorKind, ErrorPolicy, RefusedError
+from acquisition.codec import ErrorPolicy
+from acquisition.crcframe import CrcFramer, CrcMessage
 from acquisition.fields import Field, Layout, WireType
-from acquisition.framing import MORE, Cut, StreamDecoder, Verdict, cut_at_sync
+from acquisition.framing import StreamDecoder
 from sisa.core.errors import EncodeError
 
 SYNC = b"\xc5\x5c"
-CRC_BYTES = 2
 MAX_EXPOSURE_US = 1_000_000
 
 
@@ -60,7 +56,8 @@ BODY = Layout("camera_photo", 8, (
     Field.at_byte("exposure_time_us", 4, WireType.U32, unit="us", minimum=1,
                   maximum=MAX_EXPOSURE_US),
 ))
-MESSAGE_BYTES = len(SYNC) + 1 + BODY.size_bytes + CRC_BYTES
+MESSAGE = CrcMessage("camera", SYNC, BODY)
+MESSAGE_BYTES = MESSAGE.message_bytes
 
 
 def encode_photo(msg: PhotoMessage, *, photo_counter_bits: int = 16) -> bytes:
@@ -68,66 +65,17 @@ def encode_photo(msg: PhotoMessage, *, photo_counter_bits: int = 16) -> bytes:
     if not 0 <= msg.photo_number < 1 << photo_counter_bits:
         raise EncodeError(f"photo_number = {msg.photo_number} is outside "
                           f"[0, 2^{photo_counter_bits})")
-    body = BODY.pack({"photo_number": msg.photo_number,
-                      "exposure_time_us": msg.exposure_time_us})
-    checked = bytes([BODY.size_bytes]) + body
-    return SYNC + checked + crc16_ccitt_false(checked).to_bytes(CRC_BYTES, "little")
+    return MESSAGE.pack({"photo_number": msg.photo_number,
+                         "exposure_time_us": msg.exposure_time_us})
+
+
+def _photo(raws: dict[str, int]) -> PhotoMessage:
+    return PhotoMessage(raws["photo_number"], raws["exposure_time_us"])
 
 
 def decode_photo(raw: bytes) -> PhotoMessage:
     """One whole message; RefusedError (naming its reason) if it is not a valid one."""
-    if len(raw) != MESSAGE_BYTES or not raw.startswith(SYNC):
-        raise RefusedError(CameraRefusal.MALFORMED, "not a camera photo message", raw=raw)
-    if raw[len(SYNC)] != BODY.size_bytes:
-        raise RefusedError(CameraRefusal.LENGTH, f"length {raw[len(SYNC)]} after sync", raw=raw)
-    checked = raw[len(SYNC):-CRC_BYTES]
-    if crc16_ccitt_false(checked) != int.from_bytes(raw[-CRC_BYTES:], "little"):
-        raise RefusedError(CameraRefusal.CHECKSUM, "camera CRC-16 mismatch",
-                           kind=ErrorKind.CHECKSUM, raw=raw)
-    raws = BODY.unpack_raw(checked[1:])
-    if bad := BODY.out_of_range(raws):
-        raise RefusedError(CameraRefusal.FIELD_VALUE, f"out of range: {', '.join(bad)}",
-                           raw=raw)
-    return PhotoMessage(raws["photo_number"], raws["exposure_time_us"])
-
-
-def cut_photo(buffer: bytearray, start: int, at_end: bool) -> Cut:
-    """A stream framer's verdict on buffer[start:], where buffer[start] is SYNC[0] (a message
-    still short at the end of the stream is left to the stream's `unfinished`)."""
-    if (sync := cut_at_sync(buffer, start, SYNC)) is not None:
-        return sync
-    have = len(buffer) - start
-    if have < len(SYNC) + 1:
-        return MORE
-    if buffer[start + len(SYNC)] != BODY.size_bytes:
-        return Cut(Verdict.DAMAGED, len(SYNC), CameraRefusal.LENGTH,
-                   f"length {buffer[start + len(SYNC)]} after sync", shadow=MESSAGE_BYTES)
-    if have < MESSAGE_BYTES:
-        return MORE
-    checked = bytes(buffer[start + len(SYNC):start + MESSAGE_BYTES - CRC_BYTES])
-    crc = int.from_bytes(buffer[start + MESSAGE_BYTES - CRC_BYTES:start + MESSAGE_BYTES],
-                         "little")
-    if crc16_ccitt_false(checked) != crc:
-        return Cut(Verdict.DAMAGED, len(SYNC), CameraRefusal.CHECKSUM, "camera CRC-16 mismatch",
-                   kind=ErrorKind.CHECKSUM, shadow=MESSAGE_BYTES)
-    return Cut(Verdict.WHOLE, MESSAGE_BYTES)
-
-
-class PhotoFramer:
-    """Photo messages on a stream (for `acquisition.framing.StreamDecoder`)."""
-
-    name = "camera"
-    leads = SYNC[:1]
-    max_message_bytes = MESSAGE_BYTES
-
-    def cut(self, buffer: bytearray, start: int, at_end: bool) -> Cut:
-        return cut_photo(buffer, start, at_end)
-
-    def decode(self, raw: bytes) -> PhotoMessage:
-        return decode_photo(raw)
-
-    def kind(self, message: Any) -> str:
-        return "photo"
+    return _photo(MESSAGE.unpack(raw))
 
 
 class PhotoStreamDecoder(StreamDecoder[PhotoMessage]):
@@ -136,18 +84,10 @@ class PhotoStreamDecoder(StreamDecoder[PhotoMessage]):
     but these messages: a CR or LF between them is junk, as any other byte."""
 
     def __init__(self, policy: ErrorPolicy = ErrorPolicy.COUNT) -> None:
-        super().__init__([PhotoFramer()], policy, filler=b"")
+        super().__init__([CrcFramer(MESSAGE, _photo, "photo")], policy, filler=b"")
 
 
 def first_photo_message(data: bytes) -> int:
     """Where in `data` the first whole, valid photo message begins, or -1: how a port proves it
     is the camera before anything of it is recorded."""
-    start = data.find(SYNC)
-    while 0 <= start <= len(data) - MESSAGE_BYTES:
-        try:
-            decode_photo(data[start:start + MESSAGE_BYTES])
-        except RefusedError:
-            start = data.find(SYNC, start + 1)
-            continue
-        return start
-    return -1
+    return MESSAGE.first_valid(data)

@@ -34,6 +34,7 @@ from emulators.trajectory import TruthTrajectory
 from postproc.georef import Dem, intersect
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import ARCSEC_RAD
+from sisa.core.utm import utm_epsg
 from sisa.wiring.accuracy import check_points
 from sisa.wiring.gcpsim import TruthProjector, truth_segments
 
@@ -88,7 +89,9 @@ class Views:
                                        np.radians(self.state.lon_deg))
         # along track: the ground direction of flight, from the heading and grid convergence
         fwd = self.state.ecef_m + 60.0 * np.einsum("nij,nj->ni", self.r_ne, self.state.vel_ned_mps)
-        to_map = Transformer.from_crs(4978, 32600 + self._zone(), always_xy=True)
+        to_map = Transformer.from_crs(4978, utm_epsg(float(np.mean(self.state.lon_deg)),
+                                                     float(np.mean(self.state.lat_deg))),
+                                        always_xy=True)
         e0, n0 = to_map.transform(*self.state.ecef_m.T)[:2]
         e1, n1 = to_map.transform(*fwd.T)[:2]
         a = np.stack([np.asarray(e1) - e0, np.asarray(n1) - n0], axis=1)
@@ -108,9 +111,6 @@ class Views:
         self.sigma = np.stack([np.full(len(idx), h_m), np.full(len(idx), h_m),
                                np.full(len(idx), v_m),
                                *att], axis=1)  # (n, 6): δN, δE, δD, δroll, δpitch, δheading
-
-    def _zone(self) -> int:
-        return int((float(np.mean(self.state.lon_deg)) + 180.0) // 6.0) + 1
 
     def ground(self, delta: np.ndarray) -> np.ndarray:
         """(n, 3) E, N, h of every view's image ray with the pose errors delta (n, 6)."""

@@ -10,6 +10,7 @@ import numpy.typing as npt
 from pyproj import CRS, Transformer
 
 from emulators.scenario import Scenario
+from sisa.core.utm import utm_epsg
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -36,8 +37,7 @@ class LocalPlane:
 
     @cached_property
     def utm_epsg(self) -> int:
-        zone = int((self.lon0_deg + 180.0) // 6.0) + 1
-        return (32600 if self.lat0_deg >= 0 else 32700) + zone
+        return utm_epsg(self.lon0_deg, self.lat0_deg)
 
     @cached_property
     def _plane_to_utm(self) -> Transformer:

@@ -35,6 +35,7 @@ from sisa.core.sensor import (
     validation_text,
 )
 from sisa.core.timescale import parse_gps_datetime
+from sisa.core.utm import central_meridian_deg, utm_zone
 
 PRESETS = ("bench", "garrotxa", "bellmunt", "bench_camera")
 
@@ -656,7 +657,7 @@ def dem_extent_m(scn: Scenario) -> tuple[float, float]:
     turned by the UTM grid convergence at the block centre and scaled by at most 1.01."""
     e0, n0, e1, n1 = block_extent_en_m(scn)
     lat, lon = scn.block.centre_lat_deg, scn.block.centre_lon_deg
-    central_meridian = 6.0 * ((lon + 180.0) // 6.0) - 177.0  # as LocalPlane.utm_epsg's zone
+    central_meridian = central_meridian_deg(utm_zone(lon, lat))  # LocalPlane.utm_epsg's zone
     gamma = math.atan(math.tan(math.radians(lon - central_meridian))
                       * math.sin(math.radians(lat)))
     c, s = abs(math.cos(gamma)), abs(math.sin(gamma))

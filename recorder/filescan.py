@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import bisect
 import contextlib
-from collections.abc import Iterator
+import zlib
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import BinaryIO
 
+import numpy as np
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
@@ -22,8 +24,9 @@ from mcap.records import (
     Metadata,
     Schema,
 )
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import CRCValidationError
 
+from recorder.chunkrecords import ChunkMessages, check_message_index, split_chunk
 from recorder.framing import (
     DECLARATION_MAX,
     KNOWN_OPCODES,
@@ -65,7 +68,9 @@ class FileScan:
         self._summary_read = False  # looked up once: on damage, or once a channel is missing
         self._summary_declared = False
 
-    def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
+    def batches(self) -> Iterator[tuple[Mapping[int, ChannelInfo], ChunkMessages]]:
+        """Every readable message, a chunk at a time (columns over the chunk's bytes), with the
+        channels they are on: each message's channel is declared."""
         fs = self.fstats
         with open_log(self.path) as fh:
             source = WholeRecords(fh, len(MCAP_MAGIC), fs.size_bytes, self.limit)
@@ -74,11 +79,21 @@ class FileScan:
                 for start, record in self.records(fh, source):
                     batch = self._on_record(record, start, source.position)
                     fs.bytes_readable = source.position
-                    yield from batch
+                    if batch is not None and len(batch):
+                        yield self.channels, batch
             except PARSE_ERRORS as exc:  # not expected: the records are parsed one by one
                 self._problem(f"unreadable record after byte {fs.bytes_readable}: {exc}")
             if fs.complete:
                 fs.bytes_readable = source.position
+
+    def messages(self) -> Iterator[tuple[ChannelInfo, Message]]:
+        """Every readable message, one at a time, with its channel."""
+        for channels, batch in self.batches():
+            for m in zip(batch.channel_id.tolist(), batch.sequence.tolist(),
+                         batch.log_time.tolist(), batch.publish_time.tolist(),
+                         batch.payloads(), strict=True):
+                yield channels[m[0]], Message(channel_id=m[0], sequence=m[1], log_time=m[2],
+                                              publish_time=m[3], data=m[4])
 
     def records(self, fh: BinaryIO, source: WholeRecords) -> Iterator[tuple[int, object]]:
         """Top-level records with their offsets, each parsed from its own bytes only, so damage
@@ -138,7 +153,11 @@ class FileScan:
                                   f"({head[0]:#04x})")
                 continue
             try:
-                record = next(iter_records(head + body, self.limit, emit_chunks=True))
+                if head[0] == Opcode.MESSAGE_INDEX:  # nothing a pass uses: checked, not parsed
+                    check_message_index(body)
+                    record: object = None
+                else:
+                    record = next(iter_records(head + body, self.limit, emit_chunks=True))
             except (*PARSE_ERRORS, OverLimitError) as exc:
                 end = source.position
                 back = None if previous is None else self._overrun(fh, previous, start)
@@ -228,12 +247,11 @@ class FileScan:
         if self._summary is None:  # nothing else declares what it may have declared
             self._salvage_stretch(fh, start, resume)
 
-    def _on_record(self, record: object, start: int, end: int
-                   ) -> list[tuple[ChannelInfo, Message]]:
+    def _on_record(self, record: object, start: int, end: int) -> ChunkMessages | None:
         if isinstance(record, Chunk):
             return self._chunk(record, start, end)
         if isinstance(record, Message):
-            return self._message(record)
+            return self._declared(ChunkMessages.of(record))
         self._declare(record)
         if isinstance(record, Header):
             self.fstats.library = record.library
@@ -241,7 +259,7 @@ class FileScan:
             self.fstats.metadata[record.name] = dict(record.metadata)
         elif isinstance(record, Footer):
             self.fstats.has_summary = record.summary_start != 0
-        return []
+        return None
 
     def _declare(self, record: object) -> None:
         if isinstance(record, Schema):
@@ -250,24 +268,24 @@ class FileScan:
             schema = self.schemas.get(record.schema_id)
             self.channels[record.id] = ChannelInfo.declared(record, schema)
 
-    def _chunk(self, chunk: Chunk, start: int, end: int) -> list[tuple[ChannelInfo, Message]]:
+    def _chunk(self, chunk: Chunk, start: int, end: int) -> ChunkMessages | None:
         """All the chunk's messages, or none if the chunk is damaged."""
         try:
-            records = breakup_chunk(uncompressed_chunk(chunk, self.limit), validate_crc=True)
-        except PARSE_ERRORS as exc:
+            data = uncompressed_chunk(chunk, self.limit).data
+            if chunk.uncompressed_crc != 0 and (crc := zlib.crc32(data)) != chunk.uncompressed_crc:
+                raise CRCValidationError(expected=chunk.uncompressed_crc, actual=crc,
+                                         record=chunk)
+            declarations, messages = split_chunk(data, self.limit)
+        except (*PARSE_ERRORS, OverLimitError) as exc:
             self.fstats.chunks_skipped += 1
             self.fstats.bytes_skipped += end - start
             self._problem(f"chunk ending at byte {end} skipped: {exc}")
             self._salvage_declarations(chunk)
-            return []
+            return None
         self.fstats.chunks_read += 1
-        out: list[tuple[ChannelInfo, Message]] = []
-        for record in records:
-            if isinstance(record, Message):
-                out.extend(self._message(record))
-            else:
-                self._declare(record)
-        return out
+        for declared in declarations:
+            self._declare(declared)
+        return self._declared(messages)
 
     def _salvage_declarations(self, chunk: Chunk) -> None:
         """The channels a damaged chunk declares that are exactly what SISA writes (topic,
@@ -315,18 +333,22 @@ class FileScan:
                 self.schemas.setdefault(schema.id, schema)
                 self._declare(record)
 
-    def _message(self, msg: Message) -> list[tuple[ChannelInfo, Message]]:
-        channel = self.channels.get(msg.channel_id)
-        if channel is None and not self._summary_declared:  # declared in a damaged chunk
+    def _declared(self, messages: ChunkMessages) -> ChunkMessages:
+        """The messages on declared channels; the others skipped, each said."""
+        ids = np.unique(messages.channel_id).tolist()
+        missing = [i for i in ids if i not in self.channels]
+        if missing and not self._summary_declared:  # declared in a damaged chunk
             self._summary_declared = True
             summary = self._summary_info()
             for declared in summary.declarations if summary is not None else ():
                 self._declare(declared)
-            channel = self.channels.get(msg.channel_id)
-        if channel is None:
-            self._problem(f"message on undeclared channel {msg.channel_id} skipped")
-            return []
-        return [(channel, msg)]
+            missing = [i for i in missing if i not in self.channels]
+        if not missing:
+            return messages
+        lost = np.isin(messages.channel_id, np.array(missing, dtype=np.uint16))
+        for channel_id in messages.channel_id[lost].tolist():
+            self._problem(f"message on undeclared channel {channel_id} skipped")
+        return messages.take(np.flatnonzero(~lost))
 
     def _summary_info(self) -> Summary | None:
         if not self._summary_read:
@@ -338,3 +360,4 @@ class FileScan:
     def _problem(self, text: str) -> None:
         if len(self.fstats.problems) < MAX_PROBLEMS_KEPT:  # (a parser's words may quote the
             self.fstats.problems.append(shown_text(text, 300))  # file: escaped, cut)
+

@@ -39,10 +39,12 @@ from pathlib import Path
 from typing import Any, Final, TypeVar
 
 import numpy as np
+import numpy.typing as npt
 from mcap.records import (
     Message,
 )
 
+from recorder.chunkrecords import ChunkMessages
 from recorder.filescan import FileScan
 from recorder.framing import DEFAULT_RECORD_SIZE_LIMIT, Paths, log_paths, open_log
 from recorder.messages import LoggedMessage, Topic
@@ -93,14 +95,29 @@ class LogReader:
 
     def raw(self) -> Iterator[tuple[ChannelInfo, Message]]:
         """Every readable message, in file order, with its channel."""
+        for channels, batch in self.raw_batches():
+            for m in zip(batch.channel_id.tolist(), batch.sequence.tolist(),
+                         batch.log_time.tolist(), batch.publish_time.tolist(),
+                         batch.payloads(), strict=True):
+                yield channels[m[0]], Message(channel_id=m[0], sequence=m[1], log_time=m[2],
+                                              publish_time=m[3], data=m[4])
+
+    def raw_batches(self) -> Iterator[tuple[Mapping[int, ChannelInfo], ChunkMessages]]:
+        """Every readable message, in file order, a chunk at a time (columns over its bytes),
+        with the channels they are on: how a long log is read without a Python object per
+        message."""
         previous: tuple[Path, int] | None = None  # the last part with messages, its end
         for path in self.paths:
             fstats = FileStats(path, path.stat().st_size)
             self.stats.files.append(fstats)
             marks = {topic: len(times) for topic, times in self._times.items()}
-            for channel, msg in FileScan(path, fstats, self.record_size_limit).messages():
-                self._account(channel, msg)
-                yield channel, msg
+            scan = FileScan(path, fstats, self.record_size_limit)
+            seen: list[tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint32],
+                             npt.NDArray[np.uint64]]] = []  # not the chunks' bytes
+            for channels, batch in scan.batches():
+                seen.append((batch.channel_id, batch.sequence, batch.log_time))
+                yield channels, batch
+            self._account(scan.channels, seen)
             if self._check_times:
                 previous = self._check_follows(path, marks, previous)
         self._finish()
@@ -125,19 +142,39 @@ class LogReader:
                              "not mixed")
         return path, max(int(span.max()) for span in spans)
 
-    def _account(self, channel: ChannelInfo, msg: Message) -> None:
-        topic = channel.topic
-        ts = self.stats.topics.get(topic)
-        if ts is None:
-            ts = self.stats.topics[topic] = TopicStats(topic, channel.schema_name)
-            self._times[topic] = array("Q")
-        ts.count += 1  # the rest of the timing is filled in at the end of the pass
-        self._times[topic].append(msg.log_time)
-        expected = self._next_seq.get(topic)
-        if expected is not None and msg.sequence != expected:
-            jump = (msg.sequence - expected) % SEQUENCE_MOD
-            ts.lost_by_sequence += jump if jump < SEQUENCE_MOD // 2 else 0
-        self._next_seq[topic] = (msg.sequence + 1) % SEQUENCE_MOD
+    def _account(self, channels: Mapping[int, ChannelInfo],
+                 batches: list[tuple[npt.NDArray[np.uint16], npt.NDArray[np.uint32],
+                                     npt.NDArray[np.uint64]]]) -> None:
+        """Counts, log times and sequence gaps of each topic, over one file's messages at once
+        (a chunk at a time cost half a millisecond a chunk)."""
+        if not batches:
+            return
+        ids = np.concatenate([b[0] for b in batches])
+        seqs = np.concatenate([b[1] for b in batches]).astype(np.int64)
+        log_times = np.concatenate([b[2] for b in batches])
+        topics = sorted({channels[i].topic for i in np.unique(ids).tolist()})
+        topic_index = {topic: k for k, topic in enumerate(topics)}
+        lookup = np.zeros(int(ids.max()) + 1, dtype=np.int64)
+        for channel_id in np.unique(ids).tolist():
+            lookup[channel_id] = topic_index[channels[channel_id].topic]
+        of_topic = lookup[ids]
+        for k, topic in enumerate(topics):
+            at = np.flatnonzero(of_topic == k)  # in file order
+            ts = self.stats.topics.get(topic)
+            if ts is None:
+                schema = next(c.schema_name for c in channels.values() if c.topic == topic)
+                ts = self.stats.topics[topic] = TopicStats(topic, schema)
+                self._times[topic] = array("Q")
+            ts.count += int(at.size)  # the rest of the timing is filled in at the end
+            self._times[topic].frombytes(log_times[at].astype("<u8").tobytes())
+            seq = seqs[at]
+            expected = np.empty_like(seq)
+            expected[1:] = (seq[:-1] + 1) % SEQUENCE_MOD
+            before = self._next_seq.get(topic)
+            expected[0] = seq[0] if before is None else before
+            jump = (seq - expected) % SEQUENCE_MOD
+            ts.lost_by_sequence += int(jump[jump < SEQUENCE_MOD // 2].sum())
+            self._next_seq[topic] = int((seq[-1] + 1) % SEQUENCE_MOD)
 
     def _finish(self) -> None:
         for topic, ts in self.stats.topics.items():

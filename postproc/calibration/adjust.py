@@ -34,7 +34,7 @@ from postproc.calibration.check import (
     predicted_variance,
 )
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
-from postproc.calibration.model import DELAY_GRID_MS, CameraModel
+from postproc.calibration.model import DELAY_GRID_MS, CameraModel, line_model
 from postproc.calibration.navigation import (
     Navigation,
     NavKnots,
@@ -325,6 +325,6 @@ def sweep_delay(inp: CalibrationInput, opt: CalibrationOptions, delays_ms: F64
 
 def control_setup(adj: Adjustment, inp: CalibrationInput) -> CheckSetup:
     """The control observations as if they were check points, cast on surveyed heights."""
-    m = adj.problem.model
+    m = line_model(adj.problem.model)
     rows = inp.points.index_of(adj.obs.point_id, "observations")
     return CheckSetup(m, inp.points.ecef_m[rows], None, 0.0, 0.0)

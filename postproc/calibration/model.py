@@ -1,4 +1,5 @@
-"""The line-scanner observation model that calibration adjusts (docs/calibration.md).
+"""The line-scanner observation model that calibration adjusts (docs/calibration.md), on a
+pose model it shares with the frame camera's (`framemodel`).
 
 For an observation at fractional line ℓ of segment s:
     t      = t_s(ℓ) + τ                               (line time, interpolated, plus the delay)
@@ -29,6 +30,7 @@ of seconds), ≤ 0.005 px at 2160 m. With the delay fixed the pose is sampled at
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Final, NamedTuple
 
@@ -74,8 +76,14 @@ def rot_xyz(angles_rad: F64) -> F64:
 
 def boresight_matrix(boresight_arcsec: F64) -> F64:
     """R_c^b = R_nom·Rx(ω)·Ry(φ)·Rz(κ), as sisa.core.sensor.Mounting."""
+    return mounted(R_NOMINAL_C_TO_B, boresight_arcsec)
+
+
+def mounted(r_nominal: F64, boresight_arcsec: F64) -> F64:
+    """R_c^b = R_nom·Rx(ω)·Ry(φ)·Rz(κ) for a camera's nominal mounting (the scanner's, or
+    the frame camera's sisa.core.framecamera.R_NOMINAL_K_TO_B)."""
     w, p, k = (float(a) * ARCSEC_RAD for a in boresight_arcsec)
-    return np.asarray(R_NOMINAL_C_TO_B @ rot_x(w) @ rot_y(p) @ rot_z(k), np.float64)
+    return np.asarray(r_nominal @ rot_x(w) @ rot_y(p) @ rot_z(k), np.float64)
 
 
 @dataclass(frozen=True)
@@ -108,21 +116,24 @@ class Pose(NamedTuple):
     valid: Bool
 
 
-class CameraModel:
-    """Projection of points into the observed lines, for a given parameter state."""
+class PoseModel(ABC):
+    """What every observation model shares: the pose at each observation's time (plus the
+    delay), the perspective centre and the camera's rotation with every correction of the
+    state applied, and the point in the camera frame. A line scanner (`CameraModel`) and a
+    frame camera (`postproc.calibration.framemodel.FrameCameraModel`) add their projection:
+    the residuals (observed − modelled) of each row's two image coordinates, their derivatives
+    by the point, and each observation's ray."""
 
-    def __init__(self, traj: Trajectory, sensor: SensorModel, obs: ObsGeometry,
-                 origin_ecef_m: F64, delay_grid_ms: float | None = None) -> None:
+    def __init__(self, traj: Trajectory, obs: ObsGeometry, origin_ecef_m: F64,
+                 lever_arm_m: tuple[float, float, float], r_nominal_c_to_b: F64,
+                 delay_grid_ms: float | None = None) -> None:
         self.traj = traj
         self.delay_grid_ms = delay_grid_ms  # None: the pose at t + τ exactly (module doc)
-        self.sensor = sensor
         self.obs = obs
         self.origin = np.asarray(origin_ecef_m, np.float64)
         self.r_enu = r_ecef_from_enu(self.origin)
-        self.lever = np.asarray(sensor.mounting.lever_arm_m, np.float64)
-        sc = sensor.scanner
-        self.pitch_m = sc.pixel_pitch_um * 1e-6
-        self.centre_px = sc.centre_pixel
+        self.lever = np.asarray(lever_arm_m, np.float64)
+        self.r_nominal = np.asarray(r_nominal_c_to_b, np.float64)
         self._cache: dict[int, Pose] = {}
 
     def pose(self, t_ns: I64) -> Pose:
@@ -161,8 +172,9 @@ class CameraModel:
             self._cache[offset_ns] = self.pose(self.obs.t_line_ns + np.int64(offset_ns))
         return self._cache[offset_ns]
 
-    def project(self, st: State, x_m: F64, pose: Pose) -> Projection:
-        """x_m: (N, 3) the observed point of every row, ECEF − origin."""
+    def camera_frame(self, st: State, x_m: F64, pose: Pose) -> tuple[F64, F64, F64]:
+        """(the points x_m (N, 3, ECEF − origin) in the camera frame, R_c^e (N, 3, 3), the
+        perspective centres (N, 3, local)) with every correction of `st` applied."""
         k = self.obs.seg_k
         ang = (st.attitude_arcsec[k] + st.drift_arcsec_per_s[k] * self.obs.dt_mid_s[:, None])
         r_be = pose.r_ecef_from_body
@@ -172,8 +184,42 @@ class CameraModel:
             enu = enu + self.obs.nav.error(st.nav_enu_m)
         shift = self.r_enu @ enu.T
         centre = (pose.ins_m + r_be_att @ self.lever - r_be @ st.antenna_delta_m + shift.T)
-        r_ce = r_be_att @ boresight_matrix(st.boresight_arcsec)
+        r_ce = r_be_att @ mounted(self.r_nominal, st.boresight_arcsec)
         p = np.einsum("nji,nj->ni", r_ce, x_m - centre)
+        return p, r_ce, centre
+
+    @abstractmethod
+    def rates(self, st: State, x_m: F64) -> F64:
+        """What divides the first coordinate's misclosure (a line scanner's du/dℓ)."""
+
+    @abstractmethod
+    def residuals(self, st: State, x_m: F64, pose: Pose, rate: F64) -> tuple[F64, F64]:
+        """(first, second) image coordinate of every row, observed − modelled."""
+
+    @abstractmethod
+    def point_jacobian(self, st: State, x_m: F64, pose: Pose, rate: F64) -> F64:
+        """d(residuals)/dX, shape (N, 2, 3)."""
+
+    @abstractmethod
+    def ray(self, st: State, pose: Pose) -> tuple[F64, F64]:
+        """Perspective centre (local) and unit ECEF direction of every observation."""
+
+
+class CameraModel(PoseModel):
+    """Projection of points into the observed lines, for a given parameter state."""
+
+    def __init__(self, traj: Trajectory, sensor: SensorModel, obs: ObsGeometry,
+                 origin_ecef_m: F64, delay_grid_ms: float | None = None) -> None:
+        super().__init__(traj, obs, origin_ecef_m, sensor.mounting.lever_arm_m,
+                         R_NOMINAL_C_TO_B, delay_grid_ms)
+        self.sensor = sensor
+        sc = sensor.scanner
+        self.pitch_m = sc.pixel_pitch_um * 1e-6
+        self.centre_px = sc.centre_pixel
+
+    def project(self, st: State, x_m: F64, pose: Pose) -> Projection:
+        """x_m: (N, 3) the observed point of every row, ECEF − origin."""
+        p, r_ce, centre = self.camera_frame(st, x_m, pose)
         f = (self.sensor.scanner.focal_length_mm + st.selfcal[0]) * 1e-3
         return Projection(-f * p[:, 0] / p[:, 2], -f * p[:, 1] / p[:, 2], p, r_ce, centre, f)
 
@@ -219,3 +265,11 @@ class CameraModel:
                          np.full(self.obs.pixel.size, -pr.focal_m)], axis=1)
         d = np.einsum("nij,nj->ni", pr.r_ecef_from_camera, look)
         return pr.centre_m, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def line_model(model: PoseModel) -> CameraModel:
+    """The line scanner's model of a problem built for one (the scanner's report and check
+    points read its projection); TypeError for another camera's."""
+    if not isinstance(model, CameraModel):
+        raise TypeError(f"a line scanner's model was expected, not {type(model).__name__}")
+    return model

@@ -246,8 +246,10 @@ def base_state(sensor: SensorModel, n_segments: int, n_knots: int = 0) -> State:
                  np.zeros((n_segments, 3)), np.zeros((n_knots, 3)))
 
 
-def build_layout(groups: tuple[Group, ...], segments: list[int], sensor: SensorModel,
+def build_layout(groups: tuple[Group, ...], segments: list[int], sensor: SensorModel | State,
                  priors: PriorSigmas | None = None, knots: NavKnots | None = None) -> Layout:
+    """The parameters of `groups` around the starting state: a line scanner's sensor file
+    (`base_state`), or a State built by the caller (the frame camera's, without knots)."""
     pri = priors or PriorSigmas()
     params: list[Param] = []
     for g in groups:
@@ -263,5 +265,6 @@ def build_layout(groups: tuple[Group, ...], segments: list[int], sensor: SensorM
         seg = int(knots.segment[k]) if knots is not None else -1
         params += [Param(Group.NAVIGATION, c, seg, names[c], unit, step, None, k)
                    for c in range(3)]
-    return Layout(tuple(params), tuple(segments), base_state(sensor, len(segments), n_knots),
-                  tuple(groups), knots if n_knots else None)
+    base = sensor.copy() if isinstance(sensor, State) else \
+        base_state(sensor, len(segments), n_knots)
+    return Layout(tuple(params), tuple(segments), base, tuple(groups), knots if n_knots else None)

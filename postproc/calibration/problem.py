@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from postproc.calibration.model import CameraModel, Pose
+from postproc.calibration.model import Pose, PoseModel
 from postproc.calibration.params import Group, Layout, State
 from postproc.calibration.surface import Surface
 
@@ -62,7 +62,7 @@ DATA_ROWS = (IMAGE_ALONG, IMAGE_ACROSS, CONTROL, DEM)  # observations; the rest 
 class Problem:
     """The rows of one adjustment; `obs_active` and `gcp_active` are switched off by snooping."""
 
-    def __init__(self, model: CameraModel, layout: Layout, points: PointSet,
+    def __init__(self, model: PoseModel, layout: Layout, points: PointSet,
                  surface: Surface | None, dem_sigma_m: float) -> None:
         self.model = model
         self.layout = layout

@@ -28,8 +28,8 @@ from postproc.calibration.adjust import (
     check_points,
 )
 from postproc.calibration.conditioning import Scales, assess
-from postproc.calibration.problem import DATA_ROWS, NAV_PRIOR, PRIOR
-from postproc.calibration.solve import Solution, covariance, leverages
+from postproc.calibration.model import line_model
+from postproc.calibration.solve import Solution, covariance, posterior, reported
 from postproc.georef import SensorModel
 from sisa.core.sensor import ARCSEC_RAD
 
@@ -43,10 +43,11 @@ def _image_table(adj: Adjustment, sol: Solution) -> list[dict[str, Any]]:
     pb = adj.problem
     st = pb.layout.unpack(sol.theta)
     w = pb.image_residuals(st, sol.x_m) * pb.row_sigma
-    pr = pb.model.project(st, sol.x_m[pb.model.obs.point], pb.pose_for(st))
+    model = line_model(pb.model)
+    pr = model.project(st, sol.x_m[model.obs.point], pb.pose_for(st))
     depth = np.abs(pr.p_cam_m[:, 2])
     line_m = depth * np.abs(pb.rate) / pr.focal_m
-    pixel_m = depth * pb.model.pitch_m / pr.focal_m
+    pixel_m = depth * model.pitch_m / pr.focal_m
     used = pb.obs_in()
     o = adj.obs
     return [{"id": str(o.point_id[i]), "kind": str(pb.points.kind[pb.model.obs.point[i]]),
@@ -78,30 +79,6 @@ def _rms(values: list[float]) -> float:
     return float(np.sqrt(np.mean(v * v))) if v.size else math.nan
 
 
-def _posterior(sol: Solution) -> tuple[float, F64, F64]:
-    """(σ̂0 of the observations, covariance with only the observations rescaled, the share
-    of each variance carried by observations, navigation and priors (G, 3))."""
-    lin = sol.lin
-    h = leverages(lin, covariance(sol.norm))
-    data = np.isin(lin.row_kind, DATA_ROWS)
-    redundancy = float(np.sum(1.0 - h[data]))
-    sigma0 = math.sqrt(float(lin.r[data] @ lin.r[data]) / redundancy) if redundancy > 0 \
-        else math.nan
-    g = sol.theta.size
-    if g == 0:
-        return sigma0, np.zeros((0, 0)), np.zeros((0, 3))
-    parts = {k: lin.jg[lin.row_kind == k] for k in (PRIOR, NAV_PRIOR)}
-    n_prior, n_nav = (parts[k].T @ parts[k] for k in (PRIOR, NAV_PRIOR))
-    n_obs = (sol.norm.s - n_prior - n_nav) / (sigma0**2 if math.isfinite(sigma0) else 1.0)
-    m = n_obs + n_prior + n_nav
-    scale = 1.0 / np.sqrt(np.diag(m))
-    cov = np.linalg.inv(m * scale[:, None] * scale[None, :]) * scale[:, None] * scale[None, :]
-    var = np.diag(cov)
-    shares = np.stack([np.einsum("ij,ji->i", cov @ n, cov) / var  # diag(C·N·C)
-                       for n in (n_obs, n_nav, n_prior)], axis=1)
-    return sigma0, np.asarray(cov, np.float64), np.asarray(shares, np.float64)
-
-
 def _navigation_summary(adj: Adjustment, sol: Solution, cov: F64) -> dict[str, Any] | None:
     """The navigation model's knots: how many, their spacing, and the GPS error they took
     up (RMS of the estimates against their prior σ, east/north/up)."""
@@ -124,11 +101,9 @@ def assemble(inp: CalibrationInput, opt: CalibrationOptions, adj: Adjustment, so
     pb = adj.problem
     n_par = sol.theta.size + 3 * int(pb.point_active.sum())
     dof = int(sol.lin.r.size - n_par)
-    sigma0, cov_all, shares = _posterior(sol)
+    sigma0, cov_all, shares = posterior(sol)
     keep = pb.layout.reported
-    cov = cov_all[np.ix_(keep, keep)]
-    sig = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(sig, sig) if sig.size else cov
+    cov, sig, corr = reported(cov_all, keep)
     st = pb.layout.unpack(sol.theta)
     resid = _image_table(adj, sol)
     for b in blunders:

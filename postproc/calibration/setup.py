@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.calibration.data import GroundPoints, ImageObservations, SegmentClock
-from postproc.calibration.model import CameraModel, ObsGeometry
+from postproc.calibration.model import ObsGeometry, PoseModel
 from postproc.calibration.navigation import NavKnots
 from postproc.calibration.params import State
 from postproc.calibration.problem import PointSet
@@ -127,7 +127,7 @@ def point_set(adj: GroundPoints, origin: F64, sigma_hv_m: tuple[float, float],
     return PointSet(adj.ids, adj.kind, surveyed, sig, (adj.kind == "tie") & dem_control)
 
 
-def start_coordinates(model: CameraModel, st: State, ps: PointSet, surface: Surface | None,
+def start_coordinates(model: PoseModel, st: State, ps: PointSet, surface: Surface | None,
                       mean_height_m: float) -> F64:
     """Control points at their survey; tie points where their first ray meets the surface (the
     DEM, else the control points' mean height); check points on their surveyed height."""

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
-from postproc.calibration.problem import Linear, Problem
+from postproc.calibration.problem import DATA_ROWS, NAV_PRIOR, PRIOR, Linear, Problem
 from sisa.core.errors import InputError
 
 F64 = npt.NDArray[np.float64]
@@ -193,3 +193,36 @@ def gauss_newton(problem: Problem, theta: F64, x_m: F64) -> Solution:
     problem.update_rates(theta, x_m)
     lin = problem.linearise(theta, x_m)
     return Solution(theta, x_m, lin, normal_equations(lin, n_points), iterations, _cost(lin))
+
+
+def posterior(sol: Solution) -> tuple[float, F64, F64]:
+    """(σ̂0 of the observations, covariance with only the observations rescaled, the share
+    of each variance carried by observations, navigation and priors (G, 3))."""
+    lin = sol.lin
+    h = leverages(lin, covariance(sol.norm))
+    data = np.isin(lin.row_kind, DATA_ROWS)
+    redundancy = float(np.sum(1.0 - h[data]))
+    sigma0 = math.sqrt(float(lin.r[data] @ lin.r[data]) / redundancy) if redundancy > 0 \
+        else math.nan
+    g = sol.theta.size
+    if g == 0:
+        return sigma0, np.zeros((0, 0)), np.zeros((0, 3))
+    parts = {k: lin.jg[lin.row_kind == k] for k in (PRIOR, NAV_PRIOR)}
+    n_prior, n_nav = (parts[k].T @ parts[k] for k in (PRIOR, NAV_PRIOR))
+    n_obs = (sol.norm.s - n_prior - n_nav) / (sigma0**2 if math.isfinite(sigma0) else 1.0)
+    m = n_obs + n_prior + n_nav
+    scale = 1.0 / np.sqrt(np.diag(m))
+    cov = np.linalg.inv(m * scale[:, None] * scale[None, :]) * scale[:, None] * scale[None, :]
+    var = np.diag(cov)
+    shares = np.stack([np.einsum("ij,ji->i", cov @ n, cov) / var  # diag(C·N·C)
+                       for n in (n_obs, n_nav, n_prior)], axis=1)
+    return sigma0, np.asarray(cov, np.float64), np.asarray(shares, np.float64)
+
+
+def reported(cov_all: F64, keep: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
+    """(covariance, σ, correlation) of the parameters a result reports (`Layout.reported`:
+    the navigation knots left out) from the whole covariance."""
+    cov = cov_all[np.ix_(keep, keep)]
+    sig = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sig, sig) if sig.size else cov
+    return np.asarray(cov, np.float64), np.asarray(sig, np.float64), np.asarray(corr, np.float64)

@@ -14,6 +14,7 @@ from pyproj.transformer import AreaOfInterest
 from postproc.georef.dem import band_note, check_undulation_m
 from postproc.georef.jobrecords import GeorefOptions
 from sisa.core.errors import InputError
+from sisa.core.utm import utm_epsg
 
 GRID_SCALE_TOLERANCE: Final = 0.01  # UTM stays within 0.2 % even a zone away
 # a transverse Mercator (UTM) used this far in longitude from its central meridian is said:
@@ -73,13 +74,6 @@ def _dem_centre_lon_lat(dem_epsg: int, dem_bounds: tuple[float, float, float, fl
     lon, lat = Transformer.from_crs(dem_epsg, 4326, always_xy=True).transform(
         (w + e) / 2, (s + n) / 2)
     return float(lon), float(lat)
-
-
-def utm_epsg(lon: float, lat: float) -> int:
-    """EPSG code of the WGS 84 UTM zone at (lon, lat) degrees (the regular zones: no
-    Norway/Svalbard exceptions)."""
-    zone = int((lon + 180) // 6) % 60 + 1
-    return (32600 if lat >= 0 else 32700) + zone
 
 
 def grid_scale_note(crs: CRS, lon: float, lat: float) -> str | None:

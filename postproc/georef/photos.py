@@ -35,12 +35,12 @@ from pydantic import Field
 from pyproj import Proj
 
 from postproc.georef.exterior import CameraMount, LineEo, exterior_orientation
-from postproc.georef.inputchecks import utm_epsg
 from postproc.georef.navigation import Trajectory, gps_times, transformer
 from sisa.core.errors import InputError, shown_value
 from sisa.core.framecamera import FrameInterior, camera_to_image
 from sisa.core.frames import ned_to_ecef_matrix
 from sisa.core.sensor import StrictModel
+from sisa.core.utm import utm_epsg
 
 F64 = npt.NDArray[np.float64]
 Bool = npt.NDArray[np.bool_]

@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from postproc.georef.exterior import exterior_orientation
 from postproc.georef.jobrecords import GeorefResult
+from postproc.georef.navigation import ecef_to_geodetic
 from postproc.products import read_rgb
 from sisa.core.outdir import write_whole
 from sisa.core.provenance import file_record, software_label
@@ -370,16 +371,19 @@ def _band_legend(view: Any) -> str:
 
 
 def _mosaic(out_dir: Path, result: GeorefResult) -> str:
-    """The mosaic on its map grid: the whole of it, and a full-resolution detail of its centre,
+    """The scanner's mosaic (`mosaic_figure`)."""
+    return mosaic_figure(out_dir / "mosaic.tif", result.cell_m, "Ortho mosaic")
+
+
+def mosaic_figure(tif: Path, cell: float, what: str) -> str:
+    """A mosaic on its map grid: the whole of it, and a full-resolution detail of its centre,
     with coordinates, a scale bar and which band is shown in which colour."""
-    tif = out_dir / "mosaic.tif"
     if not tif.is_file():
         return "<p>no mosaic</p>"
     overview = read_rgb(tif, max_size_px=MOSAIC_MAX_PX)
     if overview.bounds is None:
         return "<p>the mosaic has no map grid</p>"
     w, s, e, n = overview.bounds
-    cell = result.cell_m
     full_rows, full_cols = round((n - s) / cell), round((e - w) / cell)
     half = min(DETAIL_CELLS, full_rows, full_cols) / 2 * cell
     ce, cn = _densest_centre(overview, (w, s, e, n))
@@ -402,7 +406,7 @@ def _mosaic(out_dir: Path, result: GeorefResult) -> str:
         x0, x1 = ax.get_xlim()
         _scale_bar(ax, (x1 - x0) * km)
     legend = _band_legend(overview)
-    return (_png(fig, f"Ortho mosaic on its map grid ({crs}, {cell:g} m cells): the whole "
+    return (_png(fig, f"{what} on its map grid ({crs}, {cell:g} m cells): the whole "
                       f"mosaic and a detail; {legend}")
             + f'<p class="note">Colours — {html.escape(legend)}. Nodata is white.</p>')
 
@@ -485,13 +489,66 @@ def _archive(result: GeorefResult, prov: Provenance, sensor_toml: str, axis: Tim
             + html.escape(sensor_toml) + "</pre></details></section>")
 
 
+def _photo_map(result: GeorefResult, photos_dir: Path) -> str:
+    """The photos' footprints over the trajectory, numbered."""
+    fp = photos_dir / "footprints.geojson"
+    if not fp.is_file():
+        return "<p>no photo footprints</p>"
+    t0, t1 = result.trajectory.span_ns
+    pose = result.trajectory.pose_at(np.arange(t0, t1, NS_PER_S, dtype=np.int64))
+    fig, ax = _subplots(1, 1, figsize=(8, 7))
+    lat, lon, _ = ecef_to_geodetic(pose.ins_ecef_m[pose.valid])
+    ax.plot(lon, lat, lw=0.8, color="0.3", label="trajectory (INS centre)")
+    for feat in json.loads(fp.read_text(encoding="utf-8"))["features"]:
+        ring = np.asarray(feat["geometry"]["coordinates"][0])
+        ax.plot(ring[:, 0], ring[:, 1], lw=0.6, color="tab:blue", alpha=0.7)
+    ax.set_xlabel("longitude (° east, WGS 84)")
+    ax.set_ylabel("latitude (° north, WGS 84)")
+    if lat.size:
+        ax.set_aspect(1.0 / max(float(np.cos(np.radians(np.mean(lat)))), 0.1))
+    ax.legend(loc="best")
+    ax.set_title("the frame camera's photo footprints (image corners on the DEM)")
+    return _png(fig, "Map of the trajectory and the photos' footprints")
+
+
+def _photos(result: GeorefResult, photos_dir: Path, summary: dict[str, Any]) -> str:
+    """The frame camera: how many photos, timed, posed, with a footprint and an ortho; the
+    EO's stated σ and, for a simulated run, its error against truth; the footprints and the
+    photos' mosaic."""
+    sig = summary.get("sigma", {})
+    rows = [["photos", summary["photos"]], ["timed", summary["timed"]],
+            ["with a navigation pose", summary["posed"]],
+            ["footprints", summary["footprints"]], ["orthophotos", summary["orthos"]],
+            ["ortho cell (m)", summary["cell_m"] if summary["cell_m"] else "-"],
+            ["EO σ stated: horizontal / vertical (m), attitude (°)",
+             f"{sig.get('horizontal_m', '-')} / {sig.get('vertical_m', '-')}, "
+             f"{sig.get('attitude_deg', '-')}"]]
+    acc = summary.get("accuracy")
+    if acc and acc.get("photos"):
+        pos, att = acc["position_rms_m"], acc["attitude_rms_arcsec"]
+        rows += [["EO error against truth, perspective centre RMS horizontal / vertical (m)",
+                  f"{pos['horizontal']:.3f} / {pos['vertical']:.3f}"],
+                 ["EO error against truth, attitude RMS roll / pitch / heading (″)",
+                  f"{att['roll']:.1f} / {att['pitch']:.1f} / {att['heading']:.1f}"]]
+    parts = [_table(["frame camera", "value"], rows)]
+    if summary.get("warnings"):
+        parts += ["<ul>", *(f"<li>{html.escape(w)}</li>" for w in summary["warnings"]),
+                  "</ul>"]
+    parts.append(_photo_map(result, photos_dir))
+    if summary.get("mosaic"):
+        parts.append(mosaic_figure(photos_dir / summary["mosaic"], float(summary["cell_m"]),
+                                   "Photo mosaic"))
+    return "".join(parts)
+
+
 def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Mounting, *,
                  title: str, accuracy: dict[str, Any] | None = None,
                  headline: list[tuple[str, str]] | None = None,
                  provenance: Provenance | None = None, sensor_toml: str = "",
-                 sensor_name: str = "") -> None:
+                 sensor_name: str = "", photos: dict[str, Any] | None = None) -> None:
     """The HTML report; `accuracy` from sisa.wiring.accuracy.run_accuracy for a simulated run;
-    `provenance` (and the sensor file's TOML and name) for the archive record."""
+    `provenance` (and the sensor file's TOML and name) for the archive record; `photos`: the
+    frame camera's summary (postproc.georef.photo_products), its products in out_dir/photos."""
     seg_rows = [[s.segment, s.lines, s.lines_timed, s.lines_georeferenced,
                  f"{s.rays_hit / max(s.rays, 1):.2%}", s.gsd_across_m, s.gsd_along_m]
                 for s in result.segments]
@@ -525,6 +582,8 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
     body += ["<h2>Ortho mosaic</h2>", _mosaic(out_dir, result),
              f'<p class="note">CRS EPSG:{result.epsg}, cell {result.cell_m:g} m. '
              "Generated by sisa.</p>"]
+    if photos is not None:
+        body += ["<h2>Frame camera</h2>", _photos(result, out_dir / "photos", photos)]
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
             f"</title><style>{STYLE}</style></head><body>{''.join(body)}</body></html>\n")
     write_whole(path, page)

@@ -3,7 +3,9 @@
 Each segment contributes, for every cell, its own nearest pixel (from its IGM, as the ortho
 does, or from its GLT). Where strips overlap the cell takes the segment whose chosen pixel is
 nearest to nadir, |pixel − (pixels − 1)/2|: the nadir of one strip and the edge of its
-neighbour, so seams fall mid-overlap and every cell shows the least oblique view.
+neighbour, so seams fall mid-overlap and every cell shows the least oblique view. Photos of a
+frame camera (`frames=True`) look down from their image centre, not from a line's middle: the
+cell takes the photo whose chosen pixel is nearest its image centre, in both directions.
 """
 
 from __future__ import annotations
@@ -121,10 +123,12 @@ class MosaicResult:
 
 
 def mosaic(segments: Sequence[tuple[Path | SwathIndex, Path]], grid: OrthoGrid, out_tif: Path,
-           *, tile_cells: int | None = None, compress: str = "deflate") -> MosaicResult:
+           *, tile_cells: int | None = None, compress: str = "deflate",
+           frames: bool = False) -> MosaicResult:
     """Mosaic [(IGM or GLT, raw image), ...] onto `grid` as one GeoTIFF (written whole or not
     at all); an IGM may come as the SwathIndex its caller built (no second pass over it). All
-    images must have the same bands and data type."""
+    images must have the same bands and data type. `frames`: the images are photos (the
+    nearest to its image centre wins, not the nearest to its line's middle)."""
     if not segments:
         raise InputError("mosaic: no segment given")
     segs = [_open_segment(g, i, grid) for g, i in segments]
@@ -138,11 +142,15 @@ def mosaic(segments: Sequence[tuple[Path | SwathIndex, Path]], grid: OrthoGrid, 
     desc = (f"SISA mosaic of {len(segs)} segments: each cell from the segment whose nearest "
             "pixel is closest to nadir, |pixel - (pixels - 1)/2|; within a segment the pixel "
             "whose pixel-centre ground position is nearest to the cell centre")
+    if frames:
+        desc = (f"SISA mosaic of {len(segs)} photos: each cell from the photo whose nearest "
+                "pixel is closest to its image centre; within a photo the pixel whose "
+                "pixel-centre ground position is nearest to the cell centre")
     with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB):
         tif = TiffWriter(Path(out_tif), grid, first, nodata, desc, compress)
         try:
             for row0, col0, rows, cols in grid.windows(window_cells(first), tile_cells):
-                got = _mosaic_tile(segs, grid, row0, col0, rows, cols, nodata, counts)
+                got = _mosaic_tile(segs, grid, row0, col0, rows, cols, nodata, counts, frames)
                 if got is not None:
                     tif.write(got[0], row0, col0, got[1])
         except BaseException:
@@ -153,7 +161,7 @@ def mosaic(segments: Sequence[tuple[Path | SwathIndex, Path]], grid: OrthoGrid, 
 
 
 def _mosaic_tile(segs: list[_Segment], grid: OrthoGrid, row0: int, col0: int, rows: int,
-                 cols: int, nodata: float, counts: list[int]
+                 cols: int, nodata: float, counts: list[int], frames: bool = False
                  ) -> tuple[npt.NDArray[np.generic], B] | None:
     best_off = np.full((rows, cols), np.inf)
     best_seg = np.full((rows, cols), -1, dtype=np.int32)
@@ -165,6 +173,8 @@ def _mosaic_tile(segs: list[_Segment], grid: OrthoGrid, row0: int, col0: int, ro
             continue
         ln, px, ok = got
         off = np.abs(px - (seg.raw.pixels - 1) / 2.0)
+        if frames:  # a photo's nadir is its centre: the distance there, in pixels
+            off = np.hypot(off, ln - (seg.raw.lines - 1) / 2.0)
         take = ok & (off < best_off)
         best_off[take], best_seg[take], line[take], pixel[take] = off[take], k, ln[take], px[take]
     if (best_seg < 0).all():

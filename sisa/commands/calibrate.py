@@ -27,6 +27,12 @@ OUT/
                       (+ the simulation's truth and settings for a run folder)
   observations.csv    the image measurements used (id, segment, line, pixel, sigma_px)
   points.csv          the ground points as given to the adjustment (tie points: nan)
+
+With --frame-camera the frame camera is calibrated instead, in the same adjustment with its
+collinearity (postproc.calibration.photos): OUT/camera.toml (the calibrated camera file,
+`sisa georef --camera`), calibration.json ("camera_calibration": estimates, σ, correlations,
+residual RMS, blunders, notes; a run's truth), observations.csv (segment = photo number,
+line = row, pixel = column) and points.csv.
 """
 
 from __future__ import annotations
@@ -57,8 +63,10 @@ if TYPE_CHECKING:
         GroundPoints,
         ImageObservations,
         NavigationAccuracy,
+        PhotoCalibrationInput,
     )
-    from postproc.georef import SensorModel
+    from postproc.georef import SensorModel, Trajectory
+    from postproc.sync import SyncResult
 
 
 # What the numeric options may be; outside, a one-line error says why.
@@ -115,7 +123,24 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                              "gps_strip, attitude, drift (default: boresight,selfcal)")
     _add_weights(parser)
     _add_simulation(parser)
+    _add_frame_camera(parser)
     parser.set_defaults(handler=_run)
+
+
+def _add_frame_camera(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("the frame camera (instead of the scanner)")
+    g.add_argument("--frame-camera", action="store_true",
+                   help="calibrate the frame camera: --obs holds its measurements (segment = "
+                        "photo number, line = row, pixel = column); a run folder without "
+                        "--obs gets markers measured in its rendered photos. Writes "
+                        "OUT/camera.toml")
+    g.add_argument("--camera", type=Path, default=None, metavar="TOML",
+                   help="starting camera file; default: the run's camera without boresight")
+    g.add_argument("--photo-times", type=Path, default=None, metavar="CSV",
+                   help="photo_number, t_mid_gps_ns; default: a run's truth/photos.csv (the "
+                        "sync does not time the photos yet)")
+    g.add_argument("--photo-sigma-px", type=float, default=0.05, metavar="PX",
+                   help="stated precision of the simulated marker centroids (default 0.05)")
 
 
 def _add_weights(parser: argparse.ArgumentParser) -> None:
@@ -320,12 +345,12 @@ def _observations(args: argparse.Namespace, points: GroundPoints
     return sim.obs, sim.points, info
 
 
-def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
-                ) -> tuple[CalibrationInput, dict[str, Any]]:
-    """Sync and navigation from the log, points, measurements, DEM and starting sensor (the
-    given one, else --sensor or the run's nominal one)."""
-    from postproc.calibration import CalibrationInput, SegmentClock, read_ground_points
-    from postproc.georef import NAV_WANTED, Dem, merged_wanted, nav_from_columns
+def log_navigation(args: argparse.Namespace, paths: list[Path], scanner: Path | None,
+                   sensor: SensorModel) -> tuple[Trajectory, SyncResult]:
+    """The flight log read once: the sync (lines from the scanner's lines files, else in
+    frame-header order) and the navigation with the sensor file's antenna offset; what the
+    recording and the sync could not vouch for said on stderr."""
+    from postproc.georef import NAV_WANTED, merged_wanted, nav_from_columns
     from postproc.sync import WANTED as SYNC_WANTED
     from postproc.sync import (
         header_order_note,
@@ -338,13 +363,6 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
 
-    sensor = _sensor(args) if sensor is None else sensor
-    paths = _flight_paths(args)
-    points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
-    obs, points, info = _observations(args, points)
-    scanner = args.scanner
-    if scanner is None and _is_run(args.flight) and (args.flight[0] / "scanner").is_dir():
-        scanner = args.flight[0] / "scanner"
     cols = read_topics(paths, {**merged_wanted(SYNC_WANTED, NAV_WANTED), **HEALTH_WANTED})
     recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), paths[0])
     if recording is not None:
@@ -358,6 +376,24 @@ def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
     if untied is not None:  # observations on untimed lines are left out, and this is why
         say_warning(args.command, untied)
     traj = nav_from_columns(cols, sync.ins, antenna_offset_m=sensor.mounting.antenna_offset_m)
+    return traj, sync
+
+
+def build_input(args: argparse.Namespace, sensor: SensorModel | None = None
+                ) -> tuple[CalibrationInput, dict[str, Any]]:
+    """Sync and navigation from the log, points, measurements, DEM and starting sensor (the
+    given one, else --sensor or the run's nominal one)."""
+    from postproc.calibration import CalibrationInput, SegmentClock, read_ground_points
+    from postproc.georef import Dem
+
+    sensor = _sensor(args) if sensor is None else sensor
+    paths = _flight_paths(args)
+    points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
+    obs, points, info = _observations(args, points)
+    scanner = args.scanner
+    if scanner is None and _is_run(args.flight) and (args.flight[0] / "scanner").is_dir():
+        scanner = args.flight[0] / "scanner"
+    traj, sync = log_navigation(args, paths, scanner, sensor)
     navigation = _navigation(args)
     dem = None
     if not args.no_dem and (args.dem is not None or _is_run(args.flight)):
@@ -538,7 +574,14 @@ def _truth_values(truth: dict[str, Any]) -> dict[str, float]:
 def _run(args: argparse.Namespace) -> int:
     check_inputs(("", args.flight, "any"), ("--gcp", args.gcp, "file"),
                  ("--obs", args.obs, "file"), ("--scanner", args.scanner, "folder"),
-                 ("--sensor", args.sensor, "file"), ("--dem", args.dem, "file"))
+                 ("--sensor", args.sensor, "file"), ("--dem", args.dem, "file"),
+                 ("--camera", args.camera, "file"), ("--photo-times", args.photo_times, "file"))
+    if args.frame_camera:
+        return _run_frame_camera(args)
+    given = [f for f, v in (("--camera", args.camera), ("--photo-times", args.photo_times))
+             if v is not None]
+    if given:
+        raise InputError(f"{given[0]} is for the frame camera: add --frame-camera")
     import numpy as np
 
     from postproc.calibration import (
@@ -593,4 +636,105 @@ def _run(args: argparse.Namespace) -> int:
                     "written (its values would be noise along what the data cannot separate; "
                     "--force writes it anyway); exit code 3")
         return EXIT_INCOMPLETE
+    return 0
+
+
+def _camera_input(args: argparse.Namespace) -> tuple[PhotoCalibrationInput, dict[str, Any]]:
+    """The frame camera's calibration input: the log's navigation (sync without the scanner's
+    images needed), the photo times, the points, the measurements and the starting camera."""
+    from postproc.calibration import PhotoCalibrationInput, read_ground_points, read_observations
+    from postproc.georef import Dem, load_camera, read_photo_times
+
+    run = args.flight[0] if _is_run(args.flight) else None
+    scn = None
+    if run is not None and (run / "scenario.toml").is_file():
+        from emulators.scenario import load_scenario
+
+        scn = load_scenario(run / "scenario.toml")
+    from sisa.commands.process import camera_of
+
+    nominal = None if scn is None else camera_of(scn, nominal=True)
+    if args.camera is not None:
+        camera = load_camera(args.camera)
+    elif nominal is not None:
+        camera = nominal
+    else:
+        raise InputError("--frame-camera needs --camera (or a run folder whose scenario has a "
+                         "[camera])")
+    if args.photo_times is not None:
+        times = read_photo_times(args.photo_times)
+    elif run is not None and (run / "truth" / "photos.csv").is_file():
+        times = read_photo_times(run / "truth" / "photos.csv")
+        say_warning(args.command, f"photos timed by {run / 'truth' / 'photos.csv'}, the run's "
+                    "truth (the sync does not time the camera's photos yet)")
+    else:
+        raise InputError("--frame-camera needs --photo-times (photo_number, t_mid_gps_ns)")
+    points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
+    info: dict[str, Any] = {}
+    if args.obs is not None:
+        obs = read_observations(args.obs)
+    elif run is not None and scn is not None:
+        from sisa.wiring.photogcp import simulate_photo_control
+
+        _within("--photo-sigma-px", args.photo_sigma_px, (1e-3, 100.0), "pixels")
+        obs, info = simulate_photo_control(run, scn, times, sigma_px=args.photo_sigma_px,
+                                           seed=args.seed)
+    else:
+        raise InputError("a flight log needs --obs (the photos' measurements of the points)")
+    sensor = _sensor(args)
+    traj, _ = log_navigation(args, _flight_paths(args), None, sensor)
+    dem = None
+    if not args.no_dem and (args.dem is not None or run is not None):
+        dem_path = _default(args, args.dem, "terrain/dem.tif", "--dem")
+        dem = Dem.read(dem_path) if dem_path.is_file() or args.dem else None
+    navigation = _navigation(args)
+    if navigation is not None:
+        info["navigation_accuracy"] = {"gps_sigma_m": list(navigation.gps_sigma_m),
+                                       "gps_correlation_s": navigation.gps_correlation_s}
+    return PhotoCalibrationInput(traj, times, points, obs, camera, dem,
+                                 sensor.time_delay_ms, navigation), info
+
+
+def _run_frame_camera(args: argparse.Namespace) -> int:
+    """`sisa calibrate --frame-camera`: OUT/camera.toml, calibration.json, observations.csv."""
+    import tomli_w
+
+    from postproc.calibration import (
+        calibrate_photos,
+        photo_report_json,
+        write_ground_points,
+        write_observations,
+    )
+    from sisa.core.jsonio import write_json
+
+    started = time.perf_counter()
+    opt = _options(args)
+    check_seed(args.seed)
+    if _several_runs(args) is not None:
+        raise InputError("--frame-camera takes one run or one flight log")
+    with staged_output_dir(args.out, force=args.force) as out, progress("calibrate") as bar:
+        bar.step("navigation, photo times and measurements")
+        inp, info = _camera_input(args)
+        bar.step("adjustment")
+        res = calibrate_photos(inp, opt)
+        for note in res.notes:
+            say_warning(args.command, note)
+        (out / "camera.toml").write_text(tomli_w.dumps(res.camera.model_dump(mode="json")),
+                                         encoding="utf-8")
+        report = {"camera_calibration": photo_report_json(res),
+                  "settings": {"estimate": args.estimate, "gcp_sigma_m": list(opt.gcp_sigma_m),
+                               "dem": inp.dem is not None}, **info}
+        write_json(out / "calibration.json", report)
+        write_observations(out / "observations.csv", inp.obs)
+        write_ground_points(out / "points.csv", inp.points)
+    print(f"{args.out}: frame camera calibrated in {time.perf_counter() - started:.1f} s, "
+          f"{res.counts['observations_used']} measurements in {res.counts['photos']} photos, "
+          f"sigma0 {res.sigma0:.2f}")
+    truth = info.get("truth", {}).get("boresight_arcsec")
+    for k, p in enumerate(res.layout.params):
+        line = f"  {p.label}: {res.theta[k]:.3f} ± {res.sigma[k]:.3f} {p.unit}"
+        if truth is not None and p.group.value == "boresight":
+            want = truth[p.component]
+            line += f" (truth {want:.3f}, z {(res.theta[k] - want) / res.sigma[k]:+.2f})"
+        print(line)
     return 0

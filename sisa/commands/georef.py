@@ -15,6 +15,10 @@ OUT/
   footprints.geojson         swath outline of every segment (WGS 84 lon/lat)
   georef_summary.json        CRS, cell size, per-segment counts and pixel spacing, the
                              trajectory's span, what was skipped and why
+  photos/                    with --camera and --photo-times, the frame camera's: photo_eo.csv
+                             (Metashape/Pix4D), geo.txt (OpenDroneMap), sidecars/, footprints,
+                             and with --photos each photo's IGM, ortho and GLT, the photos'
+                             mosaic; photo_summary.json (docs/frames.md)
 
 A trajectory that covers only part of the flight georeferences the segments (and lines) it
 covers, a DEM that covers only part of it the segments whose swath meets it; each segment or
@@ -25,8 +29,9 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sisa.commands import (
     FLIGHT_HELP,
@@ -43,7 +48,8 @@ from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
-    from postproc.georef import GeorefOptions, GeorefResult
+    from postproc.georef import GeorefOptions, GeorefResult, PhotoTimes
+    from sisa.core.framecamera import FrameCamera
 
 MAX_CELL_M = 10_000.0  # an ortho cell wider than any swath
 
@@ -61,7 +67,95 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--out", type=Path, required=True, help="new output folder")
     add_force_arg(parser)
     add_georef_args(parser)
+    parser.add_argument("--camera", type=Path, default=None, metavar="TOML",
+                        help="the frame camera's file (interior orientation, mounting): with "
+                             "--photo-times, its photos' EO, footprints and orthos in OUT/photos")
+    parser.add_argument("--photo-times", type=Path, default=None, metavar="CSV",
+                        help="photo times table: photo_number, t_mid_gps_ns (GPS ns)")
+    parser.add_argument("--photos", type=Path, default=None, metavar="DIR",
+                        help="the camera's photos (photo_NNNNNN.bil/.hdr): their orthos and "
+                             "mosaic")
+    add_photo_cell_arg(parser)
     parser.set_defaults(handler=_run)
+
+
+def add_photo_cell_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--photo-cell", type=float, default=None, metavar="M",
+                        help="the photo orthos' cell in metres (default: the photos' pixel "
+                             "spacing)")
+
+
+@dataclass(frozen=True)
+class PhotoInputs:
+    """What the frame camera's products need besides the scanner's job."""
+
+    camera: FrameCamera
+    times: PhotoTimes
+    images: dict[str, Path] | None
+    cell_m: float | None
+
+
+def photo_images(folder: Path, times: PhotoTimes) -> dict[str, Path]:
+    """label → image file of every photo of the table found in `folder`."""
+    return {label: folder / f"{label}.bil" for label in times.labels
+            if (folder / f"{label}.bil").is_file()}
+
+
+def check_photo_cell(cell_m: float | None) -> None:
+    if cell_m is not None and not 0 < cell_m <= MAX_CELL_M:
+        raise InputError(f"--photo-cell {cell_m:g}: must be a positive size in metres, at "
+                         f"most {MAX_CELL_M:g}")
+
+
+def photo_inputs_from_args(args: argparse.Namespace) -> PhotoInputs | None:
+    """The camera, its photo times and images, checked before the job starts; None without
+    --camera (then --photo-times and --photos are refused)."""
+    from postproc.georef import load_camera, read_photo_times
+
+    if args.camera is None:
+        given = [n for n, v in (("--photo-times", args.photo_times), ("--photos", args.photos),
+                                ("--photo-cell", args.photo_cell)) if v is not None]
+        if given:
+            raise InputError(f"{given[0]} needs --camera (the frame camera's file)")
+        return None
+    if args.photo_times is None:
+        raise InputError("--camera needs --photo-times (each photo's mid-exposure GPS time)")
+    check_photo_cell(args.photo_cell)
+    times = read_photo_times(args.photo_times)
+    images = None if args.photos is None else photo_images(args.photos, times)
+    return PhotoInputs(load_camera(args.camera), times, images, args.photo_cell)
+
+
+def run_photos(out: Path, result: GeorefResult, options: GeorefOptions, photos: PhotoInputs,
+               bar: Progress, command: str = "georef") -> dict[str, Any]:
+    """The frame camera's products into OUT/photos (postproc.georef.photo_products), its
+    warnings one line each on stderr."""
+    from postproc.georef import photo_products
+
+    bar.step("photos: EO, footprints, orthos, mosaic")
+    folder = out / "photos"
+    folder.mkdir(exist_ok=True)  # `sisa process` may have rendered the photos into it
+    summary = photo_products(folder, result.trajectory, options.dem, photos.times,
+                             photos.camera, photos.images, epsg=result.epsg,
+                             geoid=options.geoid, cell_m=photos.cell_m)
+    for warning in summary["warnings"]:
+        say_warning(command, f"photos: {warning}")
+    return summary
+
+
+def photo_headline(summary: dict[str, Any]) -> str:
+    return (f"{summary['posed']}/{summary['photos']} photos with a pose, "
+            f"{summary['footprints']} footprints, {summary['orthos']} orthos"
+            + (f" (cell {summary['cell_m']:g} m)" if summary["cell_m"] else ""))
+
+
+def photo_losses(summary: dict[str, Any], images_given: bool) -> str | None:
+    """Photos the inputs promised and the products lack: a pose for every photo, and with
+    images an ortho for every one."""
+    want = summary["photos"]
+    made = summary["orthos"] if images_given else summary["posed"]
+    return None if made >= want else f"{want - made} of {want} photos without " + (
+        "an ortho" if images_given else "a pose")
 
 
 SENSOR_DEFAULT = "a nominal CASI-501 with zero offsets"
@@ -199,10 +293,19 @@ def _run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     check_inputs(("", args.flight, "file"), ("--scanner", args.scanner, "folder"),
                  ("--dem", args.dem, "file"), ("--sensor", args.sensor, "file"),
-                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"))
+                 ("--trajectory", args.trajectory, "file"), ("--geoid", args.geoid, "file"),
+                 ("--camera", args.camera, "file"), ("--photo-times", args.photo_times, "file"),
+                 ("--photos", args.photos, "folder"))
     options = options_from_args(args)
+    photos = photo_inputs_from_args(args)
+    summary = None
     with staged_output_dir(args.out, force=args.force) as out, progress("georef") as bar:
         result = run_georef(flight_parts(args.flight), args.scanner, out, options, bar)
+        if photos is not None:
+            summary = run_photos(out, result, options, photos, bar)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
-    lost = losses(result)
-    return 0 if lost is None else finished_with_losses("georef", lost)
+    if summary is not None:
+        print(f"{args.out / 'photos'}: {photo_headline(summary)}")
+    lost = [text for text in (losses(result), None if summary is None or photos is None else
+                              photo_losses(summary, photos.images is not None)) if text]
+    return 0 if not lost else finished_with_losses("georef", "; ".join(lost))

@@ -6,6 +6,10 @@ RUN/process/ (or --out)
   ...                  everything `sisa georef` writes
   accuracy.json        every-pixel and check-point errors along/across/height, m and px
   report.html          the report: map, attitude, sync residuals, clock drift, errors, mosaic
+  photos/              a run with a [camera]: the frame camera's products as `sisa georef
+                       --camera` writes them, its photos rendered from the truth into
+                       photos/images/ (or taken from RUN/photos/), timed by truth/photos.csv
+                       until the sync times the photos (issue 37, part 3a)
 """
 
 from __future__ import annotations
@@ -28,19 +32,27 @@ from sisa.commands import (
     say_warning,
 )
 from sisa.commands.georef import (
+    PhotoInputs,
     add_georef_args,
+    add_photo_cell_arg,
+    check_photo_cell,
     headline,
     losses,
     options_from_args,
+    photo_headline,
+    photo_images,
+    photo_losses,
     run_georef,
+    run_photos,
 )
-from sisa.commands.progress import progress, split_lines
+from sisa.commands.progress import Progress, progress, split_lines
 from sisa.core.errors import InputError
 from sisa.core.outdir import name_taken, staged_output_dir
 
 if TYPE_CHECKING:
     from emulators.scenario import Scenario
     from postproc.georef import GeorefOptions, Provenance, SensorModel
+    from sisa.core.framecamera import FrameCamera
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -59,7 +71,54 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     add_georef_args(parser, "the run's scenario's sensor, as simulated (its scanner geometry, "
                     "boresight and mounting; with --nominal, without boresight and "
                     "self-calibration)")
+    add_photo_cell_arg(parser)
     parser.set_defaults(handler=_run, dem=None)
+
+
+def camera_of(scn: Scenario, *, nominal: bool = False) -> FrameCamera | None:
+    """The frame camera a run's scenario implies (None without one): its true interior and
+    mounting, or without the boresight."""
+    from sisa.core.framecamera import FrameCamera, FrameMounting
+
+    if scn.camera is None:
+        return None
+    mounting = (FrameMounting(lever_arm_m=scn.camera.mounting.lever_arm_m) if nominal else
+                scn.camera.mounting)
+    return FrameCamera(interior=scn.camera.model, mounting=mounting)
+
+
+def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
+                  bar: Progress) -> PhotoInputs | None:
+    """A run with a camera: its photo times from the truth (said: the sync does not time the
+    photos yet), its photos from RUN/photos/ or rendered from the truth into
+    OUT/photos/images/."""
+    from postproc.georef import read_photo_times
+    from sisa.wiring.photogcp import render_run_photos, too_many_to_render
+
+    camera = camera_of(scn, nominal=args.nominal)
+    if camera is None:
+        return None
+    path = run / "truth" / "photos.csv"
+    if not path.is_file():
+        say_warning("process", f"{path}: no such file: no photo times, no photo products")
+        return None
+    times = read_photo_times(path)
+    say_warning("process", f"photos timed by {path}, the run's truth (the sync does not time "
+                "the camera's photos yet)")
+    check_photo_cell(args.photo_cell)
+    if (run / "photos").is_dir():
+        return PhotoInputs(camera, times, photo_images(run / "photos", times), args.photo_cell)
+    timed = times.timed()
+    why = None if scn.camera is None else too_many_to_render(scn.camera,
+                                                             int(timed.photo_number.size))
+    if why is not None:  # the EO, exports and footprints are made all the same
+        say_warning("process", f"photos: {why}: no photo orthos")
+        return PhotoInputs(camera, times, None, args.photo_cell)
+    bar.step("photos: rendering them from the truth")
+    images = out / "photos" / "images"
+    images.mkdir(parents=True)
+    rendered = render_run_photos(scn, timed.photo_number, timed.t_mid_gps_ns, images)
+    return PhotoInputs(camera, times, rendered, args.photo_cell)
 
 
 def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:
@@ -164,6 +223,15 @@ def _run(args: argparse.Namespace) -> int:
     parts = flight_parts([run / "flight.mcap"])
     with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
         result = run_georef(parts, run / "scanner", tmp, options, bar, command="process")
+        photos = _photo_inputs(args, run, scn, tmp, bar)
+        summary = (None if photos is None else
+                   run_photos(tmp, result, options, photos, bar, command="process"))
+        if summary is not None and (run / "truth" / "photos.csv").is_file():
+            from sisa.wiring.photogcp import photo_eo_accuracy
+
+            summary["accuracy"] = photo_eo_accuracy(run / "truth" / "photos.csv",
+                                                    tmp / "photos" / "sidecars")
+            write_json(tmp / "photos" / "photo_summary.json", summary)
         bar.step("accuracy against truth")
         acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
         _say_what_is_not_judged(run, acc)
@@ -171,16 +239,20 @@ def _run(args: argparse.Namespace) -> int:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
             write_json(tmp / "accuracy.json", public)
         rows = _headline(result, acc)
+        if summary is not None:
+            rows.append(("frame camera", photo_headline(summary)))
         bar.step("report")
         write_report(tmp / "report.html", result, tmp, options.sensor.mounting,
                      title=f"SISA processing report — {scn.block.name}", accuracy=acc,
                      headline=rows, provenance=_provenance(args, run, parts, options),
-                     sensor_toml=options.sensor.to_toml(), sensor_name=options.sensor.name)
+                     sensor_toml=options.sensor.to_toml(), sensor_name=options.sensor.name,
+                     photos=summary)
     print(f"report: {out / 'report.html'}")
     for name, value in rows:
         print(f"  {name}: {value}")
     for line in split_lines(bar, time.perf_counter() - started,
                             time.process_time() - cpu_started):
         print(line)
-    lost = losses(result)
-    return 0 if lost is None else finished_with_losses("process", lost)
+    lost = [text for text in (losses(result), None if summary is None or photos is None else
+                              photo_losses(summary, photos.images is not None)) if text]
+    return 0 if not lost else finished_with_losses("process", "; ".join(lost))

@@ -33,8 +33,9 @@ from emulators.truth import read_truth_csv
 from postproc.calibration import GroundPoints, ImageObservations
 from postproc.georef import Dem, ecef_to_geodetic, geodetic_to_ecef
 from sisa.core.errors import InputError
+from sisa.core.framecamera import FrameMounting
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
-from sisa.core.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B
+from sisa.core.sensor import ARCSEC_RAD, R_NOMINAL_C_TO_B, Mounting
 from sisa.wiring.accuracy import run_trajectory
 
 F64 = npt.NDArray[np.float64]
@@ -246,22 +247,26 @@ def _survey_noise(points: GroundPoints, sigma: tuple[float, float], rng: np.rand
     return GroundPoints(points.ids, points.kind, ecef, points.epsg)
 
 
-def effective_boresight_arcsec(flight: FlightTruth, t_ns: I64) -> tuple[float, float, float]:
+def effective_boresight_arcsec(flight: FlightTruth, t_ns: I64,
+                               mounting: Mounting | FrameMounting | None = None,
+                               r_nominal: F64 = R_NOMINAL_C_TO_B) -> tuple[float, float, float]:
     """The boresight the data can see: the true one composed with the INS's attitude error
-    (bias + drift, truth/ins_errors.csv) averaged over the observation times."""
+    (bias + drift, truth/ins_errors.csv) averaged over the observation times. `mounting` and
+    its nominal rotation: the scanner's (default), or the frame camera's."""
     scn, traj = flight.scn, flight.traj
+    mounting = scn.mounting if mounting is None else mounting
     bias, drift = flight.ins_bias_arcsec, flight.ins_drift_arcsec_per_h
     if bias is None or drift is None or t_ns.size == 0:
-        return tuple(float(a) for a in scn.mounting.boresight_arcsec)  # type: ignore[return-value]
+        return tuple(float(a) for a in mounting.boresight_arcsec)  # type: ignore[return-value]
     hours = (t_ns - traj.t_start_ns).astype(np.float64) / 3.6e12
     err = [(bias[k] + drift[k] * hours) * ARCSEC_RAD for k in range(3)]
     st = traj.state(t_ns)
     r_true = body_to_ned_matrix(st.roll_rad, st.pitch_rad, st.heading_rad)
     r_ins = body_to_ned_matrix(st.roll_rad + err[0], st.pitch_rad + err[1],
                                st.heading_rad + err[2])
-    r_cb = scn.mounting.boresight_matrix()
+    r_cb = mounting.boresight_matrix()
     m = np.einsum("nji,njk->nik", r_ins, r_true) @ r_cb  # R_b(ins)^b(true) · R_c^b
-    u, _, vt = np.linalg.svd(R_NOMINAL_C_TO_B.T @ m.mean(axis=0))
+    u, _, vt = np.linalg.svd(r_nominal.T @ m.mean(axis=0))
     rot = u @ vt
     phi = math.asin(float(np.clip(rot[0, 2], -1, 1)))
     omega = math.atan2(-float(rot[1, 2]), float(rot[2, 2]))

@@ -96,8 +96,8 @@ class LiveSync:
     def run_pass(self) -> dict[str, Any]:
         """Read what is new, synchronise everything so far; the pass's summary."""
         t0 = time.perf_counter()
-        for channel, msg in self.follower.poll():
-            self.columns.add(channel, msg.log_time, msg.data)
+        for channels, chunk in self.follower.poll_batches():
+            self.columns.add_chunk(channels, chunk)
         self.cols = cols = self.columns.columns()
         self.passes += 1
         now_ns = time.time_ns()

@@ -149,26 +149,51 @@ def test_false_sync_in_garbage_does_not_swallow_a_header() -> None:
     assert dec.stats.bytes_skipped == len(garbage)
 
 
-def test_bad_length_and_out_of_range_values_are_framing_errors() -> None:
+def test_bad_length_and_out_of_range_values_are_framing_errors_by_reason() -> None:
     h = _clean_stream(1)[0]
-    bad_mode = bytearray(encode_header(h))
+    good = encode_header(h)
+    bad_mode = bytearray(good)
     bad_mode[11] = 9
     checked = bytes(bad_mode[2:-2])
     bad_mode[-2:] = crc16_ccitt_false(checked).to_bytes(2, "little")
-    got, dec = _decode(b"\xa5\x5a\x0c" + bytes(bad_mode) + encode_header(h))
-    assert got == [h]
+    got, dec = _decode(b"\xa5\x5a\x0c" + good + bytes(bad_mode) + good)
+    assert got == [h, h]  # a good header inside the bad length's span is still decoded
     assert dec.stats.framing_errors == 2
     assert dec.stats.checksum_errors == 0
+    assert dec.stats.refused == {"scanner.length": 1, "scanner.field_value": 1}
     assert dec.stats.bytes_skipped == 3 + HEADER_BYTES
+
+
+def test_a_failure_inside_a_damaged_headers_span_is_the_same_error() -> None:
+    """A bad length claims the header's 18 bytes: a header that fails within them is not a
+    second error (as on every sync + length + CRC port: acquisition.crcframe)."""
+    h = _clean_stream(1)[0]
+    bad_mode = bytearray(encode_header(h))
+    bad_mode[11] = 9
+    bad_mode[-2:] = crc16_ccitt_false(bytes(bad_mode[2:-2])).to_bytes(2, "little")
+    got, dec = _decode(b"\xa5\x5a\x0c" + bytes(bad_mode) + encode_header(h))
+    assert got == [h]
+    assert dec.stats.errors == 1
+    assert dec.stats.refused == {"scanner.length": 1}
+
+
+def test_a_damaged_header_is_counted_under_its_reason() -> None:
+    h = _clean_stream(1)[0]
+    bad_crc = bytearray(encode_header(h))
+    bad_crc[6] ^= 0x40
+    got, dec = _decode(bytes(bad_crc) + b"\x00\x0d\x0a" + encode_header(h))
+    assert got == [h]
+    assert dec.stats.refused == {"scanner.checksum": 1, "junk": 1}
+    assert (dec.stats.checksum_errors, dec.stats.framing_errors) == (1, 1)
 
 
 def test_buffer_stays_bounded() -> None:
     dec = HeaderStreamDecoder()
     for _ in range(200):
         dec.feed(bytes(range(256)) + b"\xa5\x5a\x0d" + bytes(10))
-        assert len(dec._buf) < HEADER_BYTES
-    dec.flush()
-    assert len(dec._buf) == 0
+        assert dec.buffered_bytes < HEADER_BYTES
+    dec.finish()
+    assert dec.buffered_bytes == 0
 
 
 def test_raise_policy_gives_offset_and_raw() -> None:
@@ -180,7 +205,8 @@ def test_raise_policy_gives_offset_and_raw() -> None:
     with pytest.raises(DecodeError, match="CRC") as info:
         dec.feed(bytes(bad))
     assert info.value.offset == HEADER_BYTES
-    assert info.value.raw == bytes(bad)
+    assert info.value.raw == bytes(bad[:2])  # refused as far as its sync: the search goes on
+    assert len(dec.feed(good)) == 1  # after it, within the bytes it claimed
 
 
 @given(data=st.binary(max_size=400), chunks=st.lists(st.integers(0, 400), max_size=20))

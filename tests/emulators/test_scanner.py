@@ -110,7 +110,7 @@ def decode_headers(run: Run, chunk_seed: int = 0) -> tuple[list[FrameHeader], De
         step = int(rng.integers(1, 40))
         headers += [d.message for d in decoder.feed(stream[at:at + step])]
         at += step
-    decoder.flush()
+    headers += [d.message for d in decoder.finish()]
     return headers, decoder.stats
 
 

@@ -153,8 +153,8 @@ NOVATEL = ByteCodec(
      b"*00000000\r\n", b"\xff"),
     b"#$", b"\r\n", checked_line_end=False)
 SCANNER = ByteCodec(
-    "scanner_header", HeaderStreamDecoder, HEADER_MESSAGES, lambda d: len(d._buf),
-    HEADER_BYTES - 1, lambda d: d.flush(),
+    "scanner_header", HeaderStreamDecoder, HEADER_MESSAGES, lambda d: d.buffered_bytes,
+    HEADER_BYTES - 1, lambda d: d.finish(),
     (SYNC, SYNC + b"\x0d", SYNC[:1], b"\x0d", b"\xff\xff"), SYNC[:1])
 CAMERA = ByteCodec(
     "camera_photo", PhotoStreamDecoder, PHOTO_MESSAGES, lambda d: d.buffered_bytes,

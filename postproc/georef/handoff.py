@@ -153,7 +153,7 @@ def write_sync(out_dir: Path, result: SyncResult | SyncTables) -> None:
                      ln.t_gps_ns, ln.status)
     photos = getattr(result, "photos", None)
     if photos is not None:
-        write_photo_times(sync_dir / "photo_times.csv", photos)
+        write_photo_times(sync_dir, photos)
     write_report(sync_dir / "sync_report.json", result.report)
 
 

@@ -42,7 +42,6 @@ from pathlib import Path
 from postproc.georef.casting import IgmCaster
 from postproc.georef.dem import Dem
 from postproc.georef.demcover import DemCover
-from postproc.georef.exposures import write_photo_eo
 from postproc.georef.flightproducts import flight_products, flight_summary, registrations
 from postproc.georef.handoff import Handoff, read_and_sync, write_sync
 from postproc.georef.inputchecks import check_output_crs, crs_notes, input_notes
@@ -86,10 +85,6 @@ class GeorefJob:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
         `progress` each block of lines done."""
         handoff = self.synchronise()
-        photos = getattr(handoff.sync, "photos", None)
-        if self.opt.camera is not None and photos is not None:  # the frame camera's EO
-            self.warnings += write_photo_eo(self.out, photos, handoff.trajectory,
-                                            self.opt.camera, self.epsg)
         rasters = segment_rasters(self.scanner_dir, handoff.sync, self.warnings)
         if on_total is not None:
             on_total(sum(raw.lines for raw in rasters.values()))

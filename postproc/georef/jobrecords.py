@@ -11,7 +11,6 @@ from postproc.georef.navigation import AntennaFixes, Trajectory
 from postproc.georef.sensorfile import SensorModel
 from postproc.sync import SyncResult
 from recorder.health import HealthTotals
-from sisa.core.framecamera import FrameCamera
 from sisa.core.timescale import gps_span_label
 
 BLOCK_LINES: Final = 4096
@@ -30,7 +29,6 @@ class GeorefOptions:
     leap_seconds: int | None = None  # GPS − UTC for a .pos on UTC/JST; default: the log's
     leap_seconds_fallback: int | None = None  # when neither is known (a run's scenario)
     max_gap_s: float | None = None  # longest gap bridged: SBET records / GPS fixes (by the INS)
-    camera: FrameCamera | None = None  # a frame camera's model: its photos' EO (OUT/photos/)
 
 
 @dataclass

@@ -14,7 +14,6 @@ from postproc.sync.config import SyncConfig, TimeStatus
 from postproc.sync.files import (
     FRAME_COUNTER_MAX,
     SEGMENT_MAX,
-    read_photo_times,
     read_scanner_lines,
     unlisted_line_notes,
     write_ins_times,
@@ -47,7 +46,7 @@ __all__ = [
     "InsColumns", "InsSolution", "InsTimes", "LineTimes", "PhotoStatus", "PhotoTimeSource",
     "PhotoTimes", "SisaColumns", "SyncConfig",
     "SyncInput", "SyncResult", "TimeStatus", "header_order_note", "no_ins_timed_note",
-    "read_photo_times", "read_scanner_lines",
+    "read_scanner_lines",
     "read_sync_input", "sync_input_from_columns", "sync_log", "synchronise",
     "unlisted_line_notes", "untimed_lines_note", "write_ins_times", "write_line_times",
     "write_photo_times", "write_report",

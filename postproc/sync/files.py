@@ -18,7 +18,7 @@ import numpy.typing as npt
 from postproc.sync.config import TimeStatus
 from postproc.sync.lines import LineTable
 from postproc.sync.photos import PhotoStatus, PhotoTimes, PhotoTimeSource
-from sisa.core.errors import InputError, shown_value
+from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
 
 I64 = npt.NDArray[np.int64]
@@ -32,8 +32,6 @@ _IMAGE_RE: Final = re.compile(r"segment_(\d+)\.bil$")
 FRAME_COUNTER_MAX: Final = 2**32 - 1
 SEGMENT_MAX: Final = 2**16 - 1
 WRITE_BLOCK: Final = 100_000
-MAX_PHOTO_ROWS: Final = 10_000_000  # a photo every 0.05 s for 5 days
-MAX_PHOTO_LINE: Final = 200
 
 STATUS_DOC: Final = ("status: " + " | ".join(s.name.lower() for s in TimeStatus)
                      + " (only ok rows carry a time; see docs/sync.md)")
@@ -228,65 +226,44 @@ def write_line_times(path: Path, segment: I64, line: I64, frame_counter: I64, t_
 
 
 PHOTO_HEADER: Final = (
-    "# SISA time synchronisation: the GPS time of every photo of the frame camera (sisa sync;\n"
-    "# docs/sync.md, \"Photos\"), one row per photo message and per pulse no message named,\n"
-    "# in the order they reached the recorder.\n"
-    "# photo_number: the camera's photo number, as sent (wraps); -1: a pulse no message named\n"
-    "# t_gps_ns: GPS time of the photo's mid-exposure, int64 ns since 1980-01-06T00:00:00 on\n"
-    "#   the GPS scale (no leap seconds); -1 unless status is ok, board_time or no_photo_number\n"
+    "# SISA time synchronisation: the GPS time of every photo the frame camera named (sisa\n"
+    "# sync; docs/sync.md, \"Photos\"), one row per photo message, in the order they reached\n"
+    "# the recorder; the photo times table `sisa georef --photo-times` reads.\n"
+    "# photo_number: the camera's photo number, as sent (wraps)\n"
+    "# t_mid_gps_ns: GPS time of the photo's mid-exposure, int64 ns since 1980-01-06T00:00:00\n"
+    "#   on the GPS scale (no leap seconds); -1 unless status is ok or board_time\n"
     "# sigma_ns: the time's predicted error (1 sigma), empty without a time\n"
     "# source: event_tag (the receiver tagged its pulse) | board (the sync unit's timing board,\n"
     "#   through the PPS) | none\n"
-    "# status: " + " | ".join(s.name.lower() for s in PhotoStatus) + "\n"
-    "photo_number,t_gps_ns,sigma_ns,source,status\n")
+    "# status: " + " | ".join(s.name.lower() for s in PhotoStatus
+                              if s is not PhotoStatus.NO_PHOTO_NUMBER) + "\n"
+    "photo_number,t_mid_gps_ns,sigma_ns,source,status\n")
+UNNAMED_HEADER: Final = (
+    "# SISA time synchronisation: the frame camera's pulses no photo message named (sisa sync;\n"
+    "# docs/sync.md, \"Photos\"): a photo whose message was lost, or a pulse the camera never\n"
+    "# made; each with its time, as the photos'.\n"
+    "# t_gps_ns: GPS time of the pulse (a mid-exposure), int64 ns; -1 without a time\n"
+    "# sigma_ns, source: as in photo_times.csv\n"
+    "t_gps_ns,sigma_ns,source\n")
 
 
-def write_photo_times(path: Path, photos: PhotoTimes) -> None:
-    names = np.array([s.name.lower() for s in PhotoStatus])
+def write_photo_times(folder: Path, photos: PhotoTimes) -> None:
+    """`folder`/photo_times.csv (the named photos) and `folder`/camera_pulses_unnamed.csv."""
     sources = np.array([s.name.lower() for s in PhotoTimeSource])
+    names = np.array([s.name.lower() for s in PhotoStatus])
     sigma = np.array(["" if not np.isfinite(v) else f"{v:.1f}" for v in photos.sigma_ns],
                      dtype=np.str_)
-    with Path(path).open("w", encoding="utf-8", newline="") as fh:
-        fh.write(PHOTO_HEADER)
-        if photos.photo_number.size:
-            _write_table(fh, [photos.photo_number, photos.t_gps_ns, sigma,
-                              sources[photos.source], names[photos.status]])
-
-
-def read_photo_times(path: Path) -> PhotoTimes:
-    """A `photo_times.csv` as `write_photo_times` wrote it (for `sisa georef`): InputError on
-    anything else, with the line."""
-    status_of = {s.name.lower(): int(s) for s in PhotoStatus}
-    source_of = {s.name.lower(): int(s) for s in PhotoTimeSource}
-    rows: list[tuple[int, int, float, int, int]] = []
-    lines: list[tuple[int, str]] = []
-    try:
-        with Path(path).open(encoding="utf-8", newline="") as fh:
-            for i, line in enumerate(fh, 1):
-                if len(lines) > MAX_PHOTO_ROWS or len(line) > MAX_PHOTO_LINE:
-                    raise InputError(f"{path}: line {i}: more than {MAX_PHOTO_ROWS} rows or "
-                                     f"a line longer than {MAX_PHOTO_LINE} characters")
-                if not line.startswith("#"):
-                    lines.append((i, line.rstrip("\r\n")))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read: {exc}") from None
-    if not lines or lines[0][1] != "photo_number,t_gps_ns,sigma_ns,source,status":
-        raise InputError(f"{path}: not a photo_times.csv (its column line is missing)")
-    for i, line in lines[1:]:
-        parts = line.split(",")
-        try:
-            if len(parts) != 5 or not (_is_int64(parts[0]) and _is_int64(parts[1])):
-                raise ValueError("not five columns, or a number that is no int64")
-            rows.append((int(parts[0]), int(parts[1]),
-                         float(parts[2]) if parts[2] else float("nan"),
-                         source_of[parts[3]], status_of[parts[4]]))
-        except (ValueError, KeyError):
-            raise InputError(f"{path}: line {i}: not a photo row: "
-                             f"{shown_value(line, 80)}") from None
-    cols = list(zip(*rows, strict=True)) if rows else [(), (), (), (), ()]
-    return PhotoTimes(np.array(cols[0], dtype=np.int64), np.array(cols[1], dtype=np.int64),
-                      np.array(cols[2], dtype=np.float64), np.array(cols[3], dtype=np.int64),
-                      np.array(cols[4], dtype=np.int64))
+    named = photos.photo_number >= 0
+    for name, head, pick, columns in (
+            ("photo_times.csv", PHOTO_HEADER, named,
+             [photos.photo_number, photos.t_gps_ns, sigma, sources[photos.source],
+              names[photos.status]]),
+            ("camera_pulses_unnamed.csv", UNNAMED_HEADER, ~named,
+             [photos.t_gps_ns, sigma, sources[photos.source]])):
+        with (Path(folder) / name).open("w", encoding="utf-8", newline="") as fh:
+            fh.write(head)
+            if pick.any():
+                _write_table(fh, [c[pick] for c in columns])
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:

@@ -3,8 +3,9 @@
 OUT/
   ins_times.csv      seq, counter, t_gps_ns, status of every INS record (log order)
   line_times.csv     segment, line, frame_counter, t_gps_ns, status of every scan line
-  photo_times.csv    photo_number, t_gps_ns, sigma_ns, source, status of every photo (a flight
-                     with a frame camera only)
+  photo_times.csv    photo_number, t_mid_gps_ns, sigma_ns, source, status of every photo the
+                     frame camera named (a flight with a camera only)
+  camera_pulses_unnamed.csv   t_gps_ns, sigma_ns, source of its pulses no photo named
   sync_report.json   pulses found, matched and rejected; margin of every pattern block; clock
                      models and residuals; flagged counts
 """
@@ -92,7 +93,7 @@ def _run(args: argparse.Namespace) -> int:
         write_line_times(out / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                          ln.t_gps_ns, ln.status)
         if result.photos is not None:
-            write_photo_times(out / "photo_times.csv", result.photos)
+            write_photo_times(out, result.photos)
         notes = [] if recording is None else [recording]
         notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")

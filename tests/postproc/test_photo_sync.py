@@ -20,7 +20,6 @@ from postproc.sync import (
     PhotoStatus,
     SyncResult,
     TimeStatus,
-    read_photo_times,
     read_sync_input,
     synchronise,
 )
@@ -155,32 +154,40 @@ def test_the_scanner_is_timed_as_well_with_the_camera_as_without(tmp_path: Path)
 
 
 def test_sisa_sync_writes_the_photo_table(tmp_path: Path) -> None:
+    from postproc.georef import read_photo_times
     from sisa.cli import main
 
     simulate(scenario(4, {"lost_pulse_fraction": 0.2}), tmp_path / "run", images=False)
     code = main(["sync", str(tmp_path / "run" / "flight.mcap"), "--out",
                  str(tmp_path / "sync")])
     assert code == 3  # the photos whose pulse was lost are not timed: said, exit 3
+    table = read_truth_csv(tmp_path / "sync" / "photo_times.csv")  # (a commented CSV too)
+    assert (table["status"] == "no_pulse").sum() > 0
+    # the photo path's reader (sisa georef --photo-times) takes the table as it is
     photos = read_photo_times(tmp_path / "sync" / "photo_times.csv")
-    assert (photos.status == PhotoStatus.NO_PULSE).sum() > 0
-    timed = photos.t_gps_ns[photos.status == PhotoStatus.OK]
-    truth = photo_truth(tmp_path / "run")["t_mid_gps_ns"]
-    assert timed.size > 10
-    assert np.abs(timed[:, None] - truth[None, :]).min(axis=1).max() < PHOTO_WRONG_NS
+    assert (photos.photo_number == table["photo_number"]).all()
+    timed = photos.timed()
+    truth = photo_truth(tmp_path / "run")
+    assert timed.photo_number.size == int((table["status"] == "ok").sum()
+                                          + (table["status"] == "board_time").sum()) > 10
+    t_of = dict(zip(truth["photo_number"].tolist(), truth["t_mid_gps_ns"].tolist(),
+                    strict=True))
+    err = timed.t_mid_gps_ns - np.array([t_of[int(k)] for k in timed.photo_number])
+    assert np.abs(err).max() < PHOTO_WRONG_NS
 
 
 def test_the_photo_times_give_each_photo_its_true_pose(tmp_path: Path) -> None:
-    """The sync's photo times into the photo EO path (postproc.georef.exposures, as sisa
-    georef and sisa process call it), on an error-free flight: each perspective centre within
-    1 cm of the truth's, so the time found is the photo's (a photo 1 ms off is 6 cm off)."""
+    """The sync's photo times into the photo EO path (postproc.georef.photo_eo, through the
+    table sisa process hands it: sisa.commands.process.synced_photo_times), on an error-free
+    flight: each perspective centre within 1 cm of the truth's, so the time found is the
+    photo's (a photo 1 ms off is 6 cm off)."""
     from pyproj import Transformer
 
-    from postproc.georef import NAV_WANTED, merged_wanted, nav_from_columns
-    from postproc.georef.exposures import write_photo_eo
+    from postproc.georef import NAV_WANTED, merged_wanted, nav_from_columns, photo_eo
     from postproc.sync import WANTED, sync_input_from_columns
     from recorder.columns import read_topics
+    from sisa.commands.process import synced_photo_times
     from sisa.commands.simulate import error_free
-    from sisa.core.framecamera import FrameCamera
 
     scn = error_free(scenario(6, {"lost_photo_number_fraction": 0.2}))
     assert scn.camera is not None
@@ -191,22 +198,18 @@ def test_the_photo_times_give_each_photo_its_true_pose(tmp_path: Path) -> None:
         recording_metadata(run / "flight.mcap")))
     assert res.photos is not None
     traj = nav_from_columns(cols, res.ins, antenna_offset_m=scn.mounting.antenna_offset_m)
-    camera = FrameCamera(interior=scn.camera.model, mounting=scn.camera.mounting)
-    notes = write_photo_eo(tmp_path / "out", res.photos, traj, camera, 32631)
-    assert any("have no photo number" in n for n in notes)  # their messages were lost
-    table = np.genfromtxt(tmp_path / "out" / "photos" / "photos_eo.csv", delimiter=",",
-                          names=True, dtype=None, encoding="utf-8")
+    times = synced_photo_times(res.photos)
+    eo = photo_eo(traj, times.labels, times.t_mid_gps_ns, scn.camera.mounting, epsg=32631)
     truth = photo_truth(run)
     row_of = {int(n): i for i, n in enumerate(truth["photo_number"])}
-    rows = [row_of[int(label.split("_")[1])] for label in table["label"]]
-    assert len(rows) == int((truth["message_sent"] == 1).sum())
+    rows = [row_of[int(k)] for k in times.photo_number]
+    assert len(rows) == int((truth["message_sent"] == 1).sum())  # the lost numbers: not here
+    assert eo.valid.all()
     east, north = Transformer.from_crs(4979, 32631, always_xy=True).transform(
         truth["lon_deg"][rows], truth["lat_deg"][rows])
-    off = np.hypot(table["easting_m"] - east, table["northing_m"] - north)
+    off = np.hypot(eo.easting_m - east, eo.northing_m - north)
     assert off.max() < 0.01
-    assert np.abs(table["height_m"] - truth["height_m"][rows]).max() < 0.01
-    assert (tmp_path / "out" / "photos" / "geo.txt").read_text().startswith("EPSG:32631\n")
-    assert len(list((tmp_path / "out" / "photos" / "sidecars").glob("photo_*.json"))) == len(rows)
+    assert np.abs(eo.pose.height_m - truth["height_m"][rows]).max() < 0.01
 
 
 def test_sisa_sync_says_when_the_camera_pulse_line_is_dead(tmp_path: Path,

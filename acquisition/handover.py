@@ -10,11 +10,11 @@ nothing while it hands a batch over, so a batch of high rates' 200 ms made every
 times up to 50 ms late and the edges past their deadline) — with one exception, the sync unit's
 real-time duty: a pulse edge that could be forwarded is handed over at once, after everything
 held before it. Which edges could is asked of the acquisition (`Acquisition.ppf_may_forward`),
-counting the ppf still held; a PPS edge always could. Nothing else forwards, so the acquisition
-sees the same events in the same order with the same host times (stamped at the read) as when
-each read is handed over at once, and logs the same records; only their writing comes up to
-`HOLD_NS` later, well inside the second a crash may lose. A forward that does come out of a held
-batch (it never should) is counted as a missed deadline of the ppf stream.
+counting the ppf still held; a PPS or camera edge always could. Nothing else forwards, so the
+acquisition sees the same events in the same order with the same host times (stamped at the
+read) as when each read is handed over at once, and logs the same records; only their writing
+comes up to `HOLD_NS` later, well inside the second a crash may lose. A forward that does come
+out of a held batch (it never should) is counted as a missed deadline of the ppf stream.
 """
 
 from __future__ import annotations
@@ -63,6 +63,8 @@ def dispatch(acq: Acquisition, item: Arrival) -> None:
             acq.on_can_garbled(item.t_host_ns, garbled.lines, garbled.bytes_skipped)
     elif source == "gps":
         acq.on_gps_bytes(item.t_host_ns, cast(bytes, payload))
+    elif source == "camera":
+        acq.on_camera_bytes(item.t_host_ns, cast(bytes, payload))
     else:
         acq.on_scanner_bytes(item.t_host_ns, cast(bytes, payload))
 

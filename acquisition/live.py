@@ -57,6 +57,7 @@ from acquisition.proof import (
     Prover,
     SlcanProof,
     Verdict,
+    camera_proof,
     device_instance,
     gps_proof,
     scanner_proof,
@@ -85,6 +86,7 @@ class Source(StrEnum):
     SCANNER = "scanner"
     INS = "ins"
     PULSES = "pulses"
+    CAMERA = "camera"
 
 
 class LinkState(StrEnum):
@@ -166,7 +168,8 @@ class LiveSources:
     """Opens the ports, waits on them all in `poll`, and sends edges back to the timing board."""
 
     def __init__(self, gps_port: str | None, scanner_port: str | None, ins_bus: str | None,
-                 pulses: str | None, read_interval_s: float = 0.0) -> None:
+                 pulses: str | None, read_interval_s: float = 0.0,
+                 camera_port: str | None = None) -> None:
         self._selector = selectors.DefaultSelector()
         self.read_interval_s = read_interval_s
         self._next_read_s = 0.0  # monotonic: with a read interval, when to read next
@@ -190,6 +193,8 @@ class LiveSources:
                 self._can(ins_bus)
             if pulses:
                 self._pulses(pulses)
+            if camera_port:
+                self._serial(Source.CAMERA, camera_port)
         except BaseException:
             self.close()
             raise
@@ -401,7 +406,7 @@ class LiveSources:
         except _LostError as exc:
             raise InputError(f"cannot open {source} port {port}: {exc}") from None
         again = stable_serial_path(port)  # reopened by its udev name if it has one
-        proof = gps_proof if source is Source.GPS else scanner_proof
+        proof = {Source.GPS: gps_proof, Source.CAMERA: camera_proof}.get(source, scanner_proof)
         link: _Link[serial.Serial | ProbePort] = _Link(
             source, lambda: open_at(again), _fileno, read, _close,
             _Probation(again, lambda _now: proof(), accept))

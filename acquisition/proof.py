@@ -41,6 +41,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
+from acquisition.camera_photo import first_photo_message
 from acquisition.nmea import first_checked_sentence
 from acquisition.novatel import first_novatel_log
 from acquisition.scanner_header import first_header
@@ -218,6 +219,10 @@ def gps_proof() -> StreamProof:
 
 def scanner_proof() -> StreamProof:
     return StreamProof(first_header, "one frame header whose CRC holds")
+
+
+def camera_proof() -> StreamProof:
+    return StreamProof(first_photo_message, "one photo message whose CRC holds")
 
 
 class SlcanProof:

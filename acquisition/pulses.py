@@ -38,6 +38,7 @@ class PulseLine(IntEnum):
     PPF = 2  # scanner pulse per frame (mid-exposure) → SISA
     INS_SYNC = 3  # SISA → INS sync input
     GPS_EVENT = 4  # SISA → GPS event input
+    CAMERA = 5  # frame camera mid-exposure pulse → SISA (issue 37)
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import can
 
+from acquisition.camera_photo import PhotoStreamDecoder
 from acquisition.clocks import TimingBoard
 from acquisition.codec import DecodeStats, ErrorPolicy
 from acquisition.ins_can import InsRecord, InsRecordAssembler
@@ -46,6 +47,7 @@ from acquisition.syncfilter import Forward, Log, Mode, SyncFilter, SyncFilterCon
 from acquisition.ubx import NmeaUbxStreamDecoder, TimeBase, TimTm2, TimTp
 from recorder.messages import (
     CAN_EXTENDED_FLAG,
+    CameraPhotoLog,
     FrameHeaderLog,
     GpsFix,
     GpsTimeTag,
@@ -90,10 +92,18 @@ class StreamCounters:
         self.window_messages += 1
 
 
-# which health streams each device link feeds (the pulse link carries both pulse lines)
+# which health streams each device link feeds (the pulse link carries every pulse line); the
+# camera's two streams exist only when the configuration has a camera
 SOURCE_STREAMS: dict[str, tuple[str, ...]] = {
-    "gps": ("gps",), "scanner": ("scanner",), "ins": ("ins",), "pulses": ("pps", "ppf"),
+    "gps": ("gps",), "scanner": ("scanner",), "ins": ("ins",),
+    "pulses": ("pps", "ppf", "camera_pulse"), "camera": ("camera",),
 }
+# the health stream of each input pulse line
+LINE_STREAM: dict[PulseLine, str] = {
+    PulseLine.PPS: "pps", PulseLine.PPF: "ppf", PulseLine.CAMERA: "camera_pulse"}
+# the input line a forwarded pulse came in on
+SOURCE_LINE: dict[str, PulseLine] = {
+    "PPS": PulseLine.PPS, "PPF": PulseLine.PPF, "CAMERA": PulseLine.CAMERA}
 STREAM_SOURCE = {stream: source for source, streams in SOURCE_STREAMS.items()
                  for stream in streams}
 
@@ -122,6 +132,9 @@ class AcquisitionConfig:
     accept_nmea_without_checksum: bool = False  # else such sentences are refused and counted
     gps_ubx: bool = False  # the receiver interleaves UBX frames with its NMEA (u-blox)
     gps_novatel: bool = False  # the receiver sends NovAtel ASCII logs (and maybe NMEA) (OEM7)
+    camera_rate_hz: float | None = None  # a frame camera's photos a second at most; None: none
+    # where its photo message may arrive after its pulse, ms (for the log's metadata)
+    camera_message_window_ms: tuple[float, float] | None = None
 
 
 def gps_sentences_hz(config: AcquisitionConfig, mode: Mode) -> float:
@@ -164,6 +177,7 @@ class Acquisition:
                            accept_missing_checksum=config.accept_nmea_without_checksum)
         self.ins = InsRecordAssembler(ErrorPolicy.COUNT)
         self.headers = HeaderStreamDecoder(ErrorPolicy.COUNT)
+        self.photos = PhotoStreamDecoder(ErrorPolicy.COUNT)
         self.streams = {
             "gps": StreamCounters(gps_sentences_hz(config, Mode.PPS)),
             "ins": StreamCounters(config.ins_rate_hz),
@@ -171,6 +185,9 @@ class Acquisition:
             "pps": StreamCounters(1.0),
             "ppf": StreamCounters(config.line_rate_hz),
         }
+        if config.camera_rate_hz is not None:
+            self.streams["camera"] = StreamCounters(config.camera_rate_hz)
+            self.streams["camera_pulse"] = StreamCounters(config.camera_rate_hz)
         if pulse_stats is not None:
             self.streams["pps"].stats = pulse_stats
         self.links = {source: LinkCounters() for source in SOURCE_STREAMS}
@@ -327,6 +344,20 @@ class Acquisition:
             self._apply(self.filter.on_header(h, t_host_ns))
         self.streams["scanner"].stats = self.headers.stats
 
+    def on_camera_bytes(self, t_host_ns: int, data: bytes) -> None:
+        """The frame camera's port: raw bytes, then every photo message (which photo its
+        last pulse was: matched in post-processing, on host time)."""
+        self._start(t_host_ns)
+        self.log(RawBytes(t_host_ns, "camera", data), Topic.CAMERA_RAW)
+        counters = self.streams.get("camera")
+        for item in self.photos.feed(data):
+            msg = item.message
+            if counters is not None:
+                counters.seen(t_host_ns, 10 * NS_PER_S)
+            self.log(CameraPhotoLog(t_host_ns, msg.photo_number, msg.exposure_time_us), None)
+        if counters is not None:
+            counters.stats = self.photos.stats
+
     # --- CAN -------------------------------------------------------------------------------
 
     def on_can_frame(self, t_host_ns: int, msg: can.Message) -> None:
@@ -383,6 +414,10 @@ class Acquisition:
         elif edge.line is PulseLine.PPF:
             self.streams["ppf"].seen(t_host_ns, NS_PER_S)
             self._apply(self.filter.on_ppf(board_ns, t_host_ns))
+        elif edge.line is PulseLine.CAMERA:
+            if "camera_pulse" in self.streams:
+                self.streams["camera_pulse"].seen(t_host_ns, 10 * NS_PER_S)
+            self._apply(self.filter.on_camera(board_ns, t_host_ns))
 
     def ppf_may_forward(self, ppf_unseen: int, gap_ns: int | None) -> bool:
         """Could handling the next ppf forward a pulse, with `ppf_unseen` ppf before it not
@@ -427,8 +462,9 @@ class Acquisition:
         if t_host_ns - self._first_edge_host_ns < NS_PER_S:
             return  # warm-up: edges queued on the link before the reader ran are not misses
         if offset - self._edge_offset_min_ns > self.config.edge_deadline_ns:
-            name = "pps" if edge.line is PulseLine.PPS else "ppf"
-            self.streams[name].deadline_misses += 1
+            counters = self.streams.get(LINE_STREAM.get(edge.line, "ppf"))
+            if counters is not None:
+                counters.deadline_misses += 1
 
     def tick(self, t_host_ns: int, t_edge_clock_ns: int) -> None:
         """Time passes with nothing arriving: scanner-off detection and health reports."""
@@ -449,8 +485,7 @@ class Acquisition:
                 self._forward(action)
 
     def _forward(self, fwd: Forward) -> None:
-        line = PulseLine.PPS if fwd.source == "PPS" else PulseLine.PPF
-        board_in, t_in = self._last_in[line]
+        board_in, t_in = self._last_in[SOURCE_LINE[fwd.source]]
         t_out = t_in + (fwd.board_ns - board_in)
         targets = [PulseLine.INS_SYNC] if fwd.to_ins else []
         if fwd.to_gps_event:
@@ -489,7 +524,7 @@ class Acquisition:
 
     def _link_event(self, t_host_ns: int, source: str, event: str, lost_ns: int,
                     restored_ns: int, detail: str) -> None:
-        counters = [self.streams[name] for name in SOURCE_STREAMS[source]]
+        counters = [self.streams[name] for name in SOURCE_STREAMS[source] if name in self.streams]
         stats = [c.stats for c in counters]
         link = self.links[source]
         reasons, counts = _refused(stats)

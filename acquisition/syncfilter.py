@@ -38,6 +38,15 @@ Design choices, and why:
   never eats one, across mode switches too. Two PPS forwards may be `spacing_tolerance_ns` closer
   than 1 / rate: they are one GPS second apart by construction (only PPS jitter and the board
   drift differ). Every other pair must be at least 1 / rate + tolerance apart on the board counter.
+- A frame camera (issue 37) shares the GPS event input, never the INS sync input: the INS
+  pulse schedule (gated PPS, 1 of n ppf) is exactly what it is without a camera, so the pattern
+  post-processing matches is untouched. The event input takes whichever pulse comes first once
+  the receiver has re-armed (the spacing rule above, against the last pulse SENT TO IT): a
+  camera pulse then goes to it alone; a ppf forward that finds it taken by a camera pulse goes
+  to the INS alone (`forwards_event_input_busy`), a camera pulse that finds it taken goes
+  nowhere (`camera_event_input_busy`). Both are logged with their board time either way
+  (SyncForward, SyncCameraPulse), so every tag the receiver gives has exactly one pulse of
+  a known source within its period, and an untagged pulse is timed through the board.
 - Mode 2 forwards the first ppf of a scanner stretch that the spacing allows, then the first ppf at
   least n frames after the previous forward that the spacing allows. A ppf that was due but held
   back counts in `forwards_suppressed_by_spacing`.
@@ -87,7 +96,14 @@ from typing import Final, TypeAlias
 
 from acquisition.lfsr import Lfsr, check_taps, default_taps
 from acquisition.scanner_header import FrameHeader
-from recorder.messages import LoggedMessage, SyncForward, SyncModeSwitch, SyncPps, SyncSession
+from recorder.messages import (
+    LoggedMessage,
+    SyncCameraPulse,
+    SyncForward,
+    SyncModeSwitch,
+    SyncPps,
+    SyncSession,
+)
 from sisa.core.errors import ConfigError
 from sisa.core.timescale import NS_PER_S
 
@@ -116,6 +132,7 @@ class Mode(IntEnum):
 class PulseSource(StrEnum):
     PPS = "PPS"
     PPF = "PPF"
+    CAMERA = "CAMERA"  # the frame camera's mid-exposure pulse (GPS event input only)
 
 
 class CounterSource(StrEnum):
@@ -239,7 +256,11 @@ class SyncCounters:
     headers_unmatched: int = 0
     forwards: int = 0
     forwards_suppressed_by_spacing: int = 0
+    forwards_event_input_busy: int = 0  # went to the INS alone: a camera pulse had the input
     ptt_unmatched: int = 0
+    camera_pulses: int = 0
+    camera_to_gps_event: int = 0
+    camera_event_input_busy: int = 0  # timed by the board alone: the input was taken
 
 
 # ---------------------------------------------------------------------------------------------
@@ -681,6 +702,8 @@ class SyncFilter:
         self._run: _FrameRun | None = None
         self._since_forward = 0  # ppf since the last forward in this run
         self._last_forward: tuple[int, PulseSource] | None = None  # output board_ns, source
+        self._last_event: tuple[int, PulseSource] | None = None  # the last to the GPS event in
+        self._camera_seq = 0
         self._last_ppf_board_ns: int | None = None
         self._last_second: tuple[int, int] | None = None  # (board_ns, gps_second_ns) of a PTT
         self._challenger: tuple[int, int] | None = None  # a refused lone PTT match
@@ -755,6 +778,25 @@ class SyncFilter:
         self._resolve_frames(ended=False)
         return self._actions(fwd, logs + self._emit_forwards())
 
+    def on_camera(self, board_ns: int, t_host_ns: int) -> list[Action]:
+        """A frame-camera pulse (mid-exposure): to the GPS event input if the input is free
+        (`_event_input_free`), never to the INS; logged either way with its board time. It
+        changes nothing of the scanner's and the PPS's forwarding: no mode switch, no spacing
+        of the INS pulses (docs/sync.md, "Two sensors, one event input")."""
+        self.counters.camera_pulses += 1
+        out_ns = board_ns + GATE_DELAY_NS
+        free = self._event_input_free(out_ns, PulseSource.CAMERA)
+        actions: list[Action] = []
+        if free:
+            self.counters.camera_to_gps_event += 1
+            self._last_event = (out_ns, PulseSource.CAMERA)
+            actions.append(Forward(out_ns, False, True, PulseSource.CAMERA))
+        else:
+            self.counters.camera_event_input_busy += 1
+        record = SyncCameraPulse(t_host_ns, self.session, self._camera_seq, board_ns, free)
+        self._camera_seq += 1
+        return actions + self.start_actions() + [Log(record)]
+
     def ppf_may_forward(self, ppf_unseen: int) -> bool:
         """Could the ppf after `ppf_unseen` more (none of them forwarded) be forwarded? In
         mode 1 any ppf may be the one that turns the scanner on and goes at once; in mode 2
@@ -827,13 +869,27 @@ class SyncFilter:
     # --- forwarding -----------------------------------------------------------------------
 
     def _spacing_ok(self, out_ns: int, source: PulseSource) -> bool:
-        if self._last_forward is None:
+        """Far enough from the last pulse forwarded to the INS (the INS pulse schedule)."""
+        return self._spaced(self._last_forward, out_ns, source)
+
+    def _event_input_free(self, out_ns: int, source: PulseSource) -> bool:
+        """Far enough from the last pulse sent to the GPS event input that the receiver has
+        re-armed: the one output two sensors share. Without a camera this is never stricter
+        than `_spacing_ok` (every pulse sent to the event input was an INS forward too)."""
+        return self._spaced(self._last_event, out_ns, source)
+
+    def _spaced(self, last: tuple[int, PulseSource] | None, out_ns: int,
+                source: PulseSource) -> bool:
+        if last is None:
             return True
-        last_ns, last_source = self._last_forward
+        last_ns, last_source = last
         tol = self.config.spacing_tolerance_ns
         both_pps = source is PulseSource.PPS and last_source is PulseSource.PPS
         need = self.config.event_period_ns + (-tol if both_pps else tol)
-        return out_ns - last_ns >= need
+        gap = out_ns - last_ns
+        if PulseSource.CAMERA in (source, last_source):
+            gap = abs(gap)  # two links: a camera edge may be handled before an earlier ppf
+        return gap >= need
 
     def _try_forward(self, board_ns: int, t_host_ns: int, source: PulseSource,
                      to_gps_event: bool, frame_index: int = -1) -> _PendingForward | None:
@@ -841,10 +897,15 @@ class SyncFilter:
         if not self._spacing_ok(out_ns, source):
             self.counters.forwards_suppressed_by_spacing += 1
             return None
+        if to_gps_event and not self._event_input_free(out_ns, source):
+            to_gps_event = False  # a camera pulse has the input: to the INS alone
+            self.counters.forwards_event_input_busy += 1
         fwd = _PendingForward(self.counters.forwards, out_ns, t_host_ns, self.mode, source,
                               to_gps_event, frame_index)
         self.counters.forwards += 1
         self._last_forward = (out_ns, source)
+        if to_gps_event:
+            self._last_event = (out_ns, source)
         self._forwards.append(fwd)
         return fwd
 

@@ -1,9 +1,9 @@
 """Real-time wiring of the emulated devices to virtual ports other processes open.
 
-GPS and scanner serial lines → ptys; the INS → an SLCAN adapter on a pty (or any python-can bus);
-pulse lines → a loopback TCP endpoint carrying edges both ways. Edges coming back (the sync unit's
-pulses to the INS sync input and the GPS event input) go to the runner's inbox and act at their
-own timestamps.
+GPS, scanner (and frame camera) serial lines → ptys; the INS → an SLCAN adapter on a pty (or any
+python-can bus); pulse lines → a loopback TCP endpoint carrying edges both ways. Edges coming
+back (the sync unit's pulses to the INS sync input and the GPS event input) go to the runner's
+inbox and act at their own timestamps.
 """
 
 from __future__ import annotations
@@ -93,12 +93,14 @@ class RealTimeBridge:
     """The sink of a real-time run: owns the ports and routes every output to its wire."""
 
     def __init__(self, can_target: CanTarget, inbox: queue.SimpleQueue[Edge],
-                 pulse_port: int = 0, gps_copy: bool = False) -> None:
+                 pulse_port: int = 0, gps_copy: bool = False, camera: bool = False) -> None:
+        """`camera`: a frame camera's port too (a scenario with `[camera]`)."""
         self.gps = PtyPort()
         # a second pty with the same GPS bytes, for a second reader (gpsd): two readers of
         # one pty would each get part of the stream
         self.gps_copy = PtyPort() if gps_copy else None
         self.scanner = PtyPort()
+        self.camera = PtyPort() if camera else None
         self.can = CanOutput(can_target)
         self.pulses = PulseEndpoint(inbox.put, port=pulse_port)
 
@@ -110,6 +112,9 @@ class RealTimeBridge:
                 self.gps_copy.write(payload)
         elif out.port is Port.SCANNER_SERIAL and isinstance(payload, bytes):
             self.scanner.write(payload)
+        elif out.port is Port.CAMERA_SERIAL and isinstance(payload, bytes):
+            if self.camera is not None:
+                self.camera.write(payload)
         elif isinstance(payload, can.Message):
             self.can.send(payload)
         elif isinstance(payload, Edge):
@@ -118,8 +123,9 @@ class RealTimeBridge:
 
     def endpoints(self) -> dict[str, str]:
         copy = {} if self.gps_copy is None else {"gps_copy": self.gps_copy.name}
+        camera = {} if self.camera is None else {"camera": self.camera.name}
         return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": self.can.channel,
-                "pulses": self.pulses.address, **copy}
+                "pulses": self.pulses.address, **copy, **camera}
 
     def close(self) -> None:
         self.pulses.close()
@@ -128,3 +134,5 @@ class RealTimeBridge:
         if self.gps_copy is not None:
             self.gps_copy.close()
         self.scanner.close()
+        if self.camera is not None:
+            self.camera.close()

@@ -1,7 +1,7 @@
 """The frame camera emulator (issue 37): when it exposes, what it sends, and the truth of every
-photo. Not yet a `Device` on the runtime: the sync unit's sharing of its one GPS event input
-and its one INS sync input between the scanner and the camera is a later part, so nothing here
-reaches a port, the sync filter or a flight log.
+photo. `CameraDevice` puts it on the runtime: its photo messages on its own serial port
+(`Port.CAMERA_SERIAL`), its mid-exposure pulses on the pulse line `PulseLine.CAMERA` into the
+sync unit (which shares its GPS event input with the scanner: docs/sync.md).
 
 What it does, and why:
 - The camera is on only over the strips, as the scanner records (one window per strip of the
@@ -25,7 +25,8 @@ What it does, and why:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Final
 
@@ -34,6 +35,7 @@ import numpy.typing as npt
 from pyproj import Geod, Transformer
 
 from acquisition.camera_photo import PhotoMessage, encode_photo
+from acquisition.pulses import Edge, PulseLine
 from emulators.render import (
     GroundIntersector,
     SensorResponse,
@@ -41,6 +43,7 @@ from emulators.render import (
     dn_from_radiance,
     raw_dn_envi_header,
 )
+from emulators.runtime import Device, Output, Port
 from emulators.scenario import CameraSettings
 from emulators.terrain import Scene, Terrain
 from emulators.trajectory import FlownStrip, TrajectoryState, TruthTrajectory
@@ -156,6 +159,53 @@ def plan_shots(camera: CameraSettings, traj: TruthTrajectory,
     pulse_lost = rng.random(n) < camera.faults.lost_pulse_fraction
     message_lost = rng.random(n) < camera.faults.lost_photo_number_fraction
     return CameraShots(numbers, strip, t_mid, t_message, ~pulse_lost, ~message_lost)
+
+
+def on_frames(shots: CameraShots, frame_times_ns: Callable[[I64], I64], fraction: float,
+              rng: np.random.Generator) -> tuple[CameraShots, I64]:
+    """Fault `on_frame_fraction`: that share of the exposures moved onto the nearest scanner
+    frame's mid-exposure (`frame_times_ns` gives the frame time nearest each time asked), its
+    message moved with it; the photo is then taken there (the truth follows). Drawn from `rng`
+    (a stream of its own: the camera's other draws do not change). Returns the shots and the
+    indices moved."""
+    moved = np.flatnonzero(rng.random(len(shots)) < fraction) if fraction > 0 else np.empty(
+        0, np.int64)
+    if not moved.size:
+        return shots, moved
+    t_mid = shots.t_mid_ns.copy()
+    shift = frame_times_ns(t_mid[moved]) - t_mid[moved]
+    t_mid[moved] += shift
+    t_message = shots.t_message_ns.copy()
+    t_message[moved] += shift
+    order = np.argsort(t_mid, kind="stable")
+    if np.any(np.diff(t_mid[order]) <= 0):  # two exposures on one frame: keep the plan
+        return shots, np.empty(0, np.int64)
+    return replace(shots, t_mid_ns=t_mid, t_message_ns=np.maximum.accumulate(t_message)), moved
+
+
+class CameraDevice(Device):
+    """The camera on the runtime: its pulses (that left it) and its photo messages (that were
+    sent), in time order; a pulse before a message due at the same instant."""
+
+    name = "camera"
+
+    def __init__(self, camera: CameraSettings, shots: CameraShots) -> None:
+        items = [(int(t), 0, Output(int(t), Port.PULSES, Edge(PulseLine.CAMERA, 0, int(t))))
+                 for t in pulse_times_ns(shots)]
+        items += [(t, 1, Output(t, Port.CAMERA_SERIAL, data))
+                  for t, data in photo_messages(camera, shots)]
+        items.sort(key=lambda item: item[:2])
+        self._outputs = [out for _, _, out in items]
+        self._pos = 0
+
+    def next_time_ns(self) -> int | None:
+        return self._outputs[self._pos].t_ns if self._pos < len(self._outputs) else None
+
+    def emit(self, t_ns: int) -> list[Output]:
+        start = self._pos
+        while self._pos < len(self._outputs) and self._outputs[self._pos].t_ns <= t_ns:
+            self._pos += 1
+        return self._outputs[start:self._pos]
 
 
 def photo_messages(camera: CameraSettings, shots: CameraShots) -> list[tuple[int, bytes]]:

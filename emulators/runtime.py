@@ -34,6 +34,7 @@ class Port(StrEnum):
 
     GPS_SERIAL = "gps"
     SCANNER_SERIAL = "scanner"
+    CAMERA_SERIAL = "camera"
     INS_CAN = "ins"
     PULSES = "pulses"
 

@@ -18,7 +18,7 @@ import tomllib
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import Field, ValidationError, field_validator, model_validator
 
@@ -37,7 +37,7 @@ from sisa.core.sensor import (
 from sisa.core.timescale import parse_gps_datetime
 from sisa.core.utm import central_meridian_deg, utm_zone
 
-PRESETS = ("bench", "garrotxa", "bellmunt")
+PRESETS = ("bench", "garrotxa", "bellmunt", "bench_camera")
 
 # --- limits that keep every derived time, duration and array bounded -----------------------------
 
@@ -247,6 +247,13 @@ class ScannerSettings(ScannerGeometry):
         return self
 
 
+# a photo message's window (CameraSettings.message_window_ms), ms: it opens this much before
+# the pulse (host stamps of two links) and closes this much after the longest latency and the
+# read interval (wire, USB, queueing)
+CAMERA_WINDOW_EARLY_MS: Final = 1.0
+CAMERA_WINDOW_LATE_MS: Final = 5.0
+
+
 class CameraFaults(StrictModel):
     """The frame camera's own faults, as rates; every one is written to the truth."""
 
@@ -254,6 +261,13 @@ class CameraFaults(StrictModel):
         0.0, ge=0, le=1, description="exposures whose mid-exposure pulse never leaves the camera")
     lost_photo_number_fraction: float = Field(
         0.0, ge=0, le=1, description="exposures whose photo message is never sent")
+    spurious_pulse_rate_hz: float = Field(
+        0.0, ge=0, le=100, description="pulses on the camera's pulse line that no exposure "
+        "made (Poisson)")
+    on_frame_fraction: float = Field(
+        0.0, ge=0, le=1, description="exposures moved onto a scanner frame's mid-exposure: "
+        "the camera's pulse and the scanner's pulse at once (the sync unit's event input "
+        "takes one)")
 
 
 class CameraSettings(StrictModel):
@@ -297,6 +311,23 @@ class CameraSettings(StrictModel):
             raise ValueError(f"first_photo_number = {self.first_photo_number} needs fewer than "
                              f"photo_counter_bits = {self.photo_counter_bits} bits")
         return self
+
+    def message_window_ms(self, read_interval_ms: float) -> tuple[float, float]:
+        """When a photo message may reach the recorder after its pulse (mid-exposure → read,
+        host clock): from CAMERA_WINDOW_EARLY_MS before the pulse (the two links' host stamps)
+        to half the exposure + the longest stated latency + the read interval +
+        CAMERA_WINDOW_LATE_MS (wire, USB, queueing). It does not start at the shortest latency:
+        an emulator run faster than real time (`sisa bench --speed 2`) delivers every latency
+        that much shorter on the host clock, and the camera's next pulse is min_cycle_s away."""
+        hi = self.message_latency_ms[1]
+        return (-CAMERA_WINDOW_EARLY_MS,
+                self.exposure_time_ms / 2 + hi + read_interval_ms + CAMERA_WINDOW_LATE_MS)
+
+    def photo_rate_hz(self, ground_speed_mps: float) -> float:
+        """Photos a second while triggered: by interval, or by distance at this speed."""
+        if self.trigger_interval_s is not None:
+            return 1.0 / self.trigger_interval_s
+        return ground_speed_mps / (self.trigger_distance_m or math.inf)
 
 
 _AttitudeSigmaArcsec = Annotated[float, Field(ge=0, le=MAX_ATTITUDE_SIGMA_ARCSEC)]
@@ -473,9 +504,19 @@ class Scenario(StrictModel):
 
 def _check_camera_cycle(scn: Scenario) -> None:
     """A trigger distance flown at the block's ground speed must not ask the camera for photos
-    faster than it can take them."""
+    faster than it can take them; a photo message's window must be shorter than its cycle."""
     cam = scn.camera
-    if cam is None or cam.trigger_distance_m is None:
+    if cam is None:
+        return
+    lo, hi = cam.message_window_ms(scn.sisa.read_interval_ms)
+    if hi - lo >= 1000.0 * cam.min_cycle_s:
+        raise ValueError(
+            f"camera.message_latency_ms = {list(cam.message_latency_ms)}: a photo message may "
+            f"reach the recorder anywhere in a window {hi - lo:g} ms wide (with the exposure "
+            "and sisa.read_interval_ms), not shorter than camera.min_cycle_s = "
+            f"{cam.min_cycle_s:g} s: two pulses could fall in one message's window and no "
+            "photo number could be tied to its pulse")
+    if cam.trigger_distance_m is None:
         return
     interval_s = cam.trigger_distance_m / scn.block.ground_speed_mps
     if interval_s < cam.min_cycle_s:
@@ -507,12 +548,17 @@ def _check_turn_rate(scn: Scenario) -> None:
 
 def gps_event_rate_hz(scn: Scenario) -> float:
     """Pulses a second the sync unit sends to the receiver's event input at most: 1 of n frame
-    pulses in mode 2 (held to the receiver's maximum event rate), one-bits in mode 1 if sent."""
+    pulses in mode 2 (held to the receiver's maximum event rate), one-bits in mode 1 if sent,
+    and a frame camera's pulses (the input takes none faster than its maximum rate)."""
     from emulators.block import resolve_one_of_n  # emulators.block imports this module
 
     mode2 = min(1000.0 / scn.scanner.line_period_ms / resolve_one_of_n(scn),
                 scn.gps.max_event_rate_hz)
-    return max(mode2, 1.0 if scn.sisa.event_input_in_mode1 else 0.0)
+    rate = max(mode2, 1.0 if scn.sisa.event_input_in_mode1 else 0.0)
+    if scn.camera is not None:  # the camera's pulses share the input (at most its rate)
+        rate = min(rate + scn.camera.photo_rate_hz(scn.block.ground_speed_mps),
+                   scn.gps.max_event_rate_hz)
+    return rate
 
 
 def gps_serial_load(scn: Scenario) -> tuple[float, float]:
@@ -667,8 +713,11 @@ def _merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
 
 
 def _preset_table(name: str) -> dict[str, Any]:
+    """A preset's table, its own `base` (a preset on another: bench_camera) resolved."""
     text = resources.files("emulators.presets").joinpath(f"{name}.toml").read_text("utf-8")
-    return tomllib.loads(text)
+    table = tomllib.loads(text)
+    base = table.pop("base", None)
+    return table if base is None else _merge(_preset_table(base), table)
 
 
 def scenario_from_table(table: dict[str, Any], source: str = "scenario") -> Scenario:

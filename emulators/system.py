@@ -1,5 +1,5 @@
 """The three emulated devices of one scenario, wired together with the fault injector (and,
-with a `[camera]` table, the frame camera's truth: its outputs are not wired yet).
+with a `[camera]` table, the frame camera: its port, its pulses and its truth).
 
 Each device draws from its own random stream derived from the scenario seed, so adding a device or
 a fault never changes what another device does.
@@ -13,9 +13,10 @@ from enum import IntEnum
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from acquisition.pulses import Edge, PulseLine
-from emulators.camera import CameraShots, photo_truth, plan_shots
+from emulators.camera import CameraDevice, CameraShots, on_frames, photo_truth, plan_shots
 from emulators.faults import SpuriousPulses, WireFaults, fault_table
 from emulators.gps import GpsReceiver
 from emulators.ins import InsEmulator
@@ -38,6 +39,8 @@ class Stream(IntEnum):
     WIRE = 4
     SPURIOUS = 5
     CAMERA = 6
+    CAMERA_SPURIOUS = 7
+    CAMERA_ON_FRAMES = 8
 
 
 class EmulatedSystem:
@@ -70,12 +73,40 @@ class EmulatedSystem:
                 self.traj.t_start_ns, self.traj.t_end_ns, self._rng(Stream.SPURIOUS),
                 self.faults, round(scn.faults.spurious_pps_near_second_ms * 1e6)))
         self.wire = WireFaults(scn.faults, self._rng(Stream.WIRE), self.faults)
-        # the frame camera (issue 37), truth only so far: its outputs reach no port yet
+        # the frame camera (issue 37), last: the devices before it run as without it
         self.camera_shots: CameraShots | None = None
         self._camera_truth: list[TruthTable] = []
         if scn.camera is not None:
-            self.camera_shots = plan_shots(scn.camera, self.traj, self._rng(Stream.CAMERA))
-            self._camera_truth.append(photo_truth(scn.camera, self.camera_shots, self.traj))
+            self._add_camera(scn)
+
+    def _add_camera(self, scn: Scenario) -> None:
+        cam = scn.camera
+        if cam is None:
+            return
+        shots = plan_shots(cam, self.traj, self._rng(Stream.CAMERA))
+        clock = self.scanner.clock
+
+        def nearest_frame(t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+            return clock.time_of(np.rint((t_ns - clock.t0_ns) / clock.period_ns))
+
+        shots, moved = on_frames(shots, nearest_frame, cam.faults.on_frame_fraction,
+                                 self._rng(Stream.CAMERA_ON_FRAMES))
+        for i in moved:
+            self.faults.append(t_gps_ns=int(shots.t_mid_ns[i]), kind="camera_on_frame",
+                               target="camera", detail=f"photo {int(shots.photo_number[i])}")
+        for i in np.flatnonzero(~shots.pulse_sent):
+            self.faults.append(t_gps_ns=int(shots.t_mid_ns[i]), kind="camera_lost_pulse",
+                               target="camera", detail=f"photo {int(shots.photo_number[i])}")
+        for i in np.flatnonzero(~shots.message_sent):
+            self.faults.append(t_gps_ns=int(shots.t_mid_ns[i]), kind="camera_lost_message",
+                               target="camera", detail=f"photo {int(shots.photo_number[i])}")
+        self.camera_shots = shots
+        self._camera_truth.append(photo_truth(cam, shots, self.traj))
+        self.devices.append(CameraDevice(cam, shots))
+        if cam.faults.spurious_pulse_rate_hz > 0:
+            self.devices.append(SpuriousPulses(
+                cam.faults.spurious_pulse_rate_hz, (PulseLine.CAMERA,), self.traj.t_start_ns,
+                self.traj.t_end_ns, self._rng(Stream.CAMERA_SPURIOUS), self.faults))
 
     def _rng(self, stream: Stream) -> np.random.Generator:
         return np.random.default_rng([self.scn.seed, int(stream)])

@@ -24,12 +24,15 @@ class Topic(StrEnum):
     INS_RECORD = "/ins/record"
     SCANNER_RAW = "/scanner/raw"
     SCANNER_HEADER = "/scanner/header"
+    CAMERA_RAW = "/camera/raw"
+    CAMERA_PHOTO = "/camera/photo"
     PULSE_IN = "/pulses/in"
     PULSE_OUT = "/pulses/out"
     SYNC_SESSION = "/sisa/session"
     SYNC_PPS = "/sisa/pps"
     SYNC_FORWARD = "/sisa/forward"
     SYNC_MODE = "/sisa/mode"
+    SYNC_CAMERA = "/sisa/camera_pulse"
     HEALTH = "/sisa/health"
 
 
@@ -139,13 +142,25 @@ class FrameHeaderLog(LoggedMessage):
 
 
 @dataclass(frozen=True)
+class CameraPhotoLog(LoggedMessage):
+    """A decoded photo message of the frame camera (acquisition.camera_photo): which photo it
+    has just taken; its host time is when the message arrived, a latency after the exposure."""
+
+    topic: ClassVar[Topic] = Topic.CAMERA_PHOTO
+    schema_name: ClassVar[str] = "sisa.CameraPhoto"
+    t_host_ns: int
+    photo_number: int  # wraps at 2^camera.photo_counter_bits
+    exposure_time_us: int
+
+
+@dataclass(frozen=True)
 class PulseEdgeLog(LoggedMessage):
     """A pulse edge seen (in) or generated (out) by the SISA, on its timing board's counter."""
 
     topic: ClassVar[Topic] = Topic.PULSE_IN
     schema_name: ClassVar[str] = "sisa.PulseEdge"
     t_host_ns: int
-    line: str  # PPS | PPF | INS_SYNC | GPS_EVENT
+    line: str  # PPS | PPF | CAMERA | INS_SYNC | GPS_EVENT
     board_ns: int
     link_seq: int  # sequence number of the edge on its link; gaps are edges lost in transport
 
@@ -202,6 +217,21 @@ class SyncForward(LoggedMessage):
 
 
 @dataclass(frozen=True)
+class SyncCameraPulse(LoggedMessage):
+    """Every frame-camera pulse the SISA saw, on its timing board, and whether it went to the
+    GPS event input (only when the input was free: docs/sync.md, "Two sensors, one event
+    input"). Camera pulses never go to the INS."""
+
+    topic: ClassVar[Topic] = Topic.SYNC_CAMERA
+    schema_name: ClassVar[str] = "sisa.SyncCameraPulse"
+    t_host_ns: int
+    session: int
+    seq: int  # per session, from 0
+    board_ns: int  # input edge (the forwarded output edge is GATE_DELAY_NS later)
+    to_gps_event: bool  # False: the event input was taken by another pulse within its period
+
+
+@dataclass(frozen=True)
 class SyncModeSwitch(LoggedMessage):
     topic: ClassVar[Topic] = Topic.SYNC_MODE
     schema_name: ClassVar[str] = "sisa.SyncModeSwitch"
@@ -248,7 +278,8 @@ class StreamHealth(LoggedMessage):
 
 LOGGED_TYPES: tuple[type[LoggedMessage], ...] = (
     RawBytes, RawCanFrames, GpsFix, GpsTimeTag, InsRecordLog, FrameHeaderLog, PulseEdgeLog,
-    SyncSession, SyncPps, SyncForward, SyncModeSwitch, StreamHealth,
+    SyncSession, SyncPps, SyncForward, SyncModeSwitch, StreamHealth, CameraPhotoLog,
+    SyncCameraPulse,
 )
 
 _JSON_TYPES: dict[object, dict[str, Any]] = {

@@ -10,6 +10,8 @@ from typing import Final
 
 HEADER_WINDOW_KEY: Final = "header_window_ms"
 READ_INTERVAL_KEY: Final = "read_interval_ms"
+# where a frame camera's photo message may arrive (host time) after its mid-exposure pulse
+CAMERA_WINDOW_KEY: Final = "camera_message_window_ms"
 # the sync filter's default header window (ms after a frame's end), the scenario's default too
 DEFAULT_HEADER_WINDOW_MS: Final = (-2.0, 10.0)
 
@@ -19,6 +21,16 @@ def recorded_header_window_ms(metadata: dict[str, str]) -> tuple[float, float] |
     say (a log from before 2026-11-27, or another recorder's)."""
     try:
         lo, hi = (float(v) for v in metadata[HEADER_WINDOW_KEY].split(","))
+    except (KeyError, ValueError):
+        return None
+    return (lo, hi) if lo < hi else None
+
+
+def recorded_camera_window_ms(metadata: dict[str, str]) -> tuple[float, float] | None:
+    """The photo-message window a log with a camera was recorded with, None if it does not
+    say (no camera, or another recorder's log)."""
+    try:
+        lo, hi = (float(v) for v in metadata[CAMERA_WINDOW_KEY].split(","))
     except (KeyError, ValueError):
         return None
     return (lo, hi) if lo < hi else None

@@ -88,6 +88,7 @@ def _topic_types() -> dict[Topic, type[LoggedMessage]]:
     """Which message type each topic carries: each type's own topic, plus the per-port ones."""
     table: dict[Topic, type[LoggedMessage]] = {cls.topic: cls for cls in LOGGED_TYPES}
     table[Topic.SCANNER_RAW] = RawBytes
+    table[Topic.CAMERA_RAW] = RawBytes
     table[Topic.PULSE_OUT] = PulseEdgeLog
     return table
 

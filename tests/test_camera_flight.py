@@ -69,7 +69,8 @@ def test_process_makes_the_cameras_products(processed: tuple[Path, Path, str]) -
     n = summary["photos"]
     assert n >= 10
     assert summary["posed"] == summary["footprints"] == summary["orthos"] == n
-    assert "truth/photos.csv" in said  # the photos' times from the truth, said
+    assert "truth/photos.csv" not in said  # the photos' times from the sync, not the truth
+    assert (out / "sync" / "photo_times.csv").is_file()
     assert "frame camera:" in said
     crs = json.loads((out / "georef_summary.json").read_text())["crs"]
     with rasterio.open(photos / "photo_mosaic.tif") as ds:
@@ -112,11 +113,12 @@ def test_georef_with_a_camera_file_writes_what_process_wrote(
     geo = tmp_path / "geo"
     proc = _sisa("georef", run / "flight.mcap", "--scanner", run / "scanner", "--dem",
                  run / "terrain" / "dem.tif", "--out", geo, "--camera", cam, "--photo-times",
-                 run / "truth" / "photos.csv", "--photos", out / "photos" / "images")
+                 out / "sync" / "photo_times.csv", "--photos", out / "photos" / "images")
     assert f"{geo / 'photos'}: " in proc.stdout
     summary = json.loads((geo / "photos" / "photo_summary.json").read_text())
     assert summary["orthos"] == summary["photos"]
-    # the same camera, times, images and navigation as `sisa process`: the same EO file
+    # the same camera, times (the sync's table), images and navigation as `sisa process`:
+    # the same EO file
     assert (geo / "photos" / "photo_eo.csv").read_bytes() == \
         (out / "photos" / "photo_eo.csv").read_bytes()
     with rasterio.open(geo / "photos" / "photo_mosaic.tif") as ds:

@@ -36,12 +36,15 @@ from postproc.sync import (
     synchronise,
     write_ins_times,
     write_line_times,
+    write_photo_times,
     write_report,
 )
 from recorder.columns import read_topics
 from recorder.framing import Paths, log_paths
 from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
+from recorder.parts import recording_metadata
+from recorder.settings import recorded_camera_window_ms
 from sisa.core.errors import InputError
 from sisa.core.jsonio import finite_json
 from sisa.core.outdir import write_whole
@@ -97,7 +100,9 @@ def read_and_sync(flight: Paths, scanner_dir: Path, opt: GeorefOptions, notes: l
     recording = recording_note(health, log_paths(flight)[0])
     if recording is not None:  # the log may hold less than the devices sent
         notes.append(recording)
-    result = synchronise(sync_input_from_columns(cols), lines)
+    result = synchronise(sync_input_from_columns(cols), lines,
+                         camera_window_ms=recorded_camera_window_ms(
+                             recording_metadata(log_paths(flight)[0])))
     log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
     info: dict[str, Any] = {}
     traj = _trajectory(cols, result, opt, info, notes)
@@ -146,6 +151,9 @@ def write_sync(out_dir: Path, result: SyncResult | SyncTables) -> None:
                     ins.status)
     write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                      ln.t_gps_ns, ln.status)
+    photos = getattr(result, "photos", None)
+    if photos is not None:
+        write_photo_times(sync_dir, photos)
     write_report(sync_dir / "sync_report.json", result.report)
 
 

@@ -6,8 +6,8 @@
 A CSV (lines starting with `#` are comments) with at least the columns `photo_number`
 (a whole number ≥ 0) and `t_mid_gps_ns` (int64 GPS nanoseconds; −1 or any negative value: the
 photo was not timed); other columns are ignored. The simulation's `truth/photos.csv` has this
-form, and so will the sync's photo timing (issue 37, part 3a): until that lands, `sisa process`
-takes a simulated run's photo times from its truth (said in its output). Photo k is labelled
+form, and so has the sync's `photo_times.csv` (issue 37, part 3a), which `sisa process` uses
+(a run's truth only for a log without the camera's records, said in its output). Photo k is labelled
 `photo_{k:06d}`, the name of its image file (`photo_000017.bil`).
 """
 

@@ -18,6 +18,7 @@ from postproc.sync.files import (
     unlisted_line_notes,
     write_ins_times,
     write_line_times,
+    write_photo_times,
     write_report,
 )
 from postproc.sync.flightlog import (
@@ -30,6 +31,7 @@ from postproc.sync.flightlog import (
     read_sync_input,
     sync_input_from_columns,
 )
+from postproc.sync.photos import PhotoStatus, PhotoTimes, PhotoTimeSource
 from postproc.sync.pipeline import sync_log, synchronise
 from postproc.sync.report import (
     AMBIGUOUS_HINT,
@@ -41,10 +43,11 @@ from postproc.sync.results import InsSolution, InsTimes, LineTimes, SyncResult
 
 __all__ = [
     "AMBIGUOUS_HINT", "FRAME_COUNTER_MAX", "SEGMENT_MAX", "WANTED", "GpsTimes", "HeaderColumns",
-    "InsColumns", "InsSolution", "InsTimes", "LineTimes", "SisaColumns", "SyncConfig",
+    "InsColumns", "InsSolution", "InsTimes", "LineTimes", "PhotoStatus", "PhotoTimeSource",
+    "PhotoTimes", "SisaColumns", "SyncConfig",
     "SyncInput", "SyncResult", "TimeStatus", "header_order_note", "no_ins_timed_note",
     "read_scanner_lines",
     "read_sync_input", "sync_input_from_columns", "sync_log", "synchronise",
     "unlisted_line_notes", "untimed_lines_note", "write_ins_times", "write_line_times",
-    "write_report",
+    "write_photo_times", "write_report",
 ]

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from postproc.sync.config import TimeStatus
 from postproc.sync.lines import LineTable
+from postproc.sync.photos import PhotoStatus, PhotoTimes, PhotoTimeSource
 from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
 
@@ -222,6 +223,47 @@ def write_line_times(path: Path, segment: I64, line: I64, frame_counter: I64, t_
     with Path(path).open("w", encoding="utf-8", newline="") as fh:
         fh.write(LINE_HEADER)
         _write_table(fh, [segment, line, frame_counter, t_gps_ns, _status_names(status)])
+
+
+PHOTO_HEADER: Final = (
+    "# SISA time synchronisation: the GPS time of every photo the frame camera named (sisa\n"
+    "# sync; docs/sync.md, \"Photos\"), one row per photo message, in the order they reached\n"
+    "# the recorder; the photo times table `sisa georef --photo-times` reads.\n"
+    "# photo_number: the camera's photo number, as sent (wraps)\n"
+    "# t_mid_gps_ns: GPS time of the photo's mid-exposure, int64 ns since 1980-01-06T00:00:00\n"
+    "#   on the GPS scale (no leap seconds); -1 unless status is ok or board_time\n"
+    "# sigma_ns: the time's predicted error (1 sigma), empty without a time\n"
+    "# source: event_tag (the receiver tagged its pulse) | board (the sync unit's timing board,\n"
+    "#   through the PPS) | none\n"
+    "# status: " + " | ".join(s.name.lower() for s in PhotoStatus
+                              if s is not PhotoStatus.NO_PHOTO_NUMBER) + "\n"
+    "photo_number,t_mid_gps_ns,sigma_ns,source,status\n")
+UNNAMED_HEADER: Final = (
+    "# SISA time synchronisation: the frame camera's pulses no photo message named (sisa sync;\n"
+    "# docs/sync.md, \"Photos\"): a photo whose message was lost, or a pulse the camera never\n"
+    "# made; each with its time, as the photos'.\n"
+    "# t_gps_ns: GPS time of the pulse (a mid-exposure), int64 ns; -1 without a time\n"
+    "# sigma_ns, source: as in photo_times.csv\n"
+    "t_gps_ns,sigma_ns,source\n")
+
+
+def write_photo_times(folder: Path, photos: PhotoTimes) -> None:
+    """`folder`/photo_times.csv (the named photos) and `folder`/camera_pulses_unnamed.csv."""
+    sources = np.array([s.name.lower() for s in PhotoTimeSource])
+    names = np.array([s.name.lower() for s in PhotoStatus])
+    sigma = np.array(["" if not np.isfinite(v) else f"{v:.1f}" for v in photos.sigma_ns],
+                     dtype=np.str_)
+    named = photos.photo_number >= 0
+    for name, head, pick, columns in (
+            ("photo_times.csv", PHOTO_HEADER, named,
+             [photos.photo_number, photos.t_gps_ns, sigma, sources[photos.source],
+              names[photos.status]]),
+            ("camera_pulses_unnamed.csv", UNNAMED_HEADER, ~named,
+             [photos.t_gps_ns, sigma, sources[photos.source]])):
+        with (Path(folder) / name).open("w", encoding="utf-8", newline="") as fh:
+            fh.write(head)
+            if pick.any():
+                _write_table(fh, [c[pick] for c in columns])
 
 
 def write_report(path: Path, report: dict[str, Any]) -> None:

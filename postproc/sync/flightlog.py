@@ -8,6 +8,7 @@ also be built directly (tests, the speed benchmark).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -35,6 +36,8 @@ WANTED: Final[dict[str, tuple[str, ...]]] = {
                          "mode", "source", "to_gps_event",
                          "gps_second_ns", "frame_counter"),
     Topic.SYNC_MODE: ("to_mode",),
+    Topic.SYNC_CAMERA: ("t_host_ns", "board_ns", "to_gps_event"),
+    Topic.CAMERA_PHOTO: ("t_host_ns", "photo_number"),
 }
 
 
@@ -99,11 +102,32 @@ class HeaderColumns:
 
 
 @dataclass(frozen=True)
+class CameraColumns:
+    """A frame camera's pulses as the sync unit logged them, and its photo messages."""
+
+    pulse_t_host_ns: I64
+    pulse_board_ns: I64  # input edge on the timing board
+    pulse_to_gps_event: Bool  # forwarded to the receiver's event input
+    photo_t_host_ns: I64
+    photo_number: I64
+
+    @property
+    def empty(self) -> bool:
+        return self.pulse_board_ns.size == 0 and self.photo_number.size == 0
+
+
+def no_camera() -> CameraColumns:
+    empty = np.empty(0, dtype=np.int64)
+    return CameraColumns(empty, empty, np.empty(0, dtype=np.bool_), empty, empty)
+
+
+@dataclass(frozen=True)
 class SyncInput:
     ins: InsColumns
     gps: GpsTimes
     sisa: SisaColumns
     headers: HeaderColumns
+    camera: CameraColumns = dataclasses.field(default_factory=no_camera)
 
 
 def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
@@ -111,6 +135,10 @@ def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
     ins, tags = cols[Topic.INS_RECORD], cols[Topic.GPS_TIME_TAG]
     fix, pps, fwd = cols[Topic.GPS_FIX], cols[Topic.SYNC_PPS], cols[Topic.SYNC_FORWARD]
     hdr = cols[Topic.SCANNER_HEADER]
+    cam, photo = cols.get(Topic.SYNC_CAMERA), cols.get(Topic.CAMERA_PHOTO)
+    camera = no_camera() if cam is None or photo is None else CameraColumns(
+        _i64(cam, "t_host_ns"), _i64(cam, "board_ns"), _bool(cam, "to_gps_event"),
+        _i64(photo, "t_host_ns"), _i64(photo, "photo_number"))
     return SyncInput(
         InsColumns(_i64(ins, "t_host_ns"), _i64(ins, "counter"), _i64(ins, "ins_time_ticks"),
                    _i64(ins, "status"), _bool(ins, "sync_flag"), _i64(ins, "sync_time_ticks")),
@@ -125,7 +153,7 @@ def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
             _i64(fwd, "frame_counter"), _i64(cols[Topic.SYNC_SESSION], "lfsr_bits"),
             len(cols[Topic.SYNC_MODE]["to_mode"])),
         HeaderColumns(_i64(hdr, "t_host_ns"), _i64(hdr, "frame_counter"),
-                      _i64(hdr, "segment")))
+                      _i64(hdr, "segment")), camera)
 
 
 def read_sync_input(paths: Paths) -> SyncInput:

@@ -33,6 +33,7 @@ from postproc.sync.insclock import TICK_NS, ins_timeline
 from postproc.sync.insfit import fit_runs
 from postproc.sync.insjumps import carry_runs
 from postproc.sync.insrecords import latch_noise_s, tag_records
+from postproc.sync.photos import DEFAULT_WINDOW_MS, photo_times, pulse_times
 from postproc.sync.pulses import SisaPulses, sisa_pulses
 from postproc.sync.report import ins_report, line_report, pulse_report
 from postproc.sync.results import InsSolution, InsTimes, LineTimes, SyncResult
@@ -122,8 +123,11 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
 
 
 def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
-                config: SyncConfig | None = None) -> SyncResult:
-    """GPS time of every INS record and every scan line of one flight log."""
+                config: SyncConfig | None = None,
+                camera_window_ms: tuple[float, float] | None = None) -> SyncResult:
+    """GPS time of every INS record and every scan line of one flight log, and of every
+    photo of a frame camera if it has one (`camera_window_ms`: when a photo message reaches
+    the host after its pulse, as the log's metadata says; None: `photos.DEFAULT_WINDOW_MS`)."""
     if inp.ins.counter.size == 0 and inp.headers.segment.size == 0:
         raise InputError("the log has no INS records and no frame headers: nothing to time")
     cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
@@ -136,7 +140,8 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
                                  max_board_gap_s=cfg.max_board_gap_s,
                                  agree_floor_ns=cfg.board_agree_floor_ns,
-                                 tag_lsb_ns=cfg.tag_lsb_ns)
+                                 tag_lsb_ns=cfg.tag_lsb_ns,
+                                 host_tags=not inp.camera.pulse_to_gps_event.any())
     epoch = flight_epoch_ns(inp, host)
     ins_times, sol = solve_ins(inp.ins, pulses, host, epoch, cfg)
     line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)
@@ -147,7 +152,16 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
         "ins": ins_report(ins_times, sol),
         "lines": line_report(line_times, fits, lcounts),
     }
-    return SyncResult(ins_times, line_times, report, sol, fits)
+    photos = None
+    if not inp.camera.empty:
+        cam_pulses = pulse_times(inp.camera, g.tag_t_gps_ns[~g.tag_is_ptt], pulses, board,
+                                 ttt_window_ns=cfg.ttt_window_ns,
+                                 max_board_gap_s=cfg.max_board_gap_s,
+                                 agree_floor_ns=cfg.board_agree_floor_ns,
+                                 tag_lsb_ns=cfg.tag_lsb_ns)
+        photos, report["photos"] = photo_times(inp.camera, cam_pulses,
+                                               camera_window_ms or DEFAULT_WINDOW_MS)
+    return SyncResult(ins_times, line_times, report, sol, fits, photos)
 
 
 def sync_log(paths: Paths, lines: ln.LineTable | None = None,

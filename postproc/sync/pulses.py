@@ -82,7 +82,7 @@ def board_agreement_ns(board: ClockMap, board_ns: I64, floor_ns: int, tag_lsb_ns
                       dtype=np.float64)
 
 
-def _ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64:
+def ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64:
     """The TTT tag nearest each wanted estimate, if within the window; each tag used once."""
     out = np.full(estimate_ns.shape, -1, dtype=np.int64)
     if ttt_ns.size == 0:
@@ -99,19 +99,24 @@ def _ttt_match(estimate_ns: I64, want: Bool, ttt_ns: I64, window_ns: int) -> I64
 
 
 def _tags(sisa: SisaColumns, ttt: I64, board: ClockMap | None, by_board: I64,
-          board_ok: Bool, host: ClockMap, window_ns: int) -> I64:
+          board_ok: Bool, host: ClockMap, window_ns: int, host_tags: bool) -> I64:
     """The TTT tag of each forward sent to the event input: through the board map, or on host
-    time (a wider window) when the log has no PTT to build one."""
+    time (a wider window) when the log has no PTT to build one and `host_tags` allows it."""
     if board is not None:
-        return _ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, window_ns)
-    return _ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
+        return ttt_match(by_board, board_ok & sisa.fwd_to_gps_event, ttt, window_ns)
+    if not host_tags:
+        return np.full(sisa.fwd_board_ns.shape, -1, dtype=np.int64)
+    return ttt_match(host.gps_ns(sisa.fwd_t_host_ns), sisa.fwd_to_gps_event, ttt,
                       HOST_TTT_WINDOW_NS)
 
 
 def sisa_pulses(sisa: SisaColumns, gps: GpsTimes, board: ClockMap | None, host: ClockMap, *,
                 ttt_window_ns: int, max_board_gap_s: float, agree_floor_ns: int = 2_000,
-                tag_lsb_ns: int = 100) -> tuple[SisaPulses, dict[str, int]]:
-    """GPS time of every forwarded pulse, and counts of tags and rejections."""
+                tag_lsb_ns: int = 100, host_tags: bool = True
+                ) -> tuple[SisaPulses, dict[str, int]]:
+    """GPS time of every forwarded pulse, and counts of tags and rejections. `host_tags`
+    False: no tag is tied on host time (without a board map): a log whose event input also
+    carried camera pulses, whose tags lie within the 300 ms host window of a frame pulse."""
     n = sisa.fwd_board_ns.size
     t = np.full(n, -1, dtype=np.int64)
     source = np.full(n, int(PulseSource.NONE), dtype=np.int64)
@@ -124,7 +129,7 @@ def sisa_pulses(sisa: SisaColumns, gps: GpsTimes, board: ClockMap | None, host: 
     t[from_ptt], source[from_ptt] = ptt[from_ptt] + GATE_DELAY_NS, PulseSource.PTT
     disagree = from_ptt & board_ok & (np.abs(t - by_board) > tolerance)
     ttt = np.sort(gps.tag_t_gps_ns[~gps.tag_is_ptt])
-    tagged = _tags(sisa, ttt, board, by_board, board_ok, host, ttt_window_ns)
+    tagged = _tags(sisa, ttt, board, by_board, board_ok, host, ttt_window_ns, host_tags)
     has_ttt = (tagged >= 0) & ~from_ptt
     t[has_ttt], source[has_ttt] = tagged[has_ttt], PulseSource.TTT
     ttt_disagree = has_ttt & board_ok & (np.abs(tagged - by_board) > tolerance)

@@ -14,6 +14,7 @@ from postproc.sync.insclock import InsTimeline
 from postproc.sync.insfit import ClockRun
 from postproc.sync.lines import SegmentFit
 from postproc.sync.pattern import BlockMatch
+from postproc.sync.photos import PhotoTimes
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -63,3 +64,4 @@ class SyncResult:
     report: dict[str, Any]
     ins_solution: InsSolution
     segment_fits: list[SegmentFit]
+    photos: PhotoTimes | None = None  # a flight with a frame camera only

@@ -214,6 +214,8 @@ def _run(args: argparse.Namespace) -> int:
                 rec = subprocess.Popen([*sisa, "record", *_scenario_args(args),
                                         "--gps", ep["gps"], "--scanner", ep["scanner"],
                                         "--ins", ep["ins"], "--pulses", ep["pulses"],
+                                        *(("--camera", ep["camera"]) if "camera" in ep
+                                          else ()),
                                         "--out", str(run / "flight.mcap"),
                                         "--shown-as", str(args.out / "flight.mcap"),
                                         *_live_args(args, run)],

@@ -222,7 +222,7 @@ def _run(args: argparse.Namespace) -> int:
                                 traj=traj, real_time=True)
         runner = Runner(system.devices, lambda out: (), speed=args.speed)
         bridge = RealTimeBridge(target, runner.inbox, pulse_port=args.pulses_port,
-                                gps_copy=args.gpsd)
+                                gps_copy=args.gpsd, camera=scn.camera is not None)
     except BaseException:  # a bus or port that cannot be opened: leave nothing behind
         shutil.rmtree(args.out, ignore_errors=True)
         raise
@@ -337,4 +337,6 @@ def _announce(endpoints: dict[str, str], name: str, args: argparse.Namespace) ->
     print(f"Scanner frame headers (RS-232):        {endpoints['scanner']}")
     print(f"INS records (CAN):                     {endpoints['ins']}")
     print(f"Pulse lines (timestamped edges, TCP):  {endpoints['pulses']}")
+    if "camera" in endpoints:
+        print(f"Frame camera photo numbers (RS-232):   {endpoints['camera']}")
     print(f"Running {name} at {args.speed:g}x real time; Ctrl-C to stop.", flush=True)

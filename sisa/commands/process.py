@@ -8,8 +8,9 @@ RUN/process/ (or --out)
   report.html          the report: map, attitude, sync residuals, clock drift, errors, mosaic
   photos/              a run with a [camera]: the frame camera's products as `sisa georef
                        --camera` writes them, its photos rendered from the truth into
-                       photos/images/ (or taken from RUN/photos/), timed by truth/photos.csv
-                       until the sync times the photos (issue 37, part 3a)
+                       photos/images/ (or taken from RUN/photos/), timed by the sync
+                       (sync/photo_times.csv; a log without the camera's records: by
+                       truth/photos.csv, said)
 """
 
 from __future__ import annotations
@@ -88,10 +89,10 @@ def camera_of(scn: Scenario, *, nominal: bool = False) -> FrameCamera | None:
 
 
 def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
-                  bar: Progress) -> PhotoInputs | None:
-    """A run with a camera: its photo times from the truth (said: the sync does not time the
-    photos yet), its photos from RUN/photos/ or rendered from the truth into
-    OUT/photos/images/."""
+                  bar: Progress, synced: Any) -> PhotoInputs | None:
+    """A run with a camera: its photo times from the sync (`synced`: the sync result's photos,
+    OUT/sync/photo_times.csv), or from the truth for a log without the camera's records (said),
+    its photos from RUN/photos/ or rendered from the truth into OUT/photos/images/."""
     from postproc.georef import read_photo_times
     from sisa.wiring.photogcp import render_run_photos, too_many_to_render
 
@@ -99,12 +100,15 @@ def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
     if camera is None:
         return None
     path = run / "truth" / "photos.csv"
-    if not path.is_file():
+    if synced is not None:
+        times = synced_photo_times(synced)
+    elif not path.is_file():
         say_warning("process", f"{path}: no such file: no photo times, no photo products")
         return None
-    times = read_photo_times(path)
-    say_warning("process", f"photos timed by {path}, the run's truth (the sync does not time "
-                "the camera's photos yet)")
+    else:
+        times = read_photo_times(path)
+        say_warning("process", f"photos timed by {path}, the run's truth (its flight log holds "
+                    "no camera records for the sync to time them)")
     check_photo_cell(args.photo_cell)
     if (run / "photos").is_dir():
         return PhotoInputs(camera, times, photo_images(run / "photos", times), args.photo_cell)
@@ -119,6 +123,21 @@ def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
     images.mkdir(parents=True)
     rendered = render_run_photos(scn, timed.photo_number, timed.t_mid_gps_ns, images)
     return PhotoInputs(camera, times, rendered, args.photo_cell)
+
+
+def synced_photo_times(photos: Any) -> Any:
+    """The sync's photos that have a number and a time (status ok or board_time) as the photo
+    path's table (`postproc.georef.PhotoTimes`); a repeated number (the camera's counter
+    wrapped) keeps its first photo."""
+    import numpy as np
+
+    from postproc.georef import PhotoTimes
+    from postproc.sync import PhotoStatus
+
+    keep = np.isin(photos.status, (PhotoStatus.OK, PhotoStatus.BOARD_TIME))
+    numbers, times = photos.photo_number[keep], photos.t_gps_ns[keep]
+    first = np.sort(np.unique(numbers, return_index=True)[1])
+    return PhotoTimes(numbers[first], times[first])
 
 
 def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:
@@ -220,7 +239,7 @@ def _run(args: argparse.Namespace) -> int:
     parts = flight_parts([run / "flight.mcap"])
     with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
         result = run_georef(parts, run / "scanner", tmp, options, bar, command="process")
-        photos = _photo_inputs(args, run, scn, tmp, bar)
+        photos = _photo_inputs(args, run, scn, tmp, bar, getattr(result.sync, "photos", None))
         summary = (None if photos is None else
                    run_photos(tmp, result, options, photos, bar, command="process"))
         if summary is not None and (run / "truth" / "photos.csv").is_file():

@@ -57,6 +57,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--ins", help="INS CAN bus as INTERFACE:CHANNEL (slcan:/dev/pts/6, "
                         "socketcan:can0, virtual:sisa)")
     parser.add_argument("--pulses", help="timing-board edge link, tcp://127.0.0.1:PORT")
+    parser.add_argument("--camera", help="frame camera photo-number serial port (its "
+                        "mid-exposure pulses come on the edge link)")
     parser.add_argument("--out", type=new_file_arg, required=True, help="new MCAP file")
     add_scenario_args(parser, "settings (rates, leap seconds, sync unit) from this")
     parser.add_argument("--split-minutes", type=float, default=None,
@@ -86,9 +88,9 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.writer import FlightRecorder
     from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
-    if not any((args.gps, args.scanner, args.ins, args.pulses)):
+    if not any((args.gps, args.scanner, args.ins, args.pulses, args.camera)):
         raise InputError("nothing to record: give at least one of --gps, --scanner, --ins, "
-                         "--pulses")
+                         "--pulses, --camera")
     if name_taken(args.out, "--out"):
         raise InputError(f"{args.out} already exists: recordings are never overwritten")
     _check_options(args)
@@ -97,7 +99,8 @@ def _run(args: argparse.Namespace) -> int:
     live = _start_live(args, scn) if args.live is not None else None
     try:
         sources = LiveSources(args.gps, args.scanner, args.ins, args.pulses,
-                              read_interval_s=config.read_interval_ns / 1e9)
+                              read_interval_s=config.read_interval_ns / 1e9,
+                              camera_port=args.camera)
     except BaseException:
         if live is not None:
             live.close()
@@ -172,7 +175,7 @@ def _check_options(args: argparse.Namespace) -> None:
         listen_address(args.live)  # a bad address is refused before anything starts
     if args.pulses:
         args.pulses = pulse_endpoint(args.pulses)
-    ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins")
+    ports = [(name, getattr(args, name)) for name in ("gps", "scanner", "ins", "camera")
              if getattr(args, name)]
     seen: dict[str, str] = {}
     for name, spec in ports:
@@ -356,9 +359,11 @@ def _summary(acq: Acquisition, out: Path, wall_s: float, cpu_s: float) -> None:
                 "earlier timeline)" if acq.timeline_restarts else "")
     per_link = ", ".join(f"{name} {link.disconnects}/{link.reconnects}"
                          for name, link in acq.links.items() if link.disconnects)
+    camera = (f", photo messages {s['camera'].messages}, camera pulses "
+              f"{s['camera_pulse'].messages}" if "camera" in s else "")
     print(f"recorded {out}: INS {s['ins'].messages}, GPS sentences {s['gps'].messages}, "
           f"frame headers {s['scanner'].messages}, PPS {s['pps'].messages}, ppf "
-          f"{s['ppf'].messages}; {errors} decode errors, {drops} drops, {late} late edges, "
+          f"{s['ppf'].messages}{camera}; {errors} decode errors, {drops} drops, {late} late edges, "
           f"{lost} disconnects, {back} reconnects"
           f"{f' ({per_link} lost/back)' if per_link else ''}, "
           f"{acq.session + 1} sync session(s)"

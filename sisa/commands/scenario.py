@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     show = add_command(inner, "show", "print the resolved scenario (TOML) and its derived figures",
                        "sisa scenario show bellmunt   (or: sisa scenario show my-flight.toml)")
     show.add_argument("scenario", metavar="NAME|FILE",
-                      help="preset name (bench, garrotxa, bellmunt) or scenario TOML file")
+                      help="preset name (bench, garrotxa, bellmunt, bench_camera) or scenario "
+                      "TOML file")
     show.set_defaults(handler=_show)
     schema = add_command(inner, "schema", "print the JSON schema of scenario files",
                          "sisa scenario schema > scenario.schema.json")
@@ -66,7 +67,25 @@ def derived_figures(scn: Any) -> dict[str, Any]:
                                        + scn.sisa.read_interval_ms, 3),
         "gps_event_rate_hz": round(gps_event_rate_hz(scn), 4),
         "gps_serial_load_pct": round(100.0 * gps_serial_load(scn)[1], 1),
+        **camera_figures(scn, fig.forwarded_event_rate_hz),
     }
+
+
+def camera_figures(scn: Any, frame_events_hz: float) -> dict[str, Any]:
+    """A frame camera's share of the receiver's event input (docs/sync.md, "Two sensors, one
+    event input"): each pulse finds the input taken about (the other's rate) / (the
+    receiver's rate) of the time, and is then timed through the timing board instead."""
+    cam = scn.camera
+    if cam is None:
+        return {}
+    rate = scn.gps.max_event_rate_hz
+    photo_hz = cam.photo_rate_hz(scn.block.ground_speed_mps)
+    lo, hi = cam.message_window_ms(scn.sisa.read_interval_ms)
+    return {"camera_photo_rate_hz": round(photo_hz, 4),
+            "camera_message_window_ms": [round(lo, 3), round(hi, 3)],
+            "event_input_rate_hz": round(frame_events_hz + photo_hz, 4),
+            "camera_pulses_tagged_pct": round(100.0 * max(0.0, 1.0 - frame_events_hz / rate), 1),
+            "frame_pulses_tagged_pct": round(100.0 * max(0.0, 1.0 - photo_hz / rate), 1)}
 
 
 def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
@@ -114,6 +133,14 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
                      f"sisa.pps_gate_us = {scn.sisa.pps_gate_us:g}: the sync unit may never lock "
                      "on the PPS train (it forwards no PPS unlocked) or refuse true edges: a "
                      "wider gate")
+    if "event_input_rate_hz" in derived and (
+            derived["event_input_rate_hz"] > scn.gps.max_event_rate_hz):
+        notes.append(f"the scanner's {derived['forwarded_event_rate_hz']} and the camera's "
+                     f"{derived['camera_photo_rate_hz']} pulses a second are more than the "
+                     f"receiver's gps.max_event_rate_hz = {scn.gps.max_event_rate_hz:g}: the "
+                     "sync unit's event input is taken for many of them, and those are timed "
+                     "through its timing board, not tagged (a faster receiver, or a larger "
+                     "sisa.one_of_n)")
     if (problem := ground_point_room_problem(scn)) is not None:
         notes.append(f"{problem} (sisa truth and sisa simulate refuse this scenario)")
     return notes

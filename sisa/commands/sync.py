@@ -3,6 +3,9 @@
 OUT/
   ins_times.csv      seq, counter, t_gps_ns, status of every INS record (log order)
   line_times.csv     segment, line, frame_counter, t_gps_ns, status of every scan line
+  photo_times.csv    photo_number, t_mid_gps_ns, sigma_ns, source, status of every photo the
+                     frame camera named (a flight with a camera only)
+  camera_pulses_unnamed.csv   t_gps_ns, sigma_ns, source of its pulses no photo named
   sync_report.json   pulses found, matched and rejected; margin of every pattern block; clock
                      models and residuals; flagged counts
 """
@@ -12,7 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sisa.commands import (
     FLIGHT_HELP,
@@ -59,11 +62,14 @@ def _run(args: argparse.Namespace) -> int:
         untimed_lines_note,
         write_ins_times,
         write_line_times,
+        write_photo_times,
         write_report,
     )
     from recorder.columns import read_topics
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
+    from recorder.parts import recording_metadata
+    from recorder.settings import recorded_camera_window_ms
 
     started = time.perf_counter()
     with staged_output_dir(args.out, force=args.force) as out, progress("sync") as bar:
@@ -74,7 +80,9 @@ def _run(args: argparse.Namespace) -> int:
         recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
         bar.step("synchronising")
         try:
-            result = synchronise(sync_input_from_columns(cols), lines)
+            result = synchronise(sync_input_from_columns(cols), lines,
+                                 camera_window_ms=recorded_camera_window_ms(
+                                     recording_metadata(flight[0])))
         except InputError as exc:  # what the log lacks: named by the log
             raise InputError(f"{flight[0]}: {exc}") from None
         bar.step("writing the tables")
@@ -84,6 +92,8 @@ def _run(args: argparse.Namespace) -> int:
         write_ins_times(out / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
         write_line_times(out / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
                          ln.t_gps_ns, ln.status)
+        if result.photos is not None:
+            write_photo_times(out, result.photos)
         notes = [] if recording is None else [recording]
         notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
@@ -97,6 +107,11 @@ def _run(args: argparse.Namespace) -> int:
         untied = untimed_lines_note(result.report["lines"], flight)
         if untied is not None:  # was said only as a count
             notes.append(untied)
+        photos = result.report.get("photos")
+        if photos is not None and photos["photo_messages"] and not photos["camera_pulses"]:
+            notes.append(f"the log has {photos['photo_messages']} photo messages from the "
+                         "frame camera and not one camera pulse: no photo is timed (is its "
+                         "pulse line connected to the sync unit?)")
         result.report["notes"] = notes
         write_report(out / "sync_report.json", result.report)
     for note in notes:  # a segment left out by its lines file was gone without a word
@@ -120,11 +135,23 @@ def _run(args: argparse.Namespace) -> int:
             print(f"  {kind} flagged: " + ", ".join(f"{k} {v}" for k, v in flagged.items()))
     if unlisted:
         print(f"  scan lines not in the scanner's files: {unlisted} (frame headers in the log)")
-    lost = [f"{n - ok} of {n} {what}" for what, ok, n in (
-        ("INS records", ok_ins, ins.status.size), ("scan lines", ok_lines, promised)) if ok < n]
+    counts = [("INS records", ok_ins, ins.status.size), ("scan lines", ok_lines, promised)]
+    if result.photos is not None:
+        counts.append(("photos", *_photo_headline(result.report["photos"])))
+    lost = [f"{n - ok} of {n} {what}" for what, ok, n in counts if ok < n]
     if lost:
         return finished_with_losses("sync", f"{' and '.join(lost)} not timed")
     return 0
+
+
+def _photo_headline(report: dict[str, Any]) -> tuple[int, int]:
+    """Print the photos' line; (photos timed with their number, photos the camera named)."""
+    status: dict[str, int] = report["status"]
+    timed = status["ok"] + status["board_time"]
+    flagged = ", ".join(f"{k} {v}" for k, v in status.items() if v and k != "ok")
+    print(f"  photos {timed}/{report['photo_messages']} timed ({status['ok']} by their event "
+          "tag)" + (f"; {flagged}" if flagged else ""))
+    return timed, int(report["photo_messages"])
 
 
 def promised_lines(listed_segments: npt.ArrayLike, header_segments: npt.ArrayLike

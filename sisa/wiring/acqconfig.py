@@ -8,7 +8,7 @@ from acquisition.runner import AcquisitionConfig
 from acquisition.syncfilter import SyncFilterConfig
 from emulators.block import resolve_one_of_n
 from emulators.scenario import ReceiverModel, Scenario
-from recorder.settings import HEADER_WINDOW_KEY, READ_INTERVAL_KEY
+from recorder.settings import CAMERA_WINDOW_KEY, HEADER_WINDOW_KEY, READ_INTERVAL_KEY
 
 
 def acquisition_config(scn: Scenario) -> AcquisitionConfig:
@@ -32,13 +32,29 @@ def acquisition_config(scn: Scenario) -> AcquisitionConfig:
                              read_interval_ns=round(scn.sisa.read_interval_ms * 1e6),
                              accept_nmea_without_checksum=scn.sisa.accept_nmea_without_checksum,
                              gps_ubx=scn.gps.receiver is ReceiverModel.UBLOX_F9P,
-                             gps_novatel=scn.gps.receiver is ReceiverModel.NOVATEL_OEM7)
+                             gps_novatel=scn.gps.receiver is ReceiverModel.NOVATEL_OEM7,
+                             camera_rate_hz=None if scn.camera is None
+                             else 1.0 / scn.camera.min_cycle_s,
+                             camera_message_window_ms=camera_message_window_ms(scn))
+
+
+def camera_message_window_ms(scn: Scenario) -> tuple[float, float] | None:
+    """When a frame camera's photo message may reach the host after its pulse
+    (`CameraSettings.message_window_ms`), what the operator tells the logging computer of it;
+    None without a camera."""
+    if scn.camera is None:
+        return None
+    return scn.camera.message_window_ms(scn.sisa.read_interval_ms)
 
 
 def recording_settings(config: AcquisitionConfig) -> dict[str, str]:
     """The sync filter's header window and the read clock, for the log's metadata: `sisa sync`
     names them when they left every frame pulse untied (a scanner faster than the window)."""
     sync = config.sync
-    return {HEADER_WINDOW_KEY: f"{sync.header_latency_min_ns / 1e6:g},"
-                               f"{sync.header_latency_max_ns / 1e6:g}",
-            READ_INTERVAL_KEY: f"{config.read_interval_ns / 1e6:g}"}
+    settings = {HEADER_WINDOW_KEY: f"{sync.header_latency_min_ns / 1e6:g},"
+                                   f"{sync.header_latency_max_ns / 1e6:g}",
+                READ_INTERVAL_KEY: f"{config.read_interval_ns / 1e6:g}"}
+    if config.camera_message_window_ms is not None:
+        lo, hi = config.camera_message_window_ms
+        settings[CAMERA_WINDOW_KEY] = f"{lo:g},{hi:g}"
+    return settings

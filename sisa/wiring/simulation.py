@@ -30,7 +30,7 @@ from sisa.core.errors import ConfigError
 from sisa.core.timescale import NS_PER_S
 from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
-SERIAL_BAUD = 115_200  # the scanner's header port (the GPS receiver's: gps.serial_baud)
+SERIAL_BAUD = 115_200  # the scanner's and the camera's ports (the GPS receiver's: gps.serial_baud)
 USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
 CAN_LATENCY_NS = (100_000, 400_000)
 TICK_NS = 100_000_000
@@ -95,7 +95,9 @@ class VirtualWiring:
             gps = out.port is Port.GPS_SERIAL
             baud = self.system.scn.gps.serial_baud if gps else SERIAL_BAUD
             at = out.t_ns + wire_time_ns(len(payload), baud) + self._latency(USB_LATENCY_NS)
-            deliver = self.acq.on_gps_bytes if gps else self.acq.on_scanner_bytes
+            deliver = {Port.GPS_SERIAL: self.acq.on_gps_bytes,
+                       Port.CAMERA_SERIAL: self.acq.on_camera_bytes}.get(
+                           out.port, self.acq.on_scanner_bytes)
             self._arrive(out.port, at, partial(deliver, data=payload))
         edges, self._pending[:] = list(self._pending), []
         return edges

@@ -42,11 +42,37 @@ def bench_traj() -> TruthTrajectory:
 # --- scenario ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", [p for p in PRESETS if p != "bench_camera"])
 def test_no_preset_has_a_camera_and_its_toml_says_nothing_of_one(preset: str) -> None:
     scn = load_scenario(preset)
     assert scn.camera is None
     assert "camera" not in scenario_toml(scn)
+
+
+def test_scenario_show_gives_the_camera_its_share_of_the_event_input() -> None:
+    from sisa.commands.scenario import _notes, derived_figures
+
+    scn = load_scenario("bench_camera")
+    fig = derived_figures(scn)
+    assert fig["camera_message_window_ms"] == [-1.0, 50.5]  # 0.5 + 40 + 5 (reads) + 5
+    assert fig["camera_photo_rate_hz"] == 0.96  # 60 m/s over 62.5 m
+    assert fig["camera_pulses_tagged_pct"] == pytest.approx(100 * (1 - 0.9766 / 5), abs=0.1)
+    assert not [n for n in _notes(scn, fig) if "camera" in n]
+    slow = scenario_from_table({"base": "bench_camera", "gps": {"max_event_rate_hz": 1.5}})
+    notes = _notes(slow, derived_figures(slow))
+    assert any("more than the receiver's gps.max_event_rate_hz = 1.5" in n for n in notes)
+
+
+def test_bench_camera_is_the_bench_with_a_camera_and_a_faster_receiver() -> None:
+    """The two-sensor preset stands on the bench preset: only the camera, the receiver's
+    event rate and an explicit 1 of n (the bench's own) differ."""
+    two, bench = load_scenario("bench_camera"), load_scenario("bench")
+    assert two.camera is not None
+    assert two.gps.max_event_rate_hz == 5.0
+    assert two.sisa.one_of_n == 64
+    assert two.model_copy(update={"camera": None, "gps": bench.gps, "sisa": bench.sisa,
+                                  "block": bench.block}) == bench
+    assert two.block.model_copy(update={"name": "bench"}) == bench.block
 
 
 @pytest.mark.parametrize(("camera", "says"), [
@@ -60,6 +86,10 @@ def test_no_preset_has_a_camera_and_its_toml_says_nothing_of_one(preset: str) ->
      "first_photo_number"),
     ({"trigger_interval_s": 1.0, "faults": {"lost_pulse_fraction": 1.5}}, "lost_pulse_fraction"),
     ({"trigger_interval_s": 1.0, "shutter": 1}, "shutter"),
+    # a message window (−1 … 0.5 + 45 + 5 + 5 ms) as long as the camera's cycle: refused
+    ({"trigger_interval_s": 0.1, "min_cycle_s": 0.0565, "message_latency_ms": [5.0, 45.0]},
+     "two pulses could fall in one message's window"),
+    ({"trigger_interval_s": 1.0, "faults": {"on_frame_fraction": -0.1}}, "on_frame_fraction"),
 ])
 def test_a_bad_camera_table_is_one_line_naming_it(camera: dict[str, Any], says: str) -> None:
     with pytest.raises(ConfigError, match="camera") as err:

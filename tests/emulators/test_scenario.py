@@ -101,7 +101,8 @@ def test_faults_default_empty_and_timed_faults_parse():
 def test_missing_or_broken_files(tmp_path):
     with pytest.raises(ConfigError, match="no preset or scenario file"):
         load_scenario(tmp_path / "nope.toml")
-    with pytest.raises(ConfigError, match=r"\(presets: bench, garrotxa, bellmunt\)$"):
+    with pytest.raises(ConfigError,
+                       match=r"\(presets: bench, garrotxa, bellmunt, bench_camera\)$"):
         load_scenario("nope")  # the presets named as a user types them
     bad = tmp_path / "bad.toml"
     bad.write_text("[block\nstrips = 2")

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from recorder.messages import (
+    CameraPhotoLog,
     FrameHeaderLog,
     GpsFix,
     GpsTimeTag,
@@ -21,6 +22,7 @@ from recorder.messages import (
     RawBytes,
     RawCanFrames,
     StreamHealth,
+    SyncCameraPulse,
     SyncForward,
     SyncModeSwitch,
     SyncPps,
@@ -61,6 +63,9 @@ def sample_messages(t0_ns: int = T0_NS) -> list[tuple[LoggedMessage, Topic | Non
         (SyncForward(t + 11, 0, 0, 10**12, 1, "PPS", True, -1, -1, "n/a"), None),
         (SyncModeSwitch(t + 12, 0, 10**12, 1, 2, "scanner on: ppf seen"), None),
         (StreamHealth(t + 13, "gps", 100, 10.0, 10.0, 0, 1, 0, 5, 0, 0), None),
+        (RawBytes(t + 14, "camera", b"\xc5\x5c\x08"), Topic.CAMERA_RAW),
+        (CameraPhotoLog(t + 15, 2**32 - 1, 1_000), None),
+        (SyncCameraPulse(t + 16, 0, 3, 10**12 + 5, False), None),
     ]
 
 

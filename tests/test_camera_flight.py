@@ -176,6 +176,7 @@ def test_calibrate_finds_the_cameras_boresight(processed: tuple[Path, Path, str]
     params = doc["camera_calibration"]["parameters"]
     z = [(p["estimate"] - t) / p["sigma"] for p, t in zip(params, truth, strict=True)]
     print(proc.stdout, "z", z)
+    assert "truth/photos.csv" not in proc.stderr  # the photos timed by the sync of the log
     assert max(abs(v) for v in z) < 3.0
     camera = tomllib.loads((cal / "camera.toml").read_text())
     assert camera["mounting"]["boresight_arcsec"] == pytest.approx(

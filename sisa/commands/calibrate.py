@@ -137,8 +137,8 @@ def _add_frame_camera(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--camera", type=Path, default=None, metavar="TOML",
                    help="starting camera file; default: the run's camera without boresight")
     g.add_argument("--photo-times", type=Path, default=None, metavar="CSV",
-                   help="photo_number, t_mid_gps_ns; default: a run's truth/photos.csv (the "
-                        "sync does not time the photos yet)")
+                   help="photo_number, t_mid_gps_ns; default: the photos the sync of the "
+                        "flight log times")
     g.add_argument("--photo-sigma-px", type=float, default=0.05, metavar="PX",
                    help="stated precision of the simulated marker centroids (default 0.05)")
 
@@ -362,13 +362,16 @@ def log_navigation(args: argparse.Namespace, paths: list[Path], scanner: Path | 
     from recorder.columns import read_topics
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
+    from recorder.parts import recording_metadata
+    from recorder.settings import recorded_camera_window_ms
 
     cols = read_topics(paths, {**merged_wanted(SYNC_WANTED, NAV_WANTED), **HEALTH_WANTED})
     recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), paths[0])
     if recording is not None:
         say_warning(args.command, recording)
     sync = synchronise(sync_input_from_columns(cols),
-                       read_scanner_lines(scanner) if scanner is not None else None)
+                       read_scanner_lines(scanner) if scanner is not None else None,
+                       camera_window_ms=recorded_camera_window_ms(recording_metadata(paths[0])))
     unsure = header_order_note(sync.report["lines"], "the image measurements' lines")
     if unsure is not None:  # a measurement's line may be timed a line period off
         say_warning(args.command, unsure)
@@ -651,7 +654,7 @@ def _camera_input(args: argparse.Namespace) -> tuple[PhotoCalibrationInput, dict
         from emulators.scenario import load_scenario
 
         scn = load_scenario(run / "scenario.toml")
-    from sisa.commands.process import camera_of
+    from sisa.commands.process import camera_of, synced_photo_times
 
     nominal = None if scn is None else camera_of(scn, nominal=True)
     if args.camera is not None:
@@ -661,14 +664,15 @@ def _camera_input(args: argparse.Namespace) -> tuple[PhotoCalibrationInput, dict
     else:
         raise InputError("--frame-camera needs --camera (or a run folder whose scenario has a "
                          "[camera])")
+    sensor = _sensor(args)
+    traj, sync = log_navigation(args, _flight_paths(args), None, sensor)
     if args.photo_times is not None:
         times = read_photo_times(args.photo_times)
-    elif run is not None and (run / "truth" / "photos.csv").is_file():
-        times = read_photo_times(run / "truth" / "photos.csv")
-        say_warning(args.command, f"photos timed by {run / 'truth' / 'photos.csv'}, the run's "
-                    "truth (the sync does not time the camera's photos yet)")
+    elif sync.photos is not None:  # the photos the sync timed (status ok or board_time)
+        times = synced_photo_times(sync.photos)
     else:
-        raise InputError("--frame-camera needs --photo-times (photo_number, t_mid_gps_ns)")
+        raise InputError("--frame-camera: the flight log holds no photo of a frame camera: "
+                         "give --photo-times (photo_number, t_mid_gps_ns)")
     points = read_ground_points(_default(args, args.gcp, "terrain/ground_points.csv", "--gcp"))
     info: dict[str, Any] = {}
     if args.obs is not None:
@@ -681,8 +685,6 @@ def _camera_input(args: argparse.Namespace) -> tuple[PhotoCalibrationInput, dict
                                            seed=args.seed)
     else:
         raise InputError("a flight log needs --obs (the photos' measurements of the points)")
-    sensor = _sensor(args)
-    traj, _ = log_navigation(args, _flight_paths(args), None, sensor)
     dem = None
     if not args.no_dem and (args.dem is not None or run is not None):
         dem_path = _default(args, args.dem, "terrain/dem.tif", "--dem")

@@ -110,7 +110,7 @@ def test_georef_with_a_camera_file_writes_what_process_wrote(
     cam = tmp_path / "camera.toml"
     cam.write_text(json_to_toml({"interior": scn["camera"]["model"],
                                  "mounting": scn["camera"]["mounting"]}), encoding="utf-8")
-    geo = tmp_path / "geo"
+    geo, synced = tmp_path / "geo", tmp_path / "synced"
     proc = _sisa("georef", run / "flight.mcap", "--scanner", run / "scanner", "--dem",
                  run / "terrain" / "dem.tif", "--out", geo, "--camera", cam, "--photo-times",
                  out / "sync" / "photo_times.csv", "--photos", out / "photos" / "images")
@@ -123,6 +123,11 @@ def test_georef_with_a_camera_file_writes_what_process_wrote(
         (out / "photos" / "photo_eo.csv").read_bytes()
     with rasterio.open(geo / "photos" / "photo_mosaic.tif") as ds:
         assert ds.count == 4
+    # without --photo-times: the photos the sync of the log times, the same EO again
+    _sisa("georef", run / "flight.mcap", "--scanner", run / "scanner", "--dem",
+          run / "terrain" / "dem.tif", "--out", synced, "--camera", cam)
+    assert (synced / "photos" / "photo_eo.csv").read_bytes() == \
+        (out / "photos" / "photo_eo.csv").read_bytes()
 
 
 def json_to_toml(doc: dict[str, Any]) -> str:
@@ -133,7 +138,7 @@ def json_to_toml(doc: dict[str, Any]) -> str:
 
 @pytest.mark.parametrize(("args", "says"), [
     (("--photo-times", "x.csv"), "--photo-times needs --camera"),
-    (("--camera", "cam.toml"), "--camera needs --photo-times"),
+    (("--photos", "."), "--photos needs --camera"),
 ])
 def test_photo_options_alone_are_one_line(processed: tuple[Path, Path, str], tmp_path: Path,
                                           args: tuple[str, ...], says: str) -> None:

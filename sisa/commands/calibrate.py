@@ -654,7 +654,8 @@ def _camera_input(args: argparse.Namespace) -> tuple[PhotoCalibrationInput, dict
         from emulators.scenario import load_scenario
 
         scn = load_scenario(run / "scenario.toml")
-    from sisa.commands.process import camera_of, synced_photo_times
+    from sisa.commands.georef import synced_photo_times
+    from sisa.commands.process import camera_of
 
     nominal = None if scn is None else camera_of(scn, nominal=True)
     if args.camera is not None:

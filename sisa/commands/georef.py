@@ -28,6 +28,7 @@ stretch of lines skipped is one warning line on stderr.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -71,7 +72,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
                         help="the frame camera's file (interior orientation, mounting): with "
                              "--photo-times, its photos' EO, footprints and orthos in OUT/photos")
     parser.add_argument("--photo-times", type=Path, default=None, metavar="CSV",
-                        help="photo times table: photo_number, t_mid_gps_ns (GPS ns)")
+                        help="photo times table: photo_number, t_mid_gps_ns (GPS ns); default: "
+                             "the photos the sync of the flight log times")
     parser.add_argument("--photos", type=Path, default=None, metavar="DIR",
                         help="the camera's photos (photo_NNNNNN.bil/.hdr): their orthos and "
                              "mosaic")
@@ -90,9 +92,10 @@ class PhotoInputs:
     """What the frame camera's products need besides the scanner's job."""
 
     camera: FrameCamera
-    times: PhotoTimes
+    times: PhotoTimes | None  # None: the photos the sync of the log times (`synced_inputs`)
     images: dict[str, Path] | None
     cell_m: float | None
+    images_dir: Path | None = None  # --photos, for photos timed by the sync
 
 
 def photo_images(folder: Path, times: PhotoTimes) -> dict[str, Path]:
@@ -118,12 +121,42 @@ def photo_inputs_from_args(args: argparse.Namespace) -> PhotoInputs | None:
         if given:
             raise InputError(f"{given[0]} needs --camera (the frame camera's file)")
         return None
-    if args.photo_times is None:
-        raise InputError("--camera needs --photo-times (each photo's mid-exposure GPS time)")
     check_photo_cell(args.photo_cell)
+    camera = load_camera(args.camera)
+    if args.photo_times is None:  # timed by the sync, once the job has read the log
+        return PhotoInputs(camera, None, None, args.photo_cell, args.photos)
     times = read_photo_times(args.photo_times)
     images = None if args.photos is None else photo_images(args.photos, times)
-    return PhotoInputs(load_camera(args.camera), times, images, args.photo_cell)
+    return PhotoInputs(camera, times, images, args.photo_cell)
+
+
+def synced_photo_times(photos: Any) -> PhotoTimes:
+    """The sync's photos that have a number and a time (status ok or board_time) as the photo
+    path's table (`postproc.georef.PhotoTimes`); a repeated number (the camera's counter
+    wrapped) keeps its first photo."""
+    import numpy as np
+
+    from postproc.georef import PhotoTimes
+    from postproc.sync import PhotoStatus
+
+    keep = np.isin(photos.status, (PhotoStatus.OK, PhotoStatus.BOARD_TIME))
+    numbers, times = photos.photo_number[keep], photos.t_gps_ns[keep]
+    first = np.sort(np.unique(numbers, return_index=True)[1])
+    return PhotoTimes(numbers[first], times[first])
+
+
+def synced_inputs(photos: PhotoInputs, result: GeorefResult) -> PhotoInputs:
+    """Photo inputs whose times are still to come (--camera without --photo-times) with the
+    photos the sync of the log timed; InputError for a log without a frame camera's photos."""
+    if photos.times is not None:
+        return photos
+    synced = getattr(result.sync, "photos", None)
+    if synced is None:
+        raise InputError("--camera: the flight log holds no photo of a frame camera (no "
+                         "/camera/photo records): give --photo-times")
+    times = synced_photo_times(synced)
+    images = None if photos.images_dir is None else photo_images(photos.images_dir, times)
+    return dataclasses.replace(photos, times=times, images=images)
 
 
 def run_photos(out: Path, result: GeorefResult, options: GeorefOptions, photos: PhotoInputs,
@@ -133,6 +166,7 @@ def run_photos(out: Path, result: GeorefResult, options: GeorefOptions, photos: 
     from postproc.georef import photo_products
 
     bar.step("photos: EO, footprints, orthos, mosaic")
+    assert photos.times is not None, "synced_inputs first"
     folder = out / "photos"
     folder.mkdir(exist_ok=True)  # `sisa process` may have rendered the photos into it
     summary = photo_products(folder, result.trajectory, options.dem, photos.times,
@@ -302,6 +336,7 @@ def _run(args: argparse.Namespace) -> int:
     with staged_output_dir(args.out, force=args.force) as out, progress("georef") as bar:
         result = run_georef(flight_parts(args.flight), args.scanner, out, options, bar)
         if photos is not None:
+            photos = synced_inputs(photos, result)
             summary = run_photos(out, result, options, photos, bar)
     print(f"{args.out}: {headline(result)}; {time.perf_counter() - started:.1f} s")
     if summary is not None:

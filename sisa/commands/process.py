@@ -45,6 +45,7 @@ from sisa.commands.georef import (
     photo_losses,
     run_georef,
     run_photos,
+    synced_photo_times,
 )
 from sisa.commands.progress import Progress, progress, split_lines
 from sisa.core.errors import InputError
@@ -123,21 +124,6 @@ def _photo_inputs(args: argparse.Namespace, run: Path, scn: Scenario, out: Path,
     images.mkdir(parents=True)
     rendered = render_run_photos(scn, timed.photo_number, timed.t_mid_gps_ns, images)
     return PhotoInputs(camera, times, rendered, args.photo_cell)
-
-
-def synced_photo_times(photos: Any) -> Any:
-    """The sync's photos that have a number and a time (status ok or board_time) as the photo
-    path's table (`postproc.georef.PhotoTimes`); a repeated number (the camera's counter
-    wrapped) keeps its first photo."""
-    import numpy as np
-
-    from postproc.georef import PhotoTimes
-    from postproc.sync import PhotoStatus
-
-    keep = np.isin(photos.status, (PhotoStatus.OK, PhotoStatus.BOARD_TIME))
-    numbers, times = photos.photo_number[keep], photos.t_gps_ns[keep]
-    first = np.sort(np.unique(numbers, return_index=True)[1])
-    return PhotoTimes(numbers[first], times[first])
 
 
 def sensor_of(scn: Scenario, *, nominal: bool = False) -> SensorModel:

@@ -1,22 +1,34 @@
-"""Ray–DEM intersection: speed of the tuned kernel against a vectorised numpy baseline, and the
-accuracy of both against the slow float64 reference.
+"""Ray–DEM intersection (issue 38): `intersect`, whole call, against a reference kernel
+written here from the issue's method, interleaved in one process; a numpy baseline; the
+stage split of `intersect`; the accuracy of all three against the slow float64 reference.
 
-    .venv/bin/python bench/raycast_speed.py [--lines 20000] [--repeats 3] [--check-lines 4]
+    .venv/bin/python bench/raycast_speed.py [--lines 20000] [--pairs 6] [--check-lines 4]
+                                            [--profile N]
 
 The scene is CASI-like: 512 pixels (15 µm, f = 9.33 mm), a 20 ms line period at 60 m/s (1.2 m
 per line, a 24 km strip for 20 000 lines) flown due grid north ~1500 m above a synthetic 2 m
 DEM in UTM 31N (sinusoidal hills and a smooth fractal field, a few hundred metres of relief),
-with ~0.3° of smooth attitude turbulence. Both methods get the same rays and the same output
-buffers; the first call (numba compilation, DEM preparation) is excluded, the best of
---repeats calls is kept, each timing the whole call including its per-call set-up (block
-maps, per-line coefficients). Besides wall-clock M rays/s it prints M rays per CPU-second
-(summed over threads) and the load average, because the machine may be shared.
+with ~0.3° of smooth attitude turbulence. Every method gets the same rays; the first calls
+(numba compilation, DEM preparation) are excluded. `intersect` and the reference kernel then
+alternate in --pairs pairs (which goes first alternates too), each timing its whole call,
+per-call set-up included (block maps, per-line terms); each pair prints M rays/s wall and per
+CPU-second (summed over threads), the time ratio and the load average, because the machine
+may be shared and only ratios within one run compare.
+
+The reference kernel (numba) is the method as the issue describes it: float32 models local
+to the DEM cell under each ray's start and heights relative to its start height, warm starts
+from the same pixel on the previous line, two branch-free Newton steps on the bilinear DEM
+with 8-byte gathers, one pass over the line per step (independent short chains); its own
+block maps (pyproj, least squares) and per-line terms. It has no first-root test and no
+fallback: a bound on speed, not a replacement; its accuracy is measured like the others'.
 
 The baseline is what a careful numpy implementation does: the fast path's own set-up (fitted
 local maps, per-line coefficients), then 8 fixed-point iterations over all rays at once
-(range to the height of the DEM under the previous estimate). Accuracy is measured on
---check-lines random lines against `reference_intersect` (pyproj at every point): the
-difference in range along the ray and the 3-D distance between the ground points.
+(range to the height of the DEM under the previous estimate), timed once. --profile N times
+`intersect`'s stages separately (as cast.py runs them), N times, medians. Accuracy is measured
+on every pixel of --check-lines random lines and of the two lines over the steepest terrain,
+against `reference_intersect` (pyproj at every point, bisection): the 3-D distance between
+the ground points and the difference in range along the ray.
 """
 
 from __future__ import annotations
@@ -30,10 +42,6 @@ from typing import Any, NamedTuple, TypeVar, cast
 import numba
 import numpy as np
 import numpy.typing as npt
-from llvmlite import ir  # type: ignore[import-untyped]
-from numba.core import cgutils as _cgutils
-from numba.core import types as _nbtypes
-from numba.extending import intrinsic
 from pyproj import Transformer
 from scipy import fft as sfft
 from scipy.ndimage import gaussian_filter1d
@@ -46,8 +54,6 @@ from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
 _Fn = TypeVar("_Fn", bound=Callable[..., Any])
-cgutils: Any = _cgutils  # untyped: for the intrinsic's code generation
-nbtypes: Any = _nbtypes
 EPSG = 32631
 CELL_M = 2.0
 SPEED_MPS, LINE_PERIOD_S = 60.0, 0.020
@@ -155,7 +161,8 @@ def errors_m(dem: Dem, centre: F64, got: GroundPoints, ref: GroundPoints, sel: n
 # ---------------------------------------------------------------------------------------------
 # The reference kernel: written for this benchmark from the method the issue describes (numba,
 # float32 local origins, warm starts from the previous line, two branch-free Newton steps with
-# gathers, short independent chains over the pixels); it shares no code with the package's.
+# gathers, short independent chains over the pixels); of the package's kernel it takes only
+# the 8-byte load.
 # No first-root test, no fallback: its accuracy is measured like the others'.
 # ---------------------------------------------------------------------------------------------
 
@@ -164,34 +171,20 @@ REF_COLD_PASSES = 4  # Newton rounds for a work item's first line
 
 
 def _njit(inline: bool = False, parallel: bool = False) -> Callable[[_Fn], _Fn]:
+    """Not cached: numba's cache would not see a change to the package's `_pair`."""
     return cast(Callable[[_Fn], _Fn],
-                numba.njit(cache=True, parallel=parallel, error_model="numpy",
+                numba.njit(cache=False, parallel=parallel, error_model="numpy",
                            fastmath={"contract"}, inline="always" if inline else "never"))
 
 
-def _two_floats(typingctx: Any, heights: Any, k: Any) -> Any:
-    """(heights[k], heights[k + 1]) of a float32 array as one 8-byte load (little-endian):
-    a vectorised loop gathers half as many elements."""
-    sig = nbtypes.UniTuple(nbtypes.float32, 2)(heights, nbtypes.intp)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        ary = context.make_array(signature.args[0])(context, builder, value=args[0])
-        ptr = cgutils.gep(builder, ary.data, args[1], inbounds=True)
-        word = builder.load(builder.bitcast(ptr, ir.IntType(64).as_pointer()), align=4)
-        lo = builder.bitcast(builder.trunc(word, ir.IntType(32)), ir.FloatType())
-        hi = builder.bitcast(builder.trunc(builder.lshr(word, ir.Constant(ir.IntType(64), 32)),
-                                           ir.IntType(32)), ir.FloatType())
-        return context.make_tuple(builder, signature.return_type, [lo, hi])
-
-    return sig, codegen
-
-
-_two: Any = intrinsic(_two_floats)
+# (dem[k], dem[k + 1]) of a float32 array as one 8-byte load, so that a vectorised loop
+# gathers half as many elements: the one primitive the reference takes from the package
+_two: Any = kernel._pair
 
 
 class RefSetup(NamedTuple):
     coef: F64  # (lines, 30): column, row, height of ray (i, j) as quadratics in its range
-    look9: F64  # (9, pixels): the look vectors' products the quadratics take
+    unit: F64  # (3, pixels): unit look vectors, camera frame
 
 
 def reference_setup(dem: Dem, centre: F64, rot: F64, look: F64) -> RefSetup:
@@ -246,15 +239,12 @@ def reference_setup(dem: Dem, centre: F64, rot: F64, look: F64) -> RefSetup:
         u = ((c[1:4].T[None] + hqc) / half) @ m  # B = u·l
         qq = [0.5 * np.swapaxes(m, 1, 2) @ hp[k] @ m for k in range(3)]  # C = lᵀ qq l
         coef[sl, 0:3] = val
-        coef[sl, 3:12] = u.reshape(-1, 9)
-        for k in range(3):
-            coef[sl, 12 + 6 * k:18 + 6 * k] = np.stack(
-                [qq[k][:, 0, 0], qq[k][:, 1, 1], qq[k][:, 2, 2], qq[k][:, 0, 1],
-                 qq[k][:, 0, 2], qq[k][:, 1, 2]], axis=-1)
-    u0, u1, u2 = unit
-    look9 = np.ascontiguousarray(np.stack([u0, u1, u2, u0 * u0, u1 * u1, u2 * u2, 2 * u0 * u1,
-                                           2 * u0 * u2, 2 * u1 * u2]))
-    return RefSetup(coef, look9)
+        for k in range(3):  # per component: u, then Q's upper triangle by rows, doubled off it
+            q = qq[k]
+            coef[sl, 3 + 9 * k:12 + 9 * k] = np.stack(
+                [u[:, k, 0], u[:, k, 1], u[:, k, 2], q[:, 0, 0], 2 * q[:, 0, 1], 2 * q[:, 0, 2],
+                 q[:, 1, 1], 2 * q[:, 1, 2], q[:, 2, 2]], axis=-1)
+    return RefSetup(coef, np.ascontiguousarray(unit))
 
 
 class RefScratch(NamedTuple):
@@ -271,14 +261,14 @@ def reference_scratch(lines: int, pixels: int) -> RefScratch:
 
 def reference_kernel(dem: Dem, flat: F32, setup: RefSetup, scratch: RefScratch,
                      out: GroundPoints) -> None:
-    _ref_kernel(flat, dem.cols, setup.coef, setup.look9, REF_BLOCK_LINES, dem.cell_e_m,
+    _ref_kernel(flat, dem.cols, setup.coef, setup.unit, REF_BLOCK_LINES, dem.cell_e_m,
                 dem.cell_n_m, dem.first_easting_m, dem.first_northing_m, out.easting_m,
                 out.northing_m, out.height_m, scratch.s, scratch.model, scratch.origin)
     out.hit[:] = np.isfinite(out.height_m)
 
 
 @_njit(parallel=True)
-def _ref_kernel(z: Any, cols: int, coef: Any, look9: Any, chunk: int, cell_e: float,
+def _ref_kernel(z: Any, cols: int, coef: Any, look: Any, chunk: int, cell_e: float,
                 cell_n: float, e0: float, n0: float, out_e: Any, out_n: Any, out_h: Any,
                 s_all: Any, mod: Any, org: Any) -> None:
     """Work items of `chunk` lines in parallel; in each, lines in order, every ray starting from
@@ -287,45 +277,48 @@ def _ref_kernel(z: Any, cols: int, coef: Any, look9: Any, chunk: int, cell_e: fl
     the start, two float32 Newton steps, float64 output. Scratch arrays are arguments, indexed
     directly: numba marks them noalias, which the vectoriser needs next to the gathers."""
     rows = z.size // cols
-    p = look9.shape[1]
+    p = look.shape[1]
     for c in numba.prange(-(-coef.shape[0] // chunk)):
         i0, i1 = c * chunk, min(coef.shape[0], c * chunk + chunk)
-        bh = (coef[i0, 9] * look9[0, p // 2] + coef[i0, 10] * look9[1, p // 2]
-              + coef[i0, 11] * look9[2, p // 2])
+        bh = (coef[i0, 21] * look[0, p // 2] + coef[i0, 22] * look[1, p // 2]
+              + coef[i0, 23] * look[2, p // 2])
         for j in range(p):  # cold start: where the middle ray meets the DEM's mean height
             s_all[c, j] = (coef[i0, 2] - 0.5 * (z[0] + z[-1])) / -bh
         for i in range(i0, i1):
             for _ in range(REF_COLD_PASSES if i == i0 else 1):
-                _ref_setup_line(cols, rows, coef, look9, i, c, s_all, mod, org)
+                _ref_setup_line(cols, rows, coef, look, i, c, s_all, mod, org)
                 _ref_newton_line(z, cols, c, mod, org)
-                _ref_output_line(coef, look9, i, c, s_all, mod, cell_e, cell_n, e0, n0, out_e,
+                _ref_output_line(coef, look, i, c, s_all, mod, cell_e, cell_n, e0, n0, out_e,
                                  out_n, out_h)
 
 
 @_njit(inline=True)
-def _ref_terms(coef: Any, look9: Any, i: int, j: int) -> tuple[float, ...]:
-    l0, l1, l2 = look9[0, j], look9[1, j], look9[2, j]
-    m0, m1, m2, m3, m4, m5 = (look9[3, j], look9[4, j], look9[5, j], look9[6, j], look9[7, j],
-                              look9[8, j])
-    bx = coef[i, 3] * l0 + coef[i, 4] * l1 + coef[i, 5] * l2
-    by = coef[i, 6] * l0 + coef[i, 7] * l1 + coef[i, 8] * l2
-    bh = coef[i, 9] * l0 + coef[i, 10] * l1 + coef[i, 11] * l2
-    cx = (coef[i, 12] * m0 + coef[i, 13] * m1 + coef[i, 14] * m2 + coef[i, 15] * m3
-          + coef[i, 16] * m4 + coef[i, 17] * m5)
-    cy = (coef[i, 18] * m0 + coef[i, 19] * m1 + coef[i, 20] * m2 + coef[i, 21] * m3
-          + coef[i, 22] * m4 + coef[i, 23] * m5)
-    ch = (coef[i, 24] * m0 + coef[i, 25] * m1 + coef[i, 26] * m2 + coef[i, 27] * m3
-          + coef[i, 28] * m4 + coef[i, 29] * m5)
+def _ref_terms(coef: Any, look: Any, i: int, j: int) -> tuple[float, ...]:
+    """(B, C) of x, y and h along ray (i, j): value = A + B·s + C·s²."""
+    l0, l1, l2 = look[0, j], look[1, j], look[2, j]
+    bx, cx = _ref_quadratic(coef, i, 3, l0, l1, l2)
+    by, cy = _ref_quadratic(coef, i, 12, l0, l1, l2)
+    bh, ch = _ref_quadratic(coef, i, 21, l0, l1, l2)
     return bx, by, bh, cx, cy, ch
 
 
 @_njit(inline=True)
-def _ref_setup_line(cols: int, rows: int, coef: Any, look9: Any, i: int, c: int, s_all: Any,
+def _ref_quadratic(coef: Any, i: int, o: int, l0: float, l1: float, l2: float
+                   ) -> tuple[float, float]:
+    """B = u·l and C = lᵀQl from one component's nine terms (u, then Q by rows)."""
+    b = coef[i, o] * l0 + coef[i, o + 1] * l1 + coef[i, o + 2] * l2
+    c = (l0 * (coef[i, o + 3] * l0 + coef[i, o + 4] * l1 + coef[i, o + 5] * l2)
+         + l1 * (coef[i, o + 6] * l1 + coef[i, o + 7] * l2) + coef[i, o + 8] * l2 * l2)
+    return b, c
+
+
+@_njit(inline=True)
+def _ref_setup_line(cols: int, rows: int, coef: Any, look: Any, i: int, c: int, s_all: Any,
                     mod: Any, org: Any) -> None:
     f32 = np.float32
     ax, ay, ah = coef[i, 0], coef[i, 1], coef[i, 2]
-    for j in range(look9.shape[1]):
-        bx, by, bh, cx, cy, ch = _ref_terms(coef, look9, i, j)
+    for j in range(look.shape[1]):
+        bx, by, bh, cx, cy, ch = _ref_terms(coef, look, i, j)
         s0 = s_all[c, j]
         x64 = ax + s0 * (bx + s0 * cx)
         y64 = ay + s0 * (by + s0 * cy)
@@ -391,12 +384,12 @@ def _ref_step(t: Any, z: Any, cols: int, k0: int, m: Any) -> Any:
 
 
 @_njit(inline=True)
-def _ref_output_line(coef: Any, look9: Any, i: int, c: int, s_all: Any, mod: Any,
+def _ref_output_line(coef: Any, look: Any, i: int, c: int, s_all: Any, mod: Any,
                      cell_e: float, cell_n: float, e0: float, n0: float, out_e: Any,
                      out_n: Any, out_h: Any) -> None:
     ax, ay, ah = coef[i, 0], coef[i, 1], coef[i, 2]
-    for j in range(look9.shape[1]):
-        bx, by, bh, cx, cy, ch = _ref_terms(coef, look9, i, j)
+    for j in range(look.shape[1]):
+        bx, by, bh, cx, cy, ch = _ref_terms(coef, look, i, j)
         s1 = s_all[c, j] + np.float64(mod[c, 9, j])
         s_all[c, j] = s1
         out_e[i, j] = e0 + (ax + s1 * (bx + s1 * cx)) * cell_e

@@ -19,10 +19,13 @@ accepted only if |g''|·step²/(2|g'|) < ROOT_TOLERANCE_M, that step stayed in t
 root is provably the FIRST one: g falls monotonically along the ray's whole path through the
 DEM's height range when the steepest DEM slope under the paths of a group of rays (a sparse
 table of per-tile slope maxima) times the ray's horizontal/vertical rate is below 1. Float32
-rounding relative to the block leaves < 0.1 mm; the output is evaluated in float64. Every other
-ray takes the safe path (float64): a cell-by-cell walk along the ray from the top of the DEM's
-height range, solving the (quadratic-in-s) gap exactly inside each cell, so a ray grazing a
-ridge or occluded by a cliff finds its first crossing.
+positions relative to the block's grid origin and heights relative to the ray's start height
+(itself rounded to a float32, like the DEM's samples: the steps subtract nearby float32s, which
+loses nothing or next to nothing) leave < 0.1 mm; a product and a sum may fuse (of fastmath,
+only `contract`); the output is evaluated in float64. Every other ray takes the safe path
+(float64): a cell-by-cell walk along the ray from the top of the DEM's height range, solving
+the (quadratic-in-s) gap exactly inside each cell, so a ray grazing a ridge or occluded by a
+cliff finds its first crossing.
 
 Misses (hit False, NaN): rays that never come down to the DEM's highest sample, that pass off
 the DEM or over a nodata cell (one with ANY nodata corner) while within the DEM's height range

@@ -140,7 +140,7 @@ def _start_live(args: argparse.Namespace, scn: Scenario) -> LiveView:
     host, port = listen_address(args.live)
     strips, half_swath_m = planned_strips(scn)
     live = LiveView(host, port, args.out, strips_geojson=strips, half_swath_m=half_swath_m,
-                    sync_out=args.live_sync_out)
+                    sync_out=args.live_sync_out, camera=args.camera is not None)
     print(f"sisa record: live view on ws://{host}:{live.port} (Foxglove: open connection, "
           "Foxglove WebSocket; layout docs/live-layout.json)", file=sys.stderr, flush=True)
     return live

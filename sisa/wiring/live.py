@@ -155,7 +155,9 @@ class LiveView:
 
     def __init__(self, host: str, port: int, log: Path, *, strips_geojson: str = "",
                  half_swath_m: float = 0.0, sync_out: Path | None = None,
-                 sync_period_s: float = SYNC_PERIOD_S) -> None:
+                 sync_period_s: float = SYNC_PERIOD_S, camera: bool = False) -> None:
+        """`camera`: a frame camera is recorded, so its topics are served (a flight without
+        one advertises no channel that can never carry a message)."""
         self.log = log
         self._strips = strips_geojson
         self._ctx = foxglove.Context()
@@ -170,7 +172,7 @@ class LiveView:
                 str(topic), context=self._ctx, message_encoding="json",
                 schema=foxglove.Schema(name=name, encoding="jsonschema",
                                        data=SCHEMA_BYTES[name]))
-            for topic, name in _logged_schemas().items()}
+            for topic, name in _logged_schemas(camera).items()}
         self._sync_ch = foxglove.Channel("/live/sync", schema=LIVE_SYNC_SCHEMA,
                                          context=self._ctx)
         self._health_ch = foxglove.Channel("/live/health", schema=LIVE_HEALTH_SCHEMA,
@@ -350,9 +352,15 @@ class LiveView:
                 f"{timed}")
 
 
-def _logged_schemas() -> dict[str, str]:
-    """Every topic the recorder writes, with its schema's name."""
-    table = {str(topic): cls.schema_name for topic, cls in TOPIC_TYPES.items()}
+CAMERA_TOPICS: Final = frozenset({str(Topic.CAMERA_RAW), str(Topic.CAMERA_PHOTO),
+                                  str(Topic.SYNC_CAMERA)})
+
+
+def _logged_schemas(camera: bool) -> dict[str, str]:
+    """Every topic the recorder writes (the frame camera's only with one), with its schema's
+    name."""
+    table = {str(topic): cls.schema_name for topic, cls in TOPIC_TYPES.items()
+             if camera or str(topic) not in CAMERA_TOPICS}
     table[str(Topic.GPS_LOCATION)] = LOCATION_FIX_SCHEMA_NAME
     return table
 

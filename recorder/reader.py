@@ -23,7 +23,10 @@ Why it is built this way:
   or from the damaged chunk itself when they are exactly what SISA writes for that topic
   (a file cut short has no summary); either way only the damaged chunk's own messages are lost.
 - Post-processing wants columns, not objects: `read_columns` turns each batch of messages into
-  numpy arrays as it goes, so a long flight never lives as millions of Python dicts.
+  numpy arrays as it goes, so a long flight never lives as millions of Python dicts. A chunk's
+  records are split once into columns (`recorder.chunkrecords`; the mcap package's parsing,
+  field by field, was most of the time of reading a log) and message index records are
+  checked, not parsed: `raw_batches()` gives them a chunk at a time, `raw()` one by one.
 - `LogStats` says what was read and what was not: per-topic counts, span, gaps (> 2x the usual
   interval around them: docs/flight-log.md), messages lost by sequence number, whether each file
   ended cleanly.

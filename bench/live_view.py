@@ -40,7 +40,7 @@ import numpy as np
 import tomli_w
 
 from emulators.scenario import load_scenario
-from postproc.sync import TimeStatus, sync_log, write_ins_times, write_line_times
+from postproc.sync import TimeStatus, sync_log, write_time_tables
 from recorder.columns import read_columns
 from recorder.follow import LogFollower
 from recorder.messages import Topic
@@ -260,10 +260,7 @@ def agreement(out: Path) -> None:
     first = np.load(out / "live_sync" / "first_timed.npz")
     with tempfile.TemporaryDirectory() as tmp:
         ins, ln = offline.ins, offline.lines
-        write_ins_times(Path(tmp) / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
-                        ins.status)
-        write_line_times(Path(tmp) / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                         ln.t_gps_ns, ln.status)
+        write_time_tables(Path(tmp), ins, ln)
         same = {csv: (Path(tmp) / csv).read_bytes() == (out / "live_sync" / csv).read_bytes()
                 for csv in ("ins_times.csv", "line_times.csv")}
     for kind, key, res, csv in (("INS records", "ins", ins, "ins_times.csv"),

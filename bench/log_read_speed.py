@@ -28,7 +28,7 @@ from typing import Any
 from mcap.reader import NonSeekingReader
 
 from postproc.sync import WANTED as SYNC_WANTED
-from postproc.sync import sync_input_from_columns, synchronise, write_ins_times, write_line_times
+from postproc.sync import sync_input_from_columns, synchronise, write_time_tables
 from recorder.columns import read_topics
 from recorder.health import HEALTH_WANTED
 from recorder.reader import LogReader
@@ -85,11 +85,7 @@ def main() -> None:
 
     def tables() -> None:
         with tempfile.TemporaryDirectory() as tmp:
-            ins, ln = result.ins, result.lines
-            write_ins_times(Path(tmp) / "ins.csv", ins.seq, ins.counter, ins.t_gps_ns,
-                            ins.status)
-            write_line_times(Path(tmp) / "lines.csv", ln.segment, ln.line, ln.frame_counter,
-                             ln.t_gps_ns, ln.status)
+            write_time_tables(Path(tmp), result.ins, result.lines)
     w, c, _ = timed(tables, args.repeats)
     rows.append(("writing ins_times.csv, line_times.csv", w, c, result.ins.seq.size))
     width = max(len(r[0]) for r in rows)

@@ -34,10 +34,9 @@ from postproc.sync import (
     read_scanner_lines,
     sync_input_from_columns,
     synchronise,
-    write_ins_times,
-    write_line_times,
     write_photo_times,
     write_report,
+    write_time_tables,
 )
 from recorder.columns import read_topics
 from recorder.framing import Paths, log_paths
@@ -146,11 +145,7 @@ def write_sync(out_dir: Path, result: SyncResult | SyncTables) -> None:
     """The sync's files: INS record and line times, and its report, in out_dir/sync."""
     sync_dir = out_dir / "sync"
     sync_dir.mkdir(parents=True, exist_ok=True)
-    ins, ln = result.ins, result.lines
-    write_ins_times(sync_dir / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns,
-                    ins.status)
-    write_line_times(sync_dir / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                     ln.t_gps_ns, ln.status)
+    write_time_tables(sync_dir, result.ins, result.lines)
     photos = getattr(result, "photos", None)
     if photos is not None:
         write_photo_times(sync_dir, photos)

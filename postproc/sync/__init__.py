@@ -20,6 +20,7 @@ from postproc.sync.files import (
     write_line_times,
     write_photo_times,
     write_report,
+    write_time_tables,
 )
 from postproc.sync.flightlog import (
     WANTED,
@@ -49,5 +50,5 @@ __all__ = [
     "read_scanner_lines",
     "read_sync_input", "sync_input_from_columns", "sync_log", "synchronise",
     "unlisted_line_notes", "untimed_lines_note", "write_ins_times", "write_line_times",
-    "write_photo_times", "write_report",
+    "write_photo_times", "write_report", "write_time_tables",
 ]

@@ -18,6 +18,7 @@ import numpy.typing as npt
 from postproc.sync.config import TimeStatus
 from postproc.sync.lines import LineTable
 from postproc.sync.photos import PhotoStatus, PhotoTimes, PhotoTimeSource
+from postproc.sync.results import InsTimes, LineTimes
 from sisa.core.errors import InputError
 from sisa.core.jsonio import write_json
 
@@ -223,6 +224,13 @@ def write_line_times(path: Path, segment: I64, line: I64, frame_counter: I64, t_
     with Path(path).open("w", encoding="utf-8", newline="") as fh:
         fh.write(LINE_HEADER)
         _write_table(fh, [segment, line, frame_counter, t_gps_ns, _status_names(status)])
+
+
+def write_time_tables(folder: Path, ins: InsTimes, lines: LineTimes) -> None:
+    """`folder`/ins_times.csv and `folder`/line_times.csv, as `sisa sync` writes them."""
+    write_ins_times(folder / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
+    write_line_times(folder / "line_times.csv", lines.segment, lines.line, lines.frame_counter,
+                     lines.t_gps_ns, lines.status)
 
 
 PHOTO_HEADER: Final = (

@@ -60,10 +60,9 @@ def _run(args: argparse.Namespace) -> int:
         synchronise,
         unlisted_line_notes,
         untimed_lines_note,
-        write_ins_times,
-        write_line_times,
         write_photo_times,
         write_report,
+        write_time_tables,
     )
     from recorder.columns import read_topics
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
@@ -89,9 +88,7 @@ def _run(args: argparse.Namespace) -> int:
         result.report["inputs"] = {"flight": [str(p) for p in flight],
                                    "scanner": str(args.scanner) if args.scanner else None}
         ins, ln = result.ins, result.lines
-        write_ins_times(out / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
-        write_line_times(out / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                         ln.t_gps_ns, ln.status)
+        write_time_tables(out, ins, ln)
         if result.photos is not None:
             write_photo_times(out, result.photos)
         notes = [] if recording is None else [recording]

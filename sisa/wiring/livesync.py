@@ -38,8 +38,7 @@ from postproc.sync import (
     TimeStatus,
     sync_input_from_columns,
     synchronise,
-    write_ins_times,
-    write_line_times,
+    write_time_tables,
 )
 from recorder.columns import GrowingColumns
 from recorder.follow import LogFollower
@@ -126,10 +125,7 @@ class LiveSync:
         res = self.result
         if res is None:
             return
-        ins, ln = res.ins, res.lines
-        write_ins_times(folder / "ins_times.csv", ins.seq, ins.counter, ins.t_gps_ns, ins.status)
-        write_line_times(folder / "line_times.csv", ln.segment, ln.line, ln.frame_counter,
-                         ln.t_gps_ns, ln.status)
+        write_time_tables(folder, res.ins, res.lines)
         ins_log = self.cols[Topic.INS_RECORD]["log_time_ns"]
         hdr_log = self.cols[Topic.SCANNER_HEADER]["log_time_ns"]
         np.savez(folder / "first_timed.npz",

@@ -77,6 +77,7 @@ def split_chunk(data: bytes, limit: int) -> tuple[list[McapRecord], ChunkMessage
     ValueError if the records do not frame the chunk exactly."""
     unpack, size = _HEAD.unpack_from, len(data)
     starts: list[int] = []
+    ends: list[int] = []
     declarations: list[McapRecord] = []
     pos = 0
     while pos < size:
@@ -90,13 +91,17 @@ def split_chunk(data: bytes, limit: int) -> tuple[list[McapRecord], ChunkMessage
             if length < MESSAGE_FIXED:
                 raise ValueError(f"a message at byte {pos} of the chunk is {length} bytes long")
             starts.append(pos)
+            ends.append(end)
         elif opcode in _DECLARATIONS:
             declarations.append(next(iter_records(data[pos:end], limit)))
         pos = end
-    return declarations, _message_columns(data, np.array(starts, dtype=np.int64))
+    return declarations, _message_columns(data, np.array(starts, dtype=np.int64),
+                                          np.array(ends, dtype=np.int64))
 
 
-def _message_columns(data: bytes, at: npt.NDArray[np.int64]) -> ChunkMessages:
+def _message_columns(data: bytes, at: npt.NDArray[np.int64], end: npt.NDArray[np.int64]
+                     ) -> ChunkMessages:
+    """The fixed fields of the messages whose records begin at `at` and end at `end`."""
     raw = np.frombuffer(data, dtype=np.uint8)
 
     def field(offset: int, dtype: str) -> npt.NDArray[np.generic]:
@@ -104,13 +109,11 @@ def _message_columns(data: bytes, at: npt.NDArray[np.int64]) -> ChunkMessages:
         cells = raw[(at + RECORD_HEAD + offset)[:, None] + np.arange(width)]
         return np.ascontiguousarray(cells).view(dtype).ravel()
 
-    lengths = field(-8, "<u8").astype(np.int64) if at.size else np.zeros(0, np.int64)
-    start = at + RECORD_HEAD + MESSAGE_FIXED
     return ChunkMessages(
         data,
         field(0, "<u2").astype(np.uint16), field(2, "<u4").astype(np.uint32),
         field(6, "<u8").astype(np.uint64), field(14, "<u8").astype(np.uint64),
-        start, at + RECORD_HEAD + lengths)
+        at + RECORD_HEAD + MESSAGE_FIXED, end)
 
 
 def check_message_index(body: bytes) -> None:

@@ -152,10 +152,11 @@ class LogReader:
         ids = np.concatenate([b[0] for b in batches])
         seqs = np.concatenate([b[1] for b in batches]).astype(np.int64)
         log_times = np.concatenate([b[2] for b in batches])
-        topics = sorted({channels[i].topic for i in np.unique(ids).tolist()})
+        present = np.unique(ids).tolist()
+        topics = sorted({channels[i].topic for i in present})
         topic_index = {topic: k for k, topic in enumerate(topics)}
         lookup = np.zeros(int(ids.max()) + 1, dtype=np.int64)
-        for channel_id in np.unique(ids).tolist():
+        for channel_id in present:
             lookup[channel_id] = topic_index[channels[channel_id].topic]
         of_topic = lookup[ids]
         for k, topic in enumerate(topics):

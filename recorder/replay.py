@@ -2,7 +2,8 @@
 and the pure arithmetic that plays it back (pacing, pause, loops, the pulse edges' timeline).
 
 Why it is built this way:
-- Only the raw channels are replayed (`/gps/raw`, `/scanner/raw`, `/ins/raw_can`, `/pulses/in`):
+- Only the raw channels are replayed (`/gps/raw`, `/scanner/raw`, `/ins/raw_can`, `/pulses/in`,
+  and `/camera/raw` when the flight carried a frame camera):
   they are what the devices said, so any acquisition software, ours or not, decodes them afresh.
   Each item is due at its recorded host receive time (the MCAP log time; every CAN frame at its
   own receive time), so a replay at x1 puts bytes on the wires with the recorded timing.
@@ -46,6 +47,7 @@ class Wire(StrEnum):
     SCANNER = "scanner"
     INS = "ins"
     PULSES = "pulses"
+    CAMERA = "camera"  # the frame camera's photo messages (its pulses travel on PULSES)
 
 
 RAW_TOPICS: Final[dict[str, Wire]] = {
@@ -53,6 +55,7 @@ RAW_TOPICS: Final[dict[str, Wire]] = {
     Topic.SCANNER_RAW: Wire.SCANNER,
     Topic.INS_RAW: Wire.INS,
     Topic.PULSE_IN: Wire.PULSES,
+    Topic.CAMERA_RAW: Wire.CAMERA,
 }
 
 
@@ -210,7 +213,7 @@ def survey_log(paths: Paths) -> Survey:
 # --- the schedule ---------------------------------------------------------------------------------
 
 def wires_named(text: str) -> set[Wire]:
-    """The wires a comma list names, each by its name (gps, scanner, ins, pulses) or its raw
+    """The wires a comma list names, each by its name (gps, scanner, ins, pulses, camera) or its raw
     topic (/gps/raw, ...); InputError naming the choices for anything else."""
     by_topic = {str(topic): wire for topic, wire in RAW_TOPICS.items()}
     chosen: set[Wire] = set()

@@ -71,7 +71,8 @@ DRAIN_S = 1.0  # --once: the ports stay this long after the last item (a closed 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser = add_command(sub, "replay", "play a recorded flight back into virtual devices (GPS "
-                         "and scanner ptys, INS CAN, pulse lines) at the recorded timing",
+                         "and scanner ptys, INS CAN, pulse lines; the frame camera's pty when the "
+                         "flight had one) at the recorded timing",
                          "sisa replay runs/bench/flight.mcap --endpoints ep.json   "
                          "(then: sisa record ... on the printed ports)")
     parser.add_argument("files", nargs="+", type=Path, metavar="FLIGHT",
@@ -83,7 +84,8 @@ def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
     parser.add_argument("--duration", type=float, default=None, metavar="SECONDS",
                         help="play only this many seconds of the log")
     parser.add_argument("--topics", default=None, metavar="LIST",
-                        help="play only these wires, a comma list of gps, scanner, ins, pulses "
+                        help="play only these wires, a comma list of gps, scanner, ins, pulses, "
+                             "camera "
                              "(or their raw topics, /gps/raw, ...); the others' ports stay "
                              "silent (default: all)")
     mode = parser.add_mutually_exclusive_group()
@@ -170,7 +172,7 @@ def _chosen_wires(args: argparse.Namespace, survey: Survey) -> set[str] | None:
 
 def _run(args: argparse.Namespace) -> int:
     from emulators.bridge import CanTarget
-    from recorder.replay import survey_log
+    from recorder.replay import Wire, survey_log
 
     _check_numbers(args)
     check_endpoints_path(args.endpoints)
@@ -188,7 +190,8 @@ def _run(args: argparse.Namespace) -> int:
 
         listen_address(args.live)  # a bad address is refused before anything starts
         scenario_from_args(args)  # and a scenario that does not load
-    ports = _ReplayPorts(target, args.pulses_port)
+    ports = _ReplayPorts(target, args.pulses_port, camera=Wire.CAMERA in survey.first_ns
+                         and (args.wires is None or "camera" in args.wires))
     recorder: _LiveRecorder | None = None
     try:
         _announce(ports.endpoints(), paths, span, args)
@@ -237,6 +240,8 @@ def _announce(endpoints: dict[str, str], paths: list[Path], span: _Span,
     print(f"Scanner frame headers (RS-232):        {endpoints['scanner']}")
     print(f"INS records (CAN):                     {endpoints['ins']}")
     print(f"Pulse lines (timestamped edges, TCP):  {endpoints['pulses']}")
+    if "camera" in endpoints:
+        print(f"Frame camera photo numbers (RS-232):   {endpoints['camera']}")
     parts = f" ({len(paths)} parts)" if len(paths) > 1 else ""
     keys = "" if args.once or not sys.stdin.isatty() else "; space pauses, q stops"
     only = "" if args.wires is None else f" ({', '.join(sorted(args.wires))} only)"
@@ -255,7 +260,7 @@ class _LiveRecorder:
         import tempfile
 
         self.scratch = Path(tempfile.mkdtemp(prefix="sisa-replay-live-"))
-        devices = [arg for wire in ("gps", "scanner", "ins", "pulses") if wire in wires
+        devices = [arg for wire in ("gps", "scanner", "ins", "pulses", "camera") if wire in wires
                    for arg in (f"--{wire}", endpoints[wire])]
         scenario = (["--scenario", str(args.scenario)] if args.scenario is not None else
                     ["--preset", args.preset])
@@ -334,13 +339,15 @@ def _verbatim_pulses(on_edge: Callable[[Edge], None], port: int) -> _EdgeLink:
 class _ReplayPorts:
     """The endpoints of `sisa emulate` (emulators.ports pieces), driven from the schedule."""
 
-    def __init__(self, can_target: CanTarget, pulse_port: int) -> None:
+    def __init__(self, can_target: CanTarget, pulse_port: int, camera: bool = False) -> None:
         from emulators.bridge import CanOutput
         from emulators.ports import PtyPort
 
         self.edges_back = 0  # the sync unit's pulses sent to us: the flight has them already
         self.gps: PtyPort = PtyPort()
         self.scanner: PtyPort = PtyPort()
+        # a pty for the frame camera only when the flight had one (as `sisa emulate` opens it)
+        self.camera: PtyPort | None = PtyPort() if camera else None
         self.can: CanOutput | None = None
         self.pulses: _EdgeLink | None = None
         try:
@@ -367,12 +374,23 @@ class _ReplayPorts:
     def endpoints(self) -> dict[str, str]:
         ins = self.can.channel if self.can is not None else ""
         pulses = self.pulses.address if self.pulses is not None else ""
-        return {"gps": self.gps.name, "scanner": self.scanner.name, "ins": ins, "pulses": pulses}
+        out = {"gps": self.gps.name, "scanner": self.scanner.name, "ins": ins, "pulses": pulses}
+        if self.camera is not None:
+            out["camera"] = self.camera.name
+        return out
+
+    def serial(self, wire: str) -> PtyPort:
+        """The pty of a serial wire (gps, scanner, camera)."""
+        port = {"gps": self.gps, "scanner": self.scanner, "camera": self.camera}[wire]
+        if port is None:
+            raise KeyError(wire)
+        return port
 
     def dropped(self) -> str:
         edges = self.pulses.edges_dropped if self.pulses is not None else 0
         frames = self.can.frames_dropped if self.can is not None else 0
-        return (f"pty bytes {self.gps.bytes_dropped + self.scanner.bytes_dropped}, "
+        ptys = [p for p in (self.gps, self.scanner, self.camera) if p is not None]
+        return (f"pty bytes {sum(p.bytes_dropped for p in ptys)}, "
                 f"CAN frames {frames}, edges {edges}")
 
     def close(self) -> None:
@@ -382,6 +400,8 @@ class _ReplayPorts:
             self.can.close()
         self.gps.close()
         self.scanner.close()
+        if self.camera is not None:
+            self.camera.close()
 
 
 # --- keyboard -------------------------------------------------------------------------------------
@@ -532,7 +552,8 @@ class _Lookahead:
 @dataclass
 class _Counts:
     items: int = 0
-    serial_bytes: dict[str, int] = field(default_factory=lambda: {"gps": 0, "scanner": 0})
+    serial_bytes: dict[str, int] = field(
+        default_factory=lambda: {"gps": 0, "scanner": 0, "camera": 0})
     can_frames: int = 0
     edges: int = 0
     passes: int = 0
@@ -688,8 +709,7 @@ class _Player:
         payload = item.payload
         self.counts.items += 1
         if isinstance(payload, bytes):
-            port = self.ports.gps if item.wire == "gps" else self.ports.scanner
-            port.write(payload)
+            self.ports.serial(str(item.wire)).write(payload)
             self.counts.serial_bytes[str(item.wire)] += len(payload)
         elif isinstance(payload, CanFrame):
             self.ports.send_can(_can_message(payload))
@@ -719,8 +739,11 @@ class _Player:
         skipped = f"; {stats.undecodable} undecodable raw messages skipped" if \
             stats.undecodable else ""
         how = "stopped" if self.stopped else "done"
+        camera = (f"camera {c.serial_bytes['camera']} B, " if self.ports.camera is not None
+                  else "")
         return (f"replay {how}: {c.items} items in {c.passes} pass(es): GPS "
-                f"{c.serial_bytes['gps']} B, scanner {c.serial_bytes['scanner']} B, CAN "
+                f"{c.serial_bytes['gps']} B, scanner {c.serial_bytes['scanner']} B, "
+                f"{camera}CAN "
                 f"{c.can_frames} frames, {c.edges} edges; sent late by p99 {p99:.3f} ms, max "
                 f"{worst:.3f} ms; {self.ports.edges_back} pulses from the sync unit; dropped: "
                 f"{self.ports.dropped()}{skipped}")

@@ -1,94 +1,31 @@
 """`sisa replay` of a flight with a frame camera: its photo messages go out on their own pty and
 `sisa record --camera` takes them back, so the camera's bench test runs from a recorded flight as
-the scanner's does. The flight is the bench_camera block made short, replayed at x2 (as in
-test_replay_roundtrip.py, whose comparison rules hold here: host times are the recorder's own)."""
+the scanner's does. The flight is the bench_camera block made short (tests/replaying.py), and
+test_replay_roundtrip.py's comparison rules hold: host times are the recorder's own."""
 
 from __future__ import annotations
 
 import json
 import subprocess
-import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from emulators.scenario import scenario_from_table
 from postproc.sync import sync_log
 from postproc.sync.photos import PhotoStatus
 from recorder.messages import RawBytes, Topic
 from recorder.reader import read_log
 from recorder.replay import Wire, iter_schedule, survey_log
 from recorder.writer import FlightRecorder
-from sisa.commands.scenario import scenario_toml
-from sisa.core.timescale import datetime_from_gps_ns, gps_ns_from_unix_ns
-from sisa.wiring.simulation import simulate
-
-SISA = [sys.executable, "-m", "sisa.cli"]
-
-
-def _scenario() -> Any:
-    now = datetime_from_gps_ns(gps_ns_from_unix_ns(time.time_ns(), 18))
-    return scenario_from_table({
-        "base": "bench_camera",
-        "block": {"start_gps": now.strftime("%Y-%m-%dT%H:%M:%S"), "strips": 1,
-                  "strip_length_m": 600.0, "flying_height_agl_m": 60.0},
-        "flight": {"static_alignment_s": 10.0, "takeoff_acceleration_mps2": 5.0,
-                   "figure_eights": 0, "run_in_s": 2.0, "airfield_offset_m": [0.0, -3000.0]},
-        "scanner": {"line_period_ms": 32.0, "integration_time_ms": 4.0},
-        "terrain": {"control_points": 0, "check_points": 0},
-    })
-
-
-def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while not path.exists():
-        assert proc.poll() is None, "sisa replay exited before it announced its ports"
-        assert time.monotonic() < deadline, "sisa replay did not announce its ports"
-        time.sleep(0.02)
-    return json.loads(path.read_text())
-
-
-def _finish(proc: subprocess.Popen[bytes], timeout_s: float) -> tuple[int, str]:
-    try:
-        out, _ = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, (out or b"").decode()
+from tests.replaying import SISA, replay_and_record
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     """(original log, replayed-and-recorded log, replay's stdout, endpoints)."""
-    tmp = tmp_path_factory.mktemp("camera_roundtrip")
-    scn = _scenario()
-    simulate(scn, tmp / "sim", images=False)
-    (tmp / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-    original, again = tmp / "sim" / "flight.mcap", tmp / "again.mcap"
-    replay = subprocess.Popen([*SISA, "replay", str(original), "--once", "--quiet",
-                               "--rate", "2", "--endpoints", str(tmp / "ep.json")],
-                              stdout=subprocess.PIPE)
-    record: subprocess.Popen[bytes] | None = None
-    try:
-        ep = _wait_for(tmp / "ep.json", replay)
-        record = subprocess.Popen([*SISA, "record", "--quiet", "--scenario",
-                                   str(tmp / "scenario.toml"), "--gps", ep["gps"], "--scanner",
-                                   ep["scanner"], "--ins", ep["ins"], "--pulses", ep["pulses"],
-                                   "--camera", ep["camera"], "--give-up-after", "3",
-                                   "--out", str(again)], stdout=subprocess.PIPE)
-        replay_code, replay_out = _finish(replay, 150)
-        record_code, record_out = _finish(record, 30)
-    finally:
-        for proc in (replay, record):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-    assert replay_code == 0, replay_out
-    assert record_code == 3, record_out  # every device away after the replay: gives up
-    return original, again, replay_out, ep
+    return replay_and_record(tmp_path_factory.mktemp("camera_roundtrip"), base="bench_camera")
 
 
 def _camera_bytes(path: Path) -> bytes:

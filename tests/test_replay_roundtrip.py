@@ -11,21 +11,16 @@ counter itself must agree), the health windows. And the sync log
 (`postproc.sync.pipeline.sync_log`) must
 give every INS record and every line the same GPS time.
 
-The flight starts now (GPS time from the host clock): a receiver's first time tags come before
-its first fix and wait for its date (docs/replay.md); flying now keeps the comparison exact
-whatever the host clock says. It is replayed at
-x2 to stay under a minute: its scanner runs at 32 ms lines with 4 ms exposures, so the header
-latency the sync unit matches on (halved by the rate) stays inside its window with margin.
+The flight and its replay: tests/replaying.py (flying now keeps the comparison exact whatever
+the host clock says).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import select
 import subprocess
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -34,84 +29,23 @@ from typing import Any
 import numpy as np
 import pytest
 
-from emulators.scenario import scenario_from_table
 from postproc.sync import sync_log
 from recorder.messages import FrameHeaderLog, PulseEdgeLog, RawBytes, StreamHealth, Topic
 from recorder.reader import read_log, read_messages
 from recorder.replay import Wire, iter_schedule
 from recorder.writer import FlightRecorder
 from sisa.cli import main
-from sisa.commands.scenario import scenario_toml
-from sisa.core.timescale import NS_PER_S, datetime_from_gps_ns, gps_ns_from_unix_ns
-from sisa.wiring.simulation import simulate
+from sisa.core.timescale import NS_PER_S
+from tests.replaying import SISA, finish, replay_and_record, wait_for
 
-RATE = 2.0
-SISA = [sys.executable, "-m", "sisa.cli"]
 HOST_DEPENDENT = {"t_host_ns", "timestamp"}  # LocationFix.timestamp is the fix's host time
-
-
-def _scenario() -> Any:
-    now = datetime_from_gps_ns(gps_ns_from_unix_ns(time.time_ns(), 18))
-    return scenario_from_table({
-        "base": "bench",
-        "block": {"start_gps": now.strftime("%Y-%m-%dT%H:%M:%S"), "strips": 1,
-                  "strip_length_m": 600.0, "flying_height_agl_m": 60.0},
-        "flight": {"static_alignment_s": 10.0, "takeoff_acceleration_mps2": 5.0,
-                   "figure_eights": 0, "run_in_s": 2.0, "airfield_offset_m": [0.0, -3000.0]},
-        "scanner": {"line_period_ms": 32.0, "integration_time_ms": 4.0},
-        "terrain": {"control_points": 0, "check_points": 0},
-    })
-
-
-def _wait_for(path: Path, proc: subprocess.Popen[bytes], timeout_s: float = 60.0) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while not path.exists():
-        assert proc.poll() is None, "sisa replay exited before it announced its ports"
-        assert time.monotonic() < deadline, "sisa replay did not announce its ports"
-        time.sleep(0.02)
-    return json.loads(path.read_text())
-
-
-def _finish(proc: subprocess.Popen[bytes], timeout_s: float) -> tuple[int, str]:
-    try:
-        out, _ = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return proc.returncode, (out or b"").decode()
 
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory):
     """(original log, replayed-and-recorded log, replay's stdout)."""
-    tmp = tmp_path_factory.mktemp("roundtrip")
-    scn = _scenario()
-    simulate(scn, tmp / "sim", images=False)
-    (tmp / "scenario.toml").write_text(scenario_toml(scn), encoding="utf-8")
-    original, again = tmp / "sim" / "flight.mcap", tmp / "again.mcap"
-    replay = subprocess.Popen([*SISA, "replay", str(original), "--once", "--quiet",
-                               "--rate", str(RATE), "--endpoints", str(tmp / "ep.json")],
-                              stdout=subprocess.PIPE)
-    record: subprocess.Popen[bytes] | None = None
-    try:
-        ep = _wait_for(tmp / "ep.json", replay)
-        record = subprocess.Popen([*SISA, "record", "--quiet", "--scenario",
-                                   str(tmp / "scenario.toml"), "--gps", ep["gps"], "--scanner",
-                                   ep["scanner"], "--ins", ep["ins"], "--pulses", ep["pulses"],
-                                   "--give-up-after", "3", "--out", str(again)],
-                                  stdout=subprocess.PIPE)
-        replay_code, replay_out = _finish(replay, 150)
-        record_code, record_out = _finish(record, 30)
-    finally:
-        for proc in (replay, record):
-            if proc is not None and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-    assert replay_code == 0, replay_out
-    # the replay over, its ports closed: every device away, the recorder gives up after 3 s
-    # and says the recording ended on loss (exit 3; by default it would wait to be stopped)
-    assert record_code == 3, record_out
-    return original, again, replay_out
+    original, again, out, _ = replay_and_record(tmp_path_factory.mktemp("roundtrip"))
+    return original, again, out
 
 
 # --- raw streams ----------------------------------------------------------------------------------
@@ -243,7 +177,7 @@ def test_space_pauses_and_resumes_and_q_stops(tmp_path):
                             stdin=slave, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     os.close(slave)
     try:
-        gps = os.open(_wait_for(tmp_path / "ep.json", proc)["gps"], os.O_RDONLY | os.O_NOCTTY)
+        gps = os.open(wait_for(tmp_path / "ep.json", proc)["gps"], os.O_RDONLY | os.O_NOCTTY)
         arrivals: list[tuple[float, bytes]] = []
 
         def read_for(seconds: float) -> None:
@@ -261,7 +195,7 @@ def test_space_pauses_and_resumes_and_q_stops(tmp_path):
         os.write(master, b" ")
         read_for(2.2)
         os.write(master, b"q")
-        code, out = _finish(proc, 20)
+        code, out = finish(proc, 20)
         os.close(gps)
     finally:
         proc.kill()
@@ -336,7 +270,7 @@ def test_a_piped_replay_says_it_waits_and_shows_progress_while_it_plays(tmp_path
                             stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "SISA_PROGRESS_S": "0.3"})
     try:
-        ep = _wait_for(tmp_path / "ep.json", proc)  # type: ignore[arg-type]
+        ep = wait_for(tmp_path / "ep.json", proc)  # type: ignore[arg-type]
         said = _stderr_line(proc, "waiting for a client", 20)
         assert said == (f"sisa replay: waiting for a client on the pulse link {ep['pulses']} "
                         "before playing (--no-wait starts at once)\n")

@@ -101,6 +101,7 @@ struct scratch {
     float *z; /* 4 x p8: their corners */
     float *t1; /* p8: the first Newton step */
     i32 *pf; /* p8: DEM cells to prefetch */
+    uint8_t *okb; /* p8 / 8: acceptance bits */
     void *mem;
 };
 
@@ -357,14 +358,20 @@ AVX void outputs8(const struct line *L, const struct models *M, const struct new
     __m256d xb = _mm256_add_pd(cxb, _mm256_cvtps_pd(_mm256_extractf128_ps(N->x, 1)));
     __m256d ya = _mm256_add_pd(cya, _mm256_cvtps_pd(_mm256_castps256_ps128(N->y)));
     __m256d yb = _mm256_add_pd(cyb, _mm256_cvtps_pd(_mm256_extractf128_ps(N->y, 1)));
-    _mm256_storeu_pd(e, _mm256_fmadd_pd(xa, L->cell_ed, L->ebase));
-    _mm256_storeu_pd(e + 4, _mm256_fmadd_pd(xb, L->cell_ed, L->ebase));
-    _mm256_storeu_pd(n, _mm256_fnmadd_pd(ya, L->cell_nd, L->nbase));
-    _mm256_storeu_pd(n + 4, _mm256_fnmadd_pd(yb, L->cell_nd, L->nbase));
+    __m256d ea = _mm256_fmadd_pd(xa, L->cell_ed, L->ebase);
+    __m256d eb = _mm256_fmadd_pd(xb, L->cell_ed, L->ebase);
+    __m256d na = _mm256_fnmadd_pd(ya, L->cell_nd, L->nbase);
+    __m256d nb = _mm256_fnmadd_pd(yb, L->cell_nd, L->nbase);
     __m256d za = _mm256_cvtps_pd(_mm256_castps256_ps128(M->zr));
     __m256d zb = _mm256_cvtps_pd(_mm256_extractf128_ps(M->zr, 1));
-    _mm256_storeu_pd(hh, _mm256_add_pd(za, _mm256_cvtps_pd(_mm256_castps256_ps128(N->h))));
-    _mm256_storeu_pd(hh + 4, _mm256_add_pd(zb, _mm256_cvtps_pd(_mm256_extractf128_ps(N->h, 1))));
+    __m256d ha = _mm256_add_pd(za, _mm256_cvtps_pd(_mm256_castps256_ps128(N->h)));
+    __m256d hb = _mm256_add_pd(zb, _mm256_cvtps_pd(_mm256_extractf128_ps(N->h, 1)));
+    _mm256_storeu_pd(e, ea);
+    _mm256_storeu_pd(e + 4, eb);
+    _mm256_storeu_pd(n, na);
+    _mm256_storeu_pd(n + 4, nb);
+    _mm256_storeu_pd(hh, ha);
+    _mm256_storeu_pd(hh + 4, hb);
     __m256d ga = _mm256_cmp_pd(sa, _mm256_setzero_pd(), _CMP_GT_OQ);
     __m256d gb = _mm256_cmp_pd(sb, _mm256_setzero_pd(), _CMP_GT_OQ);
     int front = _mm256_movemask_pd(ga) | (_mm256_movemask_pd(gb) << 4);
@@ -379,11 +386,11 @@ static uint64_t status_bytes(int bits)
     return w;
 }
 
-static uint64_t STATUS[256];
+static uint32_t STATUS4[16];
 static pthread_once_t status_once = PTHREAD_ONCE_INIT;
 static void status_init(void)
 {
-    for (int b = 0; b < 256; b++) STATUS[b] = status_bytes(b);
+    for (int b = 0; b < 16; b++) STATUS4[b] = (uint32_t)status_bytes(b);
 }
 
 AVX void set_line(const struct job *J, i64 i, i64 b, struct line *L)
@@ -432,7 +439,6 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
     double *oe = J->oe + i * p, *on = J->on + i * p, *oh = J->oh + i * p;
     uint8_t *hit = J->ohit + i * p;
     double ebuf[8], nbuf[8], hbuf[8];
-    uint64_t hbytes;
     __m256d guess;
     {
         const double *c = J->coef + i * 30;
@@ -443,30 +449,30 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
     }
     i64 redo_n = 0;
     float *ratio = S->ratio + gl * p8;
-    const __m256i last = _mm256_set1_epi32((i32)(J->rows * J->cols - J->cols - 2));
-    /* pass 1: the float64 set-up (start ranges, models, start cells) */
-    for (i64 j = 0; j < p8; j += 8) {
-        __m256d l0[9], l1[9];
-        load_look(S, j, l0, l1);
-        __m256d s0 = _mm256_load_pd(S->s + j), s1 = _mm256_load_pd(S->s + j + 4);
-        if (cold) {
-            s0 = guess;
-            s1 = guess;
-        } else { /* NaN (a miss on the previous line): the guess */
-            s0 = _mm256_blendv_pd(s0, guess, _mm256_cmp_pd(s0, s0, _CMP_UNORD_Q));
-            s1 = _mm256_blendv_pd(s1, guess, _mm256_cmp_pd(s1, s1, _CMP_UNORD_Q));
-        }
+    /* pass 1: the float64 set-up (start ranges, models, start cells), 4 rays at a time, each
+     * model stored as it is made (few live registers) */
+    const __m128i last4 = _mm_set1_epi32((i32)(J->rows * J->cols - J->cols - 2));
+    const __m128i ahead4 = _mm_set1_epi32((i32)J->prefetch);
+    for (i64 j = 0; j < p8; j += 4) {
+        __m256d l[9];
+        for (int r = 0; r < 9; r++) l[r] = _mm256_load_pd(S->look + r * p8 + j);
+        __m256d s0 = _mm256_load_pd(S->s + j);
+        /* NaN (a miss on the previous line) or a cold start: the guess */
+        s0 = cold ? guess : _mm256_blendv_pd(s0, guess, _mm256_cmp_pd(s0, s0, _CMP_UNORD_Q));
         _mm256_store_pd(S->s0 + j, s0);
-        _mm256_store_pd(S->s0 + j + 4, s1);
-        struct models M;
-        models_of(&L, s0, s1, l0, l1, &M);
+        __m128 m[9], zr, cxa, cya;
+        __m128i k;
+        half_models(&L, s0, l, m, &zr, &cxa, &cya, &k);
+        for (int r = 0; r < 9; r++) _mm_store_ps(S->mod + r * p8 + j, m[r]);
+        _mm_store_ps(S->mod + 9 * p8 + j, zr);
+        _mm_store_ps(S->mod + 10 * p8 + j, cxa);
+        _mm_store_ps(S->mod + 11 * p8 + j, cya);
         /* where this pixel's cell will be PREFETCH lines on (from the previous line's) */
-        __m256i was = _mm256_load_si256((const __m256i *)(S->k + j));
-        __m256i ahead = _mm256_add_epi32(M.k, _mm256_mullo_epi32(
-            _mm256_sub_epi32(M.k, was), _mm256_set1_epi32((i32)J->prefetch)));
-        ahead = _mm256_min_epi32(_mm256_max_epi32(ahead, _mm256_setzero_si256()), last);
-        _mm256_store_si256((__m256i *)(S->pf + j), ahead);
-        store_models(S, j, &M);
+        __m128i was = _mm_load_si128((const __m128i *)(S->k + j));
+        __m128i pf = _mm_add_epi32(k, _mm_mullo_epi32(_mm_sub_epi32(k, was), ahead4));
+        pf = _mm_min_epi32(_mm_max_epi32(pf, _mm_setzero_si128()), last4);
+        _mm_store_si128((__m128i *)(S->pf + j), pf);
+        _mm_store_si128((__m128i *)(S->k + j), k);
     }
     /* pass 2: the corners, gathered (a short loop: many gathers in flight) */
     for (i64 j = 0; j < p8; j += 8) {
@@ -493,22 +499,14 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         load_models(S, j, &M);
         __m256 z[4];
         for (int r = 0; r < 4; r++) z[r] = _mm256_load_ps(S->z + r * p8 + j);
-        __m256d s0 = _mm256_load_pd(S->s0 + j), s1 = _mm256_load_pd(S->s0 + j + 4);
         struct newton N;
         newton8(J, &L, &M, z, _mm256_load_ps(S->t1 + j), &N);
-        int bits;
-        int full = j + 8 <= p;
-        outputs8(&L, &M, &N, s0, s1, full ? oe + j : ebuf, full ? on + j : nbuf,
-                 full ? oh + j : hbuf, S->s + j, &bits);
-        hbytes = STATUS[bits];
-        if (full) {
-            memcpy(hit + j, &hbytes, 8);
-        } else {
-            memcpy(oe + j, ebuf, (size_t)(p - j) * 8);
-            memcpy(on + j, nbuf, (size_t)(p - j) * 8);
-            memcpy(oh + j, hbuf, (size_t)(p - j) * 8);
-            memcpy(hit + j, &hbytes, (size_t)(p - j));
-        }
+        /* for pass 5, in place of the corners */
+        _mm256_store_ps(S->z + j, N.t);
+        _mm256_store_ps(S->z + p8 + j, N.x);
+        _mm256_store_ps(S->z + 2 * p8 + j, N.y);
+        _mm256_store_ps(S->z + 3 * p8 + j, N.h);
+        S->okb[j / 8] = (uint8_t)_mm256_movemask_ps(N.ok);
         _mm256_store_ps(ratio + j, N.ratio);
         __m256 rm = _mm256_load_ps(S->rmax + j);
         _mm256_store_ps(S->rmax + j, gl == 0 ? N.ratio : _mm256_max_ps(rm, N.ratio));
@@ -532,6 +530,37 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             int lane = __builtin_ctz(rb);
             rb &= rb - 1;
             S->redo[redo_n++] = (i32)(j + lane);
+        }
+    }
+    /* pass 5: ground points in float64 (the cell, exact, plus the float32 point in it), the
+     * next line's start ranges, hit 1 (accepted, in front of the camera) or 2 */
+    for (i64 j = 0; j < p8; j += 4) {
+        __m256d s0 = _mm256_load_pd(S->s0 + j);
+        __m256d sn = _mm256_add_pd(s0, _mm256_cvtps_pd(_mm_load_ps(S->z + j)));
+        _mm256_store_pd(S->s + j, sn);
+        __m256d x = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 10 * p8 + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + p8 + j)));
+        __m256d y = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 11 * p8 + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 2 * p8 + j)));
+        __m256d h = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 9 * p8 + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 3 * p8 + j)));
+        __m256d e = _mm256_fmadd_pd(x, L.cell_ed, L.ebase);
+        __m256d nn = _mm256_fnmadd_pd(y, L.cell_nd, L.nbase);
+        int front = _mm256_movemask_pd(_mm256_cmp_pd(sn, _mm256_setzero_pd(), _CMP_GT_OQ));
+        uint32_t hb = STATUS4[(S->okb[j / 8] >> (j & 4)) & front];
+        if (j + 4 <= p) {
+            _mm256_storeu_pd(oe + j, e);
+            _mm256_storeu_pd(on + j, nn);
+            _mm256_storeu_pd(oh + j, h);
+            memcpy(hit + j, &hb, 4);
+        } else if (j < p) {
+            _mm256_storeu_pd(ebuf, e);
+            _mm256_storeu_pd(nbuf, nn);
+            _mm256_storeu_pd(hbuf, h);
+            memcpy(oe + j, ebuf, (size_t)(p - j) * 8);
+            memcpy(on + j, nbuf, (size_t)(p - j) * 8);
+            memcpy(oh + j, hbuf, (size_t)(p - j) * 8);
+            memcpy(hit + j, &hb, (size_t)(p - j));
         }
     }
     /* restarts, 8 at a time, from s (the start plus the first step) on the cell reached */
@@ -635,7 +664,7 @@ static void *worker(void *arg)
     struct job *J = arg;
     i64 p8 = (J->p + 7) & ~(i64)7;
     size_t bytes = (size_t)p8 * (8 + 9 * 8 + 4 * 4 + 4 + (size_t)J->group * 4 + 4 + 8 + 12 * 4
-                                 + 4 + 4 * 4 + 4 + 4) + 64;
+                                 + 4 + 4 * 4 + 4 + 4 + 1) + 64;
     struct scratch S;
     S.mem = aligned_alloc(64, (bytes + 63) & ~(size_t)63);
     if (S.mem == NULL) {
@@ -668,6 +697,7 @@ static void *worker(void *arg)
     at += p8 * 4;
     S.pf = (i32 *)at;
     memset(S.pf, 0, (size_t)p8 * 4);
+    S.okb = (uint8_t *)(S.pf + p8);
     memset(S.k, 0, (size_t)p8 * 4);
     for (int r = 0; r < 9; r++)
         for (i64 j = 0; j < p8; j++)

@@ -88,20 +88,23 @@ static float slope_bound(const struct job *J, i32 tx0, i32 tx1, i32 ty0, i32 ty1
 
 /* Per-thread scratch; pixel arrays padded to p8, a multiple of 8. */
 struct scratch {
-    i64 p8;
+    i64 p8, ps; /* row stride ps = p8 + 16: rows 4 KB apart would alias in the load/store
+                 * queues (loads wait on unrelated stores) */
     double *s; /* each ray's range: the previous line's, then this one's */
     double *look; /* 9 x p8, padded with the last pixel's */
     i32 *tiles; /* 4 x p8: tile ranges x0, x1, y0, y1 of the group's certified paths */
-    float *rmax; /* p8: largest squared rate of the group's accepted rays */
+    float *rmax; /* ps: largest squared rate of the group's accepted rays */
     float *ratio; /* group x p8: each ray's squared rate */
     i32 *redo; /* pixels to restart */
     double *s0; /* this line's start ranges */
     float *mod; /* 12 x p8: models, zr, start cell (x, y) */
-    i32 *k; /* p8: start cells' DEM indices */
+    i32 *k; /* ps: start cells' DEM indices */
     float *z; /* 4 x p8: their corners */
-    float *t1; /* p8: the first Newton step */
-    i32 *pf; /* p8: DEM cells to prefetch */
-    uint8_t *okb; /* p8 / 8: acceptance bits */
+    float *t1; /* ps: the first Newton step */
+    i32 *pf; /* ps: DEM cells to prefetch */
+    uint8_t *okb; /* ps / 8: acceptance bits */
+    float *lookf; /* 9 x p8: the look products in float32 */
+    float *bc; /* 6 x p8: each ray's B and C (x, y, h) in float32, for the next line */
     void *mem;
 };
 
@@ -111,6 +114,10 @@ struct line {
     __m256d fxo, fyo, h0, inv_e, inv_n, lim_x, lim_y, cols;
     __m256 hi, vx0, vx1, vy0, vy1, lim_xf, lim_yf, cell_e, cell_n, inv_tile;
     __m256d ebase, nbase, cell_ed, cell_nd;
+    /* from the previous line of the block, in grid cells (x, y) and metres (h), float32:
+     * the change of A, and of the rows of u and Q */
+    __m256 dA[3], du[9], dq[18];
+    __m256i colsi;
 };
 
 /* A set of 8 rays: float32 models in t = s - start relative to the start cell, the cell. */
@@ -122,7 +129,7 @@ struct models {
 /* Half (4 rays) of the float64 set-up: terms B, C from the look products, the position and
  * height at s, the start cell (clamped into the DEM), models rounded to float32. */
 AVX void half_models(const struct line *L, __m256d s, const __m256d *l, __m128 *m, __m128 *zr,
-                     __m128 *cxa, __m128 *cya, __m128i *k)
+                     __m128 *cxa, __m128 *cya, __m128i *k, __m128 *bst)
 {
     __m256d be = _mm256_fmadd_pd(L->u[2], l[2], _mm256_fmadd_pd(L->u[1], l[1],
                                  _mm256_mul_pd(L->u[0], l[0])));
@@ -163,6 +170,9 @@ AVX void half_models(const struct line *L, __m256d s, const __m256d *l, __m128 *
     m[6] = _mm256_cvtpd_ps(_mm256_sub_pd(h, _mm256_cvtps_pd(z)));
     m[7] = _mm256_cvtpd_ps(_mm256_fmadd_pd(two_s, c[2], bh));
     m[8] = _mm256_cvtpd_ps(c[2]);
+    bst[0] = _mm256_cvtpd_ps(_mm256_mul_pd(be, L->inv_e));
+    bst[1] = _mm256_cvtpd_ps(_mm256_mul_pd(bn, _mm256_sub_pd(_mm256_setzero_pd(), L->inv_n)));
+    bst[2] = _mm256_cvtpd_ps(bh);
 }
 
 #define JOIN(lo, hi) _mm256_set_m128((hi), (lo))
@@ -170,10 +180,10 @@ AVX void half_models(const struct line *L, __m256d s, const __m256d *l, __m128 *
 AVX void models_of(const struct line *L, __m256d s0, __m256d s1, const __m256d *l0,
                    const __m256d *l1, struct models *M)
 {
-    __m128 a[9], b[9], za, zb, xa, xb, ya, yb;
+    __m128 a[9], b[9], za, zb, xa, xb, ya, yb, ba[3], bb[3];
     __m128i ka, kb;
-    half_models(L, s0, l0, a, &za, &xa, &ya, &ka);
-    half_models(L, s1, l1, b, &zb, &xb, &yb, &kb);
+    half_models(L, s0, l0, a, &za, &xa, &ya, &ka, ba);
+    half_models(L, s1, l1, b, &zb, &xb, &yb, &kb, bb);
     for (int r = 0; r < 9; r++) M->m[r] = JOIN(a[r], b[r]);
     M->zr = JOIN(za, zb);
     M->cxa = JOIN(xa, xb);
@@ -183,19 +193,19 @@ AVX void models_of(const struct line *L, __m256d s0, __m256d s1, const __m256d *
 
 AVX void store_models(struct scratch *S, i64 j, const struct models *M)
 {
-    for (int r = 0; r < 9; r++) _mm256_store_ps(S->mod + r * S->p8 + j, M->m[r]);
-    _mm256_store_ps(S->mod + 9 * S->p8 + j, M->zr);
-    _mm256_store_ps(S->mod + 10 * S->p8 + j, M->cxa);
-    _mm256_store_ps(S->mod + 11 * S->p8 + j, M->cya);
+    for (int r = 0; r < 9; r++) _mm256_store_ps(S->mod + r * S->ps + j, M->m[r]);
+    _mm256_store_ps(S->mod + 9 * S->ps + j, M->zr);
+    _mm256_store_ps(S->mod + 10 * S->ps + j, M->cxa);
+    _mm256_store_ps(S->mod + 11 * S->ps + j, M->cya);
     _mm256_store_si256((__m256i *)(S->k + j), M->k);
 }
 
 AVX void load_models(const struct scratch *S, i64 j, struct models *M)
 {
-    for (int r = 0; r < 9; r++) M->m[r] = _mm256_load_ps(S->mod + r * S->p8 + j);
-    M->zr = _mm256_load_ps(S->mod + 9 * S->p8 + j);
-    M->cxa = _mm256_load_ps(S->mod + 10 * S->p8 + j);
-    M->cya = _mm256_load_ps(S->mod + 11 * S->p8 + j);
+    for (int r = 0; r < 9; r++) M->m[r] = _mm256_load_ps(S->mod + r * S->ps + j);
+    M->zr = _mm256_load_ps(S->mod + 9 * S->ps + j);
+    M->cxa = _mm256_load_ps(S->mod + 10 * S->ps + j);
+    M->cya = _mm256_load_ps(S->mod + 11 * S->ps + j);
     M->k = _mm256_load_si256((const __m256i *)(S->k + j));
 }
 
@@ -333,8 +343,8 @@ AVX void newton8(const struct job *J, const struct line *L, const struct models 
 AVX void load_look(const struct scratch *S, i64 j, __m256d *l0, __m256d *l1)
 {
     for (int r = 0; r < 9; r++) {
-        l0[r] = _mm256_load_pd(S->look + r * S->p8 + j);
-        l1[r] = _mm256_load_pd(S->look + r * S->p8 + j + 4);
+        l0[r] = _mm256_load_pd(S->look + r * S->ps + j);
+        l1[r] = _mm256_load_pd(S->look + r * S->ps + j + 4);
     }
 }
 
@@ -425,6 +435,70 @@ AVX void set_line(const struct job *J, i64 i, i64 b, struct line *L)
     L->cell_nd = _mm256_set1_pd(cell_n);
     L->ebase = _mm256_set1_pd(k[8] - (fx + ox) * cell_e);
     L->nbase = _mm256_set1_pd(k[9] + (fy + oy) * cell_n);
+    L->colsi = _mm256_set1_epi32((i32)J->cols);
+    if (i > J->starts[b]) {
+        const double *was = c - 30, scale[3] = {J->inv_e, -J->inv_n, 1.0};
+        for (int a = 0; a < 3; a++) {
+            L->dA[a] = _mm256_set1_ps((float)((c[a] - was[a]) * scale[a]));
+            for (int r = 0; r < 3; r++)
+                L->du[3 * a + r] = _mm256_set1_ps((float)((c[3 + 3 * a + r] - was[3 + 3 * a + r])
+                                                          * scale[a]));
+            for (int r = 0; r < 6; r++)
+                L->dq[6 * a + r] = _mm256_set1_ps((float)((c[12 + 6 * a + r]
+                                                           - was[12 + 6 * a + r]) * scale[a]));
+        }
+    }
+}
+
+/* Pass 1 for rays j .. j + 7, each accepted on the previous line: its end point there (the
+ * cell, the point in it and its height above zr, left by pass 4 in S->z rows 1-3), moved by
+ * the change of the line's terms at that range: x_i(s) = x_(i-1)(s) + dA + s (du.l + s l'dQ l),
+ * so float32 suffices (< 1 cell); B and C carried the same way. zr is kept. */
+AVX void from_previous(const struct job *J, const struct line *L, struct scratch *S, i64 j)
+{
+    const i64 ps = S->ps;
+    __m256 l[9];
+    for (int r = 0; r < 9; r++) l[r] = _mm256_load_ps(S->lookf + r * ps + j);
+    __m256d s0 = _mm256_load_pd(S->s + j), s1 = _mm256_load_pd(S->s + j + 4);
+    _mm256_store_pd(S->s0 + j, s0);
+    _mm256_store_pd(S->s0 + j + 4, s1);
+    __m256 s = JOIN(_mm256_cvtpd_ps(s0), _mm256_cvtpd_ps(s1)), two_s = _mm256_add_ps(s, s);
+    __m256 val[3];
+    for (int a = 0; a < 3; a++) {
+        const __m256 *du = L->du + 3 * a, *dq = L->dq + 6 * a;
+        __m256 db = _mm256_fmadd_ps(du[2], l[2], _mm256_fmadd_ps(du[1], l[1],
+                                    _mm256_mul_ps(du[0], l[0])));
+        __m256 dc = _mm256_fmadd_ps(dq[5], l[8], _mm256_fmadd_ps(dq[4], l[7], _mm256_fmadd_ps(
+            dq[3], l[6], _mm256_fmadd_ps(dq[2], l[5], _mm256_fmadd_ps(dq[1], l[4],
+            _mm256_mul_ps(dq[0], l[3]))))));
+        __m256 bb = _mm256_add_ps(_mm256_load_ps(S->bc + a * ps + j), db);
+        __m256 cc = _mm256_add_ps(_mm256_load_ps(S->bc + (3 + a) * ps + j), dc);
+        _mm256_store_ps(S->bc + a * ps + j, bb);
+        _mm256_store_ps(S->bc + (3 + a) * ps + j, cc);
+        _mm256_store_ps(S->mod + (1 + 3 * a) * ps + j, _mm256_fmadd_ps(two_s, cc, bb));
+        _mm256_store_ps(S->mod + (2 + 3 * a) * ps + j, cc);
+        val[a] = _mm256_add_ps(_mm256_load_ps(S->z + (1 + a) * ps + j),
+                               _mm256_fmadd_ps(s, _mm256_fmadd_ps(s, dc, db), L->dA[a]));
+    }
+    __m256 cx = _mm256_load_ps(S->mod + 10 * ps + j), cy = _mm256_load_ps(S->mod + 11 * ps + j);
+    __m256 nx = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(cx, _mm256_floor_ps(val[0])),
+                                            _mm256_setzero_ps()), L->lim_xf);
+    __m256 ny = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(cy, _mm256_floor_ps(val[1])),
+                                            _mm256_setzero_ps()), L->lim_yf);
+    _mm256_store_ps(S->mod + j, _mm256_sub_ps(val[0], _mm256_sub_ps(nx, cx)));
+    _mm256_store_ps(S->mod + 3 * ps + j, _mm256_sub_ps(val[1], _mm256_sub_ps(ny, cy)));
+    _mm256_store_ps(S->mod + 6 * ps + j, val[2]);
+    _mm256_store_ps(S->mod + 10 * ps + j, nx);
+    _mm256_store_ps(S->mod + 11 * ps + j, ny);
+    __m256i k = _mm256_add_epi32(_mm256_mullo_epi32(_mm256_cvttps_epi32(ny), L->colsi),
+                                 _mm256_cvttps_epi32(nx));
+    __m256i was = _mm256_load_si256((const __m256i *)(S->k + j));
+    __m256i pf = _mm256_add_epi32(k, _mm256_mullo_epi32(_mm256_sub_epi32(k, was),
+                                                        _mm256_set1_epi32((i32)J->prefetch)));
+    pf = _mm256_min_epi32(_mm256_max_epi32(pf, _mm256_setzero_si256()),
+                          _mm256_set1_epi32((i32)(J->rows * J->cols - J->cols - 2)));
+    _mm256_store_si256((__m256i *)(S->pf + j), pf);
+    _mm256_store_si256((__m256i *)(S->k + j), k);
 }
 
 /* Every ray of line i (gl: its place in the group; cold: start from the guess): set-up,
@@ -435,7 +509,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
 {
     struct line L;
     set_line(J, i, b, &L);
-    const i64 p = J->p, p8 = S->p8;
+    const i64 p = J->p, p8 = S->p8, ps = S->ps;
     double *oe = J->oe + i * p, *on = J->on + i * p, *oh = J->oh + i * p;
     uint8_t *hit = J->ohit + i * p;
     double ebuf[8], nbuf[8], hbuf[8];
@@ -448,37 +522,50 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         guess = _mm256_set1_pd(-c[2] / bh);
     }
     i64 redo_n = 0;
-    float *ratio = S->ratio + gl * p8;
-    /* pass 1: the float64 set-up (start ranges, models, start cells), 4 rays at a time, each
-     * model stored as it is made (few live registers) */
+    float *ratio = S->ratio + gl * ps;
+    /* pass 1: each ray's start range, float32 models in t = s - start relative to its start
+     * cell, the cell. In float64 (`half_models`) on a group's first line, and for 8 rays any of
+     * which was not accepted on the previous line; else from the previous line's end point,
+     * moved by the change of the line's terms at the same range (float32: a change of < 1
+     * cell, rounded to ~1e-7 cells; a group's 16 lines add up to < 5e-6 m) */
     const __m128i last4 = _mm_set1_epi32((i32)(J->rows * J->cols - J->cols - 2));
     const __m128i ahead4 = _mm_set1_epi32((i32)J->prefetch);
-    for (i64 j = 0; j < p8; j += 4) {
-        __m256d l[9];
-        for (int r = 0; r < 9; r++) l[r] = _mm256_load_pd(S->look + r * p8 + j);
-        __m256d s0 = _mm256_load_pd(S->s + j);
-        /* NaN (a miss on the previous line) or a cold start: the guess */
-        s0 = cold ? guess : _mm256_blendv_pd(s0, guess, _mm256_cmp_pd(s0, s0, _CMP_UNORD_Q));
-        _mm256_store_pd(S->s0 + j, s0);
-        __m128 m[9], zr, cxa, cya;
-        __m128i k;
-        half_models(&L, s0, l, m, &zr, &cxa, &cya, &k);
-        for (int r = 0; r < 9; r++) _mm_store_ps(S->mod + r * p8 + j, m[r]);
-        _mm_store_ps(S->mod + 9 * p8 + j, zr);
-        _mm_store_ps(S->mod + 10 * p8 + j, cxa);
-        _mm_store_ps(S->mod + 11 * p8 + j, cya);
-        /* where this pixel's cell will be PREFETCH lines on (from the previous line's) */
-        __m128i was = _mm_load_si128((const __m128i *)(S->k + j));
-        __m128i pf = _mm_add_epi32(k, _mm_mullo_epi32(_mm_sub_epi32(k, was), ahead4));
-        pf = _mm_min_epi32(_mm_max_epi32(pf, _mm_setzero_si128()), last4);
-        _mm_store_si128((__m128i *)(S->pf + j), pf);
-        _mm_store_si128((__m128i *)(S->k + j), k);
+    for (i64 j8 = 0; j8 < p8; j8 += 8) {
+        if (gl > 0 && !cold && S->okb[j8 / 8] == 0xff) {
+            from_previous(J, &L, S, j8);
+            continue;
+        }
+        for (i64 j = j8; j < j8 + 8; j += 4) {
+            __m256d l[9];
+            for (int r = 0; r < 9; r++) l[r] = _mm256_load_pd(S->look + r * ps + j);
+            __m256d s0 = _mm256_load_pd(S->s + j);
+            /* NaN (a miss on the previous line) or a cold start: the guess */
+            s0 = cold ? guess : _mm256_blendv_pd(s0, guess, _mm256_cmp_pd(s0, s0, _CMP_UNORD_Q));
+            _mm256_store_pd(S->s0 + j, s0);
+            __m128 m[9], zr, cxa, cya, bst[3];
+            __m128i k;
+            half_models(&L, s0, l, m, &zr, &cxa, &cya, &k, bst);
+            for (int r = 0; r < 9; r++) _mm_store_ps(S->mod + r * ps + j, m[r]);
+            _mm_store_ps(S->mod + 9 * ps + j, zr);
+            _mm_store_ps(S->mod + 10 * ps + j, cxa);
+            _mm_store_ps(S->mod + 11 * ps + j, cya);
+            for (int a = 0; a < 3; a++) {
+                _mm_store_ps(S->bc + a * ps + j, bst[a]);
+                _mm_store_ps(S->bc + (3 + a) * ps + j, m[2 + 3 * a]);
+            }
+            /* where this pixel's cell will be PREFETCH lines on (from the previous line's) */
+            __m128i was = _mm_load_si128((const __m128i *)(S->k + j));
+            __m128i pf = _mm_add_epi32(k, _mm_mullo_epi32(_mm_sub_epi32(k, was), ahead4));
+            pf = _mm_min_epi32(_mm_max_epi32(pf, _mm_setzero_si128()), last4);
+            _mm_store_si128((__m128i *)(S->pf + j), pf);
+            _mm_store_si128((__m128i *)(S->k + j), k);
+        }
     }
     /* pass 2: the corners, gathered (a short loop: many gathers in flight) */
     for (i64 j = 0; j < p8; j += 8) {
         __m256 z[4];
         corners8(J, _mm256_load_si256((const __m256i *)(S->k + j)), z);
-        for (int r = 0; r < 4; r++) _mm256_store_ps(S->z + r * p8 + j, z[r]);
+        for (int r = 0; r < 4; r++) _mm256_store_ps(S->z + r * ps + j, z[r]);
         for (int a = 0; a < 8; a += J->pf_stride) { /* rows are new on most lines */
             _mm_prefetch((const char *)(J->dem + S->pf[j + a]), _MM_HINT_T0);
             _mm_prefetch((const char *)(J->dem + S->pf[j + a] + J->cols), _MM_HINT_T0);
@@ -487,10 +574,10 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
     /* pass 3: the first Newton step (short: several in flight, their divisions overlap) */
     for (i64 j = 0; j < p8; j += 8) {
         __m256 m[9], z[4];
-        for (int r = 0; r < 9; r++) m[r] = _mm256_load_ps(S->mod + r * p8 + j);
-        for (int r = 0; r < 4; r++) z[r] = _mm256_load_ps(S->z + r * p8 + j);
-        __m256 t1 = step1(m, _mm256_load_ps(S->mod + 9 * p8 + j), z);
-        for (int r = 0; r < 4; r++) _mm256_store_ps(S->z + r * p8 + j, z[r]);
+        for (int r = 0; r < 9; r++) m[r] = _mm256_load_ps(S->mod + r * ps + j);
+        for (int r = 0; r < 4; r++) z[r] = _mm256_load_ps(S->z + r * ps + j);
+        __m256 t1 = step1(m, _mm256_load_ps(S->mod + 9 * ps + j), z);
+        for (int r = 0; r < 4; r++) _mm256_store_ps(S->z + r * ps + j, z[r]);
         _mm256_store_ps(S->t1 + j, t1);
     }
     /* pass 4: the second step, outputs, certification data */
@@ -498,14 +585,14 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         struct models M;
         load_models(S, j, &M);
         __m256 z[4];
-        for (int r = 0; r < 4; r++) z[r] = _mm256_load_ps(S->z + r * p8 + j);
+        for (int r = 0; r < 4; r++) z[r] = _mm256_load_ps(S->z + r * ps + j);
         struct newton N;
         newton8(J, &L, &M, z, _mm256_load_ps(S->t1 + j), &N);
         /* for pass 5, in place of the corners */
         _mm256_store_ps(S->z + j, N.t);
-        _mm256_store_ps(S->z + p8 + j, N.x);
-        _mm256_store_ps(S->z + 2 * p8 + j, N.y);
-        _mm256_store_ps(S->z + 3 * p8 + j, N.h);
+        _mm256_store_ps(S->z + ps + j, N.x);
+        _mm256_store_ps(S->z + 2 * ps + j, N.y);
+        _mm256_store_ps(S->z + 3 * ps + j, N.h);
         S->okb[j / 8] = (uint8_t)_mm256_movemask_ps(N.ok);
         _mm256_store_ps(ratio + j, N.ratio);
         __m256 rm = _mm256_load_ps(S->rmax + j);
@@ -513,12 +600,12 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         i32 *tl = S->tiles;
         if (gl == 0) {
             _mm256_store_si256((__m256i *)(tl + j), N.tx0);
-            _mm256_store_si256((__m256i *)(tl + p8 + j), N.tx1);
-            _mm256_store_si256((__m256i *)(tl + 2 * p8 + j), N.ty0);
-            _mm256_store_si256((__m256i *)(tl + 3 * p8 + j), N.ty1);
+            _mm256_store_si256((__m256i *)(tl + ps + j), N.tx1);
+            _mm256_store_si256((__m256i *)(tl + 2 * ps + j), N.ty0);
+            _mm256_store_si256((__m256i *)(tl + 3 * ps + j), N.ty1);
         } else {
-            __m256i *a = (__m256i *)(tl + j), *c = (__m256i *)(tl + p8 + j);
-            __m256i *d = (__m256i *)(tl + 2 * p8 + j), *e = (__m256i *)(tl + 3 * p8 + j);
+            __m256i *a = (__m256i *)(tl + j), *c = (__m256i *)(tl + ps + j);
+            __m256i *d = (__m256i *)(tl + 2 * ps + j), *e = (__m256i *)(tl + 3 * ps + j);
             _mm256_store_si256(a, _mm256_min_epi32(_mm256_load_si256(a), N.tx0));
             _mm256_store_si256(c, _mm256_max_epi32(_mm256_load_si256(c), N.tx1));
             _mm256_store_si256(d, _mm256_min_epi32(_mm256_load_si256(d), N.ty0));
@@ -538,12 +625,12 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         __m256d s0 = _mm256_load_pd(S->s0 + j);
         __m256d sn = _mm256_add_pd(s0, _mm256_cvtps_pd(_mm_load_ps(S->z + j)));
         _mm256_store_pd(S->s + j, sn);
-        __m256d x = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 10 * p8 + j)),
-                                  _mm256_cvtps_pd(_mm_load_ps(S->z + p8 + j)));
-        __m256d y = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 11 * p8 + j)),
-                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 2 * p8 + j)));
-        __m256d h = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 9 * p8 + j)),
-                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 3 * p8 + j)));
+        __m256d x = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 10 * ps + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + ps + j)));
+        __m256d y = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 11 * ps + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 2 * ps + j)));
+        __m256d h = _mm256_add_pd(_mm256_cvtps_pd(_mm_load_ps(S->mod + 9 * ps + j)),
+                                  _mm256_cvtps_pd(_mm_load_ps(S->z + 3 * ps + j)));
         __m256d e = _mm256_fmadd_pd(x, L.cell_ed, L.ebase);
         __m256d nn = _mm256_fnmadd_pd(y, L.cell_nd, L.nbase);
         int front = _mm256_movemask_pd(_mm256_cmp_pd(sn, _mm256_setzero_pd(), _CMP_GT_OQ));
@@ -571,7 +658,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         double lv[9][8] __attribute__((aligned(32)));
         for (int a = 0; a < 8; a++) {
             sv[a] = S->s[idx[a]];
-            for (int r = 0; r < 9; r++) lv[r][a] = S->look[r * p8 + idx[a]];
+            for (int r = 0; r < 9; r++) lv[r][a] = S->look[r * ps + idx[a]];
         }
         __m256d l0[9], l1[9];
         for (int r = 0; r < 9; r++) {
@@ -609,9 +696,9 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             S->rmax[j] = rt[a] > S->rmax[j] ? rt[a] : S->rmax[j];
             i32 *tl = S->tiles;
             tl[j] = t0[a] < tl[j] ? t0[a] : tl[j];
-            tl[p8 + j] = t1[a] > tl[p8 + j] ? t1[a] : tl[p8 + j];
-            tl[2 * p8 + j] = t2[a] < tl[2 * p8 + j] ? t2[a] : tl[2 * p8 + j];
-            tl[3 * p8 + j] = t3[a] > tl[3 * p8 + j] ? t3[a] : tl[3 * p8 + j];
+            tl[ps + j] = t1[a] > tl[ps + j] ? t1[a] : tl[ps + j];
+            tl[2 * ps + j] = t2[a] < tl[2 * ps + j] ? t2[a] : tl[2 * ps + j];
+            tl[3 * ps + j] = t3[a] > tl[3 * ps + j] ? t3[a] : tl[3 * ps + j];
         }
     }
 }
@@ -622,7 +709,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
  * to the safe path (status 2, line flagged). */
 static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i64 b)
 {
-    const i64 p = J->p, p8 = S->p8;
+    const i64 p = J->p, ps = S->ps;
     for (i64 c0 = 0; c0 < p; c0 += J->chunk) {
         i64 c1 = c0 + J->chunk < p ? c0 + J->chunk : p;
         i32 tx0 = 1 << 30, ty0 = 1 << 30, tx1 = -1, ty1 = -1;
@@ -630,9 +717,9 @@ static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i
         const i32 *tl = S->tiles;
         for (i64 j = c0; j < c1; j++) {
             tx0 = tl[j] < tx0 ? tl[j] : tx0;
-            tx1 = tl[p8 + j] > tx1 ? tl[p8 + j] : tx1;
-            ty0 = tl[2 * p8 + j] < ty0 ? tl[2 * p8 + j] : ty0;
-            ty1 = tl[3 * p8 + j] > ty1 ? tl[3 * p8 + j] : ty1;
+            tx1 = tl[ps + j] > tx1 ? tl[ps + j] : tx1;
+            ty0 = tl[2 * ps + j] < ty0 ? tl[2 * ps + j] : ty0;
+            ty1 = tl[3 * ps + j] > ty1 ? tl[3 * ps + j] : ty1;
             worst = S->rmax[j] > worst ? S->rmax[j] : worst;
         }
         float limit = 0.0f; /* no accepted ray: nothing passes */
@@ -643,7 +730,7 @@ static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i
         if (worst < limit) continue; /* every accepted ray of the chunk passes */
         for (i64 g = 0; g < lines; g++) {
             uint8_t *hit = J->ohit + (i0 + g) * p;
-            const float *ratio = S->ratio + g * p8;
+            const float *ratio = S->ratio + g * ps;
             for (i64 j = c0; j < c1; j++)
                 if (hit[j] == 1 && !(ratio[j] < limit)) hit[j] = 2;
         }
@@ -662,46 +749,46 @@ static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i
 static void *worker(void *arg)
 {
     struct job *J = arg;
-    i64 p8 = (J->p + 7) & ~(i64)7;
-    size_t bytes = (size_t)p8 * (8 + 9 * 8 + 4 * 4 + 4 + (size_t)J->group * 4 + 4 + 8 + 12 * 4
-                                 + 4 + 4 * 4 + 4 + 4 + 1) + 64;
+    i64 p8 = (J->p + 7) & ~(i64)7, ps = p8 + 16;
+    /* rows of ps elements (4 or 8 bytes): s, look 9, tiles 4, rmax, ratio group, redo, s0,
+     * mod 12, k, z 4, t1, pf, lookf 9, bc 6, okb (bytes) */
+    size_t rows4 = 4 + 1 + (size_t)J->group + 1 + 12 + 1 + 4 + 1 + 1 + 9 + 6 + 1;
+    size_t rows8 = 1 + 9 + 1;
+    size_t bytes = (size_t)ps * (4 * rows4 + 8 * rows8);
     struct scratch S;
     S.mem = aligned_alloc(64, (bytes + 63) & ~(size_t)63);
     if (S.mem == NULL) {
         __atomic_store_n(&J->failed, 1, __ATOMIC_RELAXED);
         return NULL;
     }
+    memset(S.mem, 0, bytes);
     S.p8 = p8;
+    S.ps = ps;
     char *at = S.mem;
-    S.s = (double *)at;
-    at += p8 * 8;
-    S.look = (double *)at;
-    at += 9 * p8 * 8;
-    S.tiles = (i32 *)at;
-    at += 4 * p8 * 4;
-    S.rmax = (float *)at;
-    at += p8 * 4;
-    S.ratio = (float *)at;
-    at += J->group * p8 * 4;
-    S.redo = (i32 *)at;
-    at += p8 * 4;
-    S.s0 = (double *)at;
-    at += p8 * 8;
-    S.mod = (float *)at;
-    at += 12 * p8 * 4;
-    S.k = (i32 *)at;
-    at += p8 * 4;
-    S.z = (float *)at;
-    at += 4 * p8 * 4;
-    S.t1 = (float *)at;
-    at += p8 * 4;
-    S.pf = (i32 *)at;
-    memset(S.pf, 0, (size_t)p8 * 4);
-    S.okb = (uint8_t *)(S.pf + p8);
-    memset(S.k, 0, (size_t)p8 * 4);
+#define CARVE(field, type, rows) \
+    S.field = (type *)(void *)at; \
+    at += (size_t)(rows) * ps * sizeof(type);
+    CARVE(s, double, 1)
+    CARVE(look, double, 9)
+    CARVE(s0, double, 1)
+    CARVE(tiles, i32, 4)
+    CARVE(rmax, float, 1)
+    CARVE(ratio, float, J->group)
+    CARVE(redo, i32, 1)
+    CARVE(mod, float, 12)
+    CARVE(k, i32, 1)
+    CARVE(z, float, 4)
+    CARVE(t1, float, 1)
+    CARVE(pf, i32, 1)
+    CARVE(lookf, float, 9)
+    CARVE(bc, float, 6)
+    CARVE(okb, uint8_t, 4)
+#undef CARVE
     for (int r = 0; r < 9; r++)
-        for (i64 j = 0; j < p8; j++)
-            S.look[r * p8 + j] = J->look9[r * J->p + (j < J->p ? j : J->p - 1)];
+        for (i64 j = 0; j < p8; j++) {
+            S.look[r * ps + j] = J->look9[r * J->p + (j < J->p ? j : J->p - 1)];
+            S.lookf[r * ps + j] = (float)S.look[r * ps + j];
+        }
     for (;;) {
         i64 b = __atomic_fetch_add(&J->next, 1, __ATOMIC_RELAXED);
         if (b >= J->blocks) break;

@@ -92,7 +92,7 @@ struct scratch {
                  * queues (loads wait on unrelated stores) */
     double *s; /* each ray's range: the previous line's, then this one's */
     double *look; /* 9 x p8, padded with the last pixel's */
-    i32 *tiles; /* 4 x p8: tile ranges x0, x1, y0, y1 of the group's certified paths */
+    float *tiles; /* 4 x p8: boxes x0, x1, y0, y1 (cells) of the group's accepted paths */
     float *rmax; /* ps: largest squared rate of the group's accepted rays */
     float *ratio; /* group x p8: each ray's squared rate */
     i32 *redo; /* pixels to restart */
@@ -112,7 +112,7 @@ struct scratch {
 struct line {
     __m256d ae, an, ah, u[9], q[18];
     __m256d fxo, fyo, h0, inv_e, inv_n, lim_x, lim_y, cols;
-    __m256 hi, vx0, vx1, vy0, vy1, lim_xf, lim_yf, cell_e, cell_n, inv_tile;
+    __m256 hi, vx0, vx1, vy0, vy1, lim_xf, lim_yf, cell_e, cell_n;
     __m256d ebase, nbase, cell_ed, cell_nd;
     /* from the previous line of the block, in grid cells (x, y) and metres (h), float32:
      * the change of A, and of the rows of u and Q */
@@ -213,7 +213,7 @@ AVX void load_models(const struct scratch *S, i64 j, struct models *M)
 struct newton {
     __m256 t, x, y, h; /* range offset (t1 for a ray to restart), the point in the cell */
     __m256 ok, redo, ratio; /* masks; squared horizontal/vertical rate (0 if not ok) */
-    __m256i tx0, tx1, ty0, ty1; /* tile range of the path back up (empty if not ok) */
+    __m256 x0, x1, y0, y1; /* box of the path back up, cells (empty if not ok) */
 };
 
 /* kernel.py's `_newton` for 8 rays: two float32 Newton steps on the start cell's bilinear
@@ -325,12 +325,11 @@ AVX void newton8(const struct job *J, const struct line *L, const struct models 
         _mm256_or_ps(_mm256_cmp_ps(xs, zero, _CMP_LT_OQ), _mm256_cmp_ps(xs, one, _CMP_GT_OQ)),
         _mm256_or_ps(_mm256_cmp_ps(ys, zero, _CMP_LT_OQ), _mm256_cmp_ps(ys, one, _CMP_GT_OQ)));
     __m256 redo = _mm256_andnot_ps(ok, left);
-    __m256i oki = _mm256_castps_si256(ok);
-    const __m256i lo_empty = _mm256_set1_epi32(1 << 30), hi_empty = _mm256_set1_epi32(-1);
-    N->tx0 = _mm256_blendv_epi8(lo_empty, _mm256_cvttps_epi32(_mm256_mul_ps(x0, L->inv_tile)), oki);
-    N->tx1 = _mm256_blendv_epi8(hi_empty, _mm256_cvttps_epi32(_mm256_mul_ps(x1, L->inv_tile)), oki);
-    N->ty0 = _mm256_blendv_epi8(lo_empty, _mm256_cvttps_epi32(_mm256_mul_ps(y0, L->inv_tile)), oki);
-    N->ty1 = _mm256_blendv_epi8(hi_empty, _mm256_cvttps_epi32(_mm256_mul_ps(y1, L->inv_tile)), oki);
+    const __m256 lo_empty = _mm256_set1_ps(INFINITY), hi_empty = _mm256_set1_ps(-INFINITY);
+    N->x0 = _mm256_blendv_ps(lo_empty, x0, ok);
+    N->x1 = _mm256_blendv_ps(hi_empty, x1, ok);
+    N->y0 = _mm256_blendv_ps(lo_empty, y0, ok);
+    N->y1 = _mm256_blendv_ps(hi_empty, y1, ok);
     N->t = _mm256_blendv_ps(t, t1, redo);
     N->x = x;
     N->y = y;
@@ -430,7 +429,6 @@ AVX void set_line(const struct job *J, i64 i, i64 b, struct line *L)
     double cell_e = 1.0 / J->inv_e, cell_n = 1.0 / J->inv_n;
     L->cell_e = _mm256_set1_ps((float)cell_e);
     L->cell_n = _mm256_set1_ps((float)cell_n);
-    L->inv_tile = _mm256_set1_ps(1.0f / (float)J->tile);
     L->cell_ed = _mm256_set1_pd(cell_e);
     L->cell_nd = _mm256_set1_pd(cell_n);
     L->ebase = _mm256_set1_pd(k[8] - (fx + ox) * cell_e);
@@ -597,19 +595,19 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         _mm256_store_ps(ratio + j, N.ratio);
         __m256 rm = _mm256_load_ps(S->rmax + j);
         _mm256_store_ps(S->rmax + j, gl == 0 ? N.ratio : _mm256_max_ps(rm, N.ratio));
-        i32 *tl = S->tiles;
+        float *tl = S->tiles;
+        __m256 *a = (__m256 *)(tl + j), *c = (__m256 *)(tl + ps + j);
+        __m256 *d = (__m256 *)(tl + 2 * ps + j), *e = (__m256 *)(tl + 3 * ps + j);
         if (gl == 0) {
-            _mm256_store_si256((__m256i *)(tl + j), N.tx0);
-            _mm256_store_si256((__m256i *)(tl + ps + j), N.tx1);
-            _mm256_store_si256((__m256i *)(tl + 2 * ps + j), N.ty0);
-            _mm256_store_si256((__m256i *)(tl + 3 * ps + j), N.ty1);
+            *a = N.x0;
+            *c = N.x1;
+            *d = N.y0;
+            *e = N.y1;
         } else {
-            __m256i *a = (__m256i *)(tl + j), *c = (__m256i *)(tl + ps + j);
-            __m256i *d = (__m256i *)(tl + 2 * ps + j), *e = (__m256i *)(tl + 3 * ps + j);
-            _mm256_store_si256(a, _mm256_min_epi32(_mm256_load_si256(a), N.tx0));
-            _mm256_store_si256(c, _mm256_max_epi32(_mm256_load_si256(c), N.tx1));
-            _mm256_store_si256(d, _mm256_min_epi32(_mm256_load_si256(d), N.ty0));
-            _mm256_store_si256(e, _mm256_max_epi32(_mm256_load_si256(e), N.ty1));
+            *a = _mm256_min_ps(*a, N.x0);
+            *c = _mm256_max_ps(*c, N.x1);
+            *d = _mm256_min_ps(*d, N.y0);
+            *e = _mm256_max_ps(*e, N.y1);
         }
         int rb = _mm256_movemask_ps(N.redo);
         if (j + 8 > p) rb &= (1 << (p - j)) - 1;
@@ -677,12 +675,12 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         int bits;
         outputs8(&L, &M, &N, s0, s1, ebuf, nbuf, hbuf, snext, &bits);
         float rt[8];
-        i32 t0[8], t1[8], t2[8], t3[8];
+        float t0[8], t1[8], t2[8], t3[8];
         _mm256_storeu_ps(rt, N.ratio);
-        _mm256_storeu_si256((__m256i *)t0, N.tx0);
-        _mm256_storeu_si256((__m256i *)t1, N.tx1);
-        _mm256_storeu_si256((__m256i *)t2, N.ty0);
-        _mm256_storeu_si256((__m256i *)t3, N.ty1);
+        _mm256_storeu_ps(t0, N.x0);
+        _mm256_storeu_ps(t1, N.x1);
+        _mm256_storeu_ps(t2, N.y0);
+        _mm256_storeu_ps(t3, N.y1);
         int lanes = redo_n - r0 < 8 ? (int)(redo_n - r0) : 8;
         for (int a = 0; a < lanes; a++) {
             i64 j = idx[a];
@@ -694,7 +692,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             ratio[j] = rt[a];
             /* the first try added nothing to the group's bounds (it was not accepted) */
             S->rmax[j] = rt[a] > S->rmax[j] ? rt[a] : S->rmax[j];
-            i32 *tl = S->tiles;
+            float *tl = S->tiles;
             tl[j] = t0[a] < tl[j] ? t0[a] : tl[j];
             tl[ps + j] = t1[a] > tl[ps + j] ? t1[a] : tl[ps + j];
             tl[2 * ps + j] = t2[a] < tl[2 * ps + j] ? t2[a] : tl[2 * ps + j];
@@ -712,19 +710,21 @@ static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i
     const i64 p = J->p, ps = S->ps;
     for (i64 c0 = 0; c0 < p; c0 += J->chunk) {
         i64 c1 = c0 + J->chunk < p ? c0 + J->chunk : p;
-        i32 tx0 = 1 << 30, ty0 = 1 << 30, tx1 = -1, ty1 = -1;
+        float fx0 = INFINITY, fy0 = INFINITY, fx1 = -INFINITY, fy1 = -INFINITY;
         float worst = 0.0f;
-        const i32 *tl = S->tiles;
+        const float *tl = S->tiles;
         for (i64 j = c0; j < c1; j++) {
-            tx0 = tl[j] < tx0 ? tl[j] : tx0;
-            tx1 = tl[ps + j] > tx1 ? tl[ps + j] : tx1;
-            ty0 = tl[2 * ps + j] < ty0 ? tl[2 * ps + j] : ty0;
-            ty1 = tl[3 * ps + j] > ty1 ? tl[3 * ps + j] : ty1;
+            fx0 = tl[j] < fx0 ? tl[j] : fx0;
+            fx1 = tl[ps + j] > fx1 ? tl[ps + j] : fx1;
+            fy0 = tl[2 * ps + j] < fy0 ? tl[2 * ps + j] : fy0;
+            fy1 = tl[3 * ps + j] > fy1 ? tl[3 * ps + j] : fy1;
             worst = S->rmax[j] > worst ? S->rmax[j] : worst;
         }
         float limit = 0.0f; /* no accepted ray: nothing passes */
-        if (tx0 <= tx1 && ty0 <= ty1) {
-            float sl = slope_bound(J, tx0, tx1, ty0, ty1);
+        if (fx0 <= fx1 && fy0 <= fy1) { /* cells >= 0 here: truncation is the floor */
+            float inv_tile = 1.0f / (float)J->tile;
+            float sl = slope_bound(J, (i32)(fx0 * inv_tile), (i32)(fx1 * inv_tile),
+                                   (i32)(fy0 * inv_tile), (i32)(fy1 * inv_tile));
             limit = (float)((double)J->margin2 / ((double)sl * (double)sl));
         }
         if (worst < limit) continue; /* every accepted ray of the chunk passes */
@@ -771,7 +771,7 @@ static void *worker(void *arg)
     CARVE(s, double, 1)
     CARVE(look, double, 9)
     CARVE(s0, double, 1)
-    CARVE(tiles, i32, 4)
+    CARVE(tiles, float, 4)
     CARVE(rmax, float, 1)
     CARVE(ratio, float, J->group)
     CARVE(redo, i32, 1)

@@ -177,29 +177,6 @@ AVX void half_models(const struct line *L, __m256d s, const __m256d *l, __m128 *
 
 #define JOIN(lo, hi) _mm256_set_m128((hi), (lo))
 
-AVX void models_of(const struct line *L, __m256d s0, __m256d s1, const __m256d *l0,
-                   const __m256d *l1, struct models *M)
-{
-    __m128 a[9], b[9], za, zb, xa, xb, ya, yb, ba[3], bb[3];
-    __m128i ka, kb;
-    half_models(L, s0, l0, a, &za, &xa, &ya, &ka, ba);
-    half_models(L, s1, l1, b, &zb, &xb, &yb, &kb, bb);
-    for (int r = 0; r < 9; r++) M->m[r] = JOIN(a[r], b[r]);
-    M->zr = JOIN(za, zb);
-    M->cxa = JOIN(xa, xb);
-    M->cya = JOIN(ya, yb);
-    M->k = _mm256_set_m128i(kb, ka);
-}
-
-AVX void store_models(struct scratch *S, i64 j, const struct models *M)
-{
-    for (int r = 0; r < 9; r++) _mm256_store_ps(S->mod + r * S->ps + j, M->m[r]);
-    _mm256_store_ps(S->mod + 9 * S->ps + j, M->zr);
-    _mm256_store_ps(S->mod + 10 * S->ps + j, M->cxa);
-    _mm256_store_ps(S->mod + 11 * S->ps + j, M->cya);
-    _mm256_store_si256((__m256i *)(S->k + j), M->k);
-}
-
 AVX void load_models(const struct scratch *S, i64 j, struct models *M)
 {
     for (int r = 0; r < 9; r++) M->m[r] = _mm256_load_ps(S->mod + r * S->ps + j);
@@ -337,14 +314,6 @@ AVX void newton8(const struct job *J, const struct line *L, const struct models 
     N->ok = ok;
     N->redo = redo;
     N->ratio = _mm256_and_ps(ratio, ok);
-}
-
-AVX void load_look(const struct scratch *S, i64 j, __m256d *l0, __m256d *l1)
-{
-    for (int r = 0; r < 9; r++) {
-        l0[r] = _mm256_load_pd(S->look + r * S->ps + j);
-        l1[r] = _mm256_load_pd(S->look + r * S->ps + j + 4);
-    }
 }
 
 /* Ground points of 8 rays (float64 from the cell and the point in it), the next start ranges
@@ -648,24 +617,39 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             memcpy(hit + j, &hb, (size_t)(p - j));
         }
     }
-    /* restarts, 8 at a time, from s (the start plus the first step) on the cell reached */
+    /* restarts, 8 at a time, from the start plus the first step (s, left by pass 5) on the
+     * cell reached: the float32 models moved to t1 (a shift of their origin: what the first
+     * step computed; ~1e-7 cells), no float64 set-up */
     for (i64 r0 = 0; r0 < redo_n; r0 += 8) {
-        i32 idx[8];
+        i32 idx[8] __attribute__((aligned(32)));
         for (int a = 0; a < 8; a++) idx[a] = S->redo[r0 + a < redo_n ? r0 + a : redo_n - 1];
-        double sv[8] __attribute__((aligned(32)));
-        double lv[9][8] __attribute__((aligned(32)));
-        for (int a = 0; a < 8; a++) {
-            sv[a] = S->s[idx[a]];
-            for (int r = 0; r < 9; r++) lv[r][a] = S->look[r * ps + idx[a]];
-        }
-        __m256d l0[9], l1[9];
-        for (int r = 0; r < 9; r++) {
-            l0[r] = _mm256_load_pd(lv[r]);
-            l1[r] = _mm256_load_pd(lv[r] + 4);
-        }
-        __m256d s0 = _mm256_load_pd(sv), s1 = _mm256_load_pd(sv + 4);
+        __m256i at = _mm256_load_si256((const __m256i *)idx);
         struct models M;
-        models_of(&L, s0, s1, l0, l1, &M);
+        __m256 m[9];
+        for (int r = 0; r < 9; r++) m[r] = _mm256_i32gather_ps(S->mod + r * ps, at, 4);
+        M.zr = _mm256_i32gather_ps(S->mod + 9 * ps, at, 4);
+        __m256 cx = _mm256_i32gather_ps(S->mod + 10 * ps, at, 4);
+        __m256 cy = _mm256_i32gather_ps(S->mod + 11 * ps, at, 4);
+        __m256 tr = _mm256_i32gather_ps(S->t1, at, 4), two_t1 = _mm256_add_ps(tr, tr);
+        __m256 xs = _mm256_fmadd_ps(tr, _mm256_fmadd_ps(tr, m[2], m[1]), m[0]);
+        __m256 ys = _mm256_fmadd_ps(tr, _mm256_fmadd_ps(tr, m[5], m[4]), m[3]);
+        __m256 nx = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(cx, _mm256_floor_ps(xs)),
+                                                _mm256_setzero_ps()), L.lim_xf);
+        __m256 ny = _mm256_min_ps(_mm256_max_ps(_mm256_add_ps(cy, _mm256_floor_ps(ys)),
+                                                _mm256_setzero_ps()), L.lim_yf);
+        M.m[0] = _mm256_sub_ps(xs, _mm256_sub_ps(nx, cx));
+        M.m[3] = _mm256_sub_ps(ys, _mm256_sub_ps(ny, cy));
+        M.m[6] = _mm256_fmadd_ps(tr, _mm256_fmadd_ps(tr, m[8], m[7]), m[6]);
+        for (int a = 0; a < 3; a++) {
+            M.m[1 + 3 * a] = _mm256_fmadd_ps(two_t1, m[2 + 3 * a], m[1 + 3 * a]);
+            M.m[2 + 3 * a] = m[2 + 3 * a];
+        }
+        M.cxa = nx;
+        M.cya = ny;
+        M.k = _mm256_add_epi32(_mm256_mullo_epi32(_mm256_cvttps_epi32(ny), L.colsi),
+                               _mm256_cvttps_epi32(nx));
+        __m256d s0 = _mm256_i32gather_pd(S->s, _mm256_castsi256_si128(at), 8);
+        __m256d s1 = _mm256_i32gather_pd(S->s, _mm256_extracti128_si256(at, 1), 8);
         __m256 z[4];
         corners8(J, M.k, z);
         __m256 first = step1(M.m, M.zr, z);

@@ -3,7 +3,7 @@ written here from the issue's method, interleaved in one process; a numpy baseli
 stage split of `intersect`; the accuracy of all three against the slow float64 reference.
 
     .venv/bin/python bench/raycast_speed.py [--lines 20000] [--pairs 6] [--check-lines 4]
-                                            [--profile N]
+                                            [--profile N] [--numba] [--one-thread N]
 
 The scene is CASI-like: 512 pixels (15 µm, f = 9.33 mm), a 20 ms line period at 60 m/s (1.2 m
 per line, a 24 km strip for 20 000 lines) flown due grid north ~1500 m above a synthetic 2 m
@@ -25,7 +25,10 @@ fallback: a bound on speed, not a replacement; its accuracy is measured like the
 The baseline is what a careful numpy implementation does: the fast path's own set-up (fitted
 local maps, per-line coefficients), then 8 fixed-point iterations over all rays at once
 (range to the height of the DEM under the previous estimate), timed once. --profile N times
-`intersect`'s stages separately (as cast.py runs them), N times, medians. Accuracy is measured
+`intersect`'s stages separately (as cast.py runs them), N times, medians. `intersect` runs the
+C kernel where the CPU has AVX2 and FMA (postproc/georef/raycast/fastpath.py); --numba also
+times it on numba's kernel, the fallback, in every pair, and --one-thread N times the two
+kernels alone on one thread, alternating (ns of CPU a ray). Accuracy is measured
 on every pixel of --check-lines random lines and of the two lines over the steepest terrain,
 against `reference_intersect` (pyproj at every point, bisection): the 3-D distance between
 the ground points and the difference in range along the ray.
@@ -469,9 +472,10 @@ def _stages(dem: Dem, centre: F64, rot: F64, look: F64, out: GroundPoints) -> di
             surf.flat, surf.rows, surf.cols, surf.slope_table, surf.log2, coef, look9,
             maps.starts, blk, consts, out.easting_m, out.northing_m, out.height_m, hit, safe,
             counts))
-        run("safe path (numba)", lambda: kernel.safe_pass(
-            surf.flat, surf.cols, coef, look9, maps.starts, blk, consts, out.easting_m,
-            out.northing_m, out.height_m, hit, safe, flag, counts))
+        if safe.any():
+            run("safe path (numba)", lambda: kernel.safe_pass(
+                surf.flat, surf.cols, coef, look9, maps.starts, blk, consts, out.easting_m,
+                out.northing_m, out.height_m, hit, safe, flag, counts))
     else:
         run("cast kernel (numba)", lambda: kernel.cast_blocks(
             surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef, look9,
@@ -480,6 +484,53 @@ def _stages(dem: Dem, centre: F64, rot: F64, look: F64, out: GroundPoints) -> di
     run("reference method (rays off the maps)",
         lambda: reference.resolve_exact(dem, out, flag, c, r, unit))
     return times
+
+
+def one_thread_kernels(dem: Dem, centre: F64, rot: F64, look: F64, repeats: int) -> None:
+    """The cast kernel alone on one thread, C and numba's alternating (the set-up once): ns of
+    CPU a ray (the thread's own CPU time), medians and ranges."""
+    surf = surface.surface_of(dem)
+    unit = look / np.linalg.norm(look, axis=0)
+    maps = blocks.fit_block_maps(surf, centre, rot, unit)
+    coef = tables.line_coefficients(maps, centre, rot)
+    blk, consts = tables.kernel_tables(surf, maps)
+    look9 = tables.look_products(unit)
+    n, p = centre.shape[0], look.shape[1]
+    out = GroundPoints.empty(n, p)
+    hit = out.hit.view(np.uint8)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    sc = kernel.scratch(p)
+
+    def c_kernel() -> None:
+        fastpath.cast_fast(surf.flat, surf.rows, surf.cols, surf.slope_table, surf.log2, coef,
+                           look9, maps.starts, blk, consts, out.easting_m, out.northing_m,
+                           out.height_m, hit, np.zeros(n, np.uint8),
+                           np.zeros((maps.starts.size - 1, 4), np.int64))
+
+    def numba_kernel() -> None:
+        kernel.cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef,
+                           look9, maps.starts, blk, consts, out.easting_m, out.northing_m,
+                           out.height_m, hit, np.zeros(n, np.uint8),
+                           np.zeros((maps.starts.size - 1, 4), np.int64), *sc)
+
+    kernels = {"C": c_kernel, "numba": numba_kernel} if fastpath.LIB is not None else {
+        "numba": numba_kernel}
+    ns: dict[str, list[float]] = {name: [] for name in kernels}
+    try:
+        for fn in kernels.values():
+            fn()
+        for k in range(repeats):
+            for name, fn in (list(kernels.items())[::1 if k % 2 == 0 else -1]):
+                c0 = time.thread_time()
+                fn()
+                ns[name].append((time.thread_time() - c0) / (n * p) * 1e9)
+    finally:
+        numba.set_num_threads(threads)
+    print(f"cast kernel alone, one thread, {repeats} runs alternating (load "
+          f"{os.getloadavg()[0]:.1f}): " + "; ".join(
+              f"{name} {np.median(v):.2f} ns of CPU a ray ({min(v):.2f}–{max(v):.2f})"
+              for name, v in ns.items()))
 
 
 def check_lines(dem: Dem, out: GroundPoints, count: int) -> npt.NDArray[np.intp]:
@@ -536,6 +587,9 @@ def main() -> None:
     ap.add_argument("--check-lines", type=int, default=4)
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="also time intersect's stages separately, N times")
+    ap.add_argument("--one-thread", type=int, default=0, metavar="N",
+                    help="also time the cast kernel alone on one thread, C and numba's "
+                         "alternating, N times each")
     ap.add_argument("--numba", action="store_true",
                     help="also time intersect on numba's kernel (the fallback for CPUs without "
                          "AVX2/FMA) in every pair")
@@ -629,6 +683,8 @@ def main() -> None:
           "median time")
     if args.profile:
         print_stages(dem, centre, rot, look, GroundPoints.empty(n, p), args.profile)
+    if args.one_thread:
+        one_thread_kernels(dem, centre, rot, look, args.one_thread)
     accuracy(dem, centre, rot, look, check_lines(dem, outs["intersect"], args.check_lines),
              outs)
 

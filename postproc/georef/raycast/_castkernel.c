@@ -1,19 +1,28 @@
 /* The ray caster's fast path by hand for x86-64 with AVX2 and FMA (cast.py calls it through
- * ctypes, which releases the GIL; it runs the blocks on its own threads).
+ * ctypes, which releases the GIL; it runs the blocks on its own threads, each taking the next
+ * block, so the result does not depend on the thread count).
  *
  * Why by hand: numba's loop (kernel.py, the same method) vectorises 4 wide, gathers one lane at
  * a time and floors and clamps per lane, ~110 instructions a ray (docs/benchmarks.md). Here 8
- * rays at once in float32, int32 DEM indices and hardware gathers (_mm256_i32gather_ps), and
- * the float64 set-up finds each ray's start cell, so the Newton steps work in coordinates
- * inside that cell (< 1 cell: float32 rounds to 1e-7 cells there, not 1e-4 as relative to a
- * block). The method and its certification are kernel.py's (see the package docstring):
- * two Newton steps on the start cell's bilinear patch, accepted when the last step is tiny and
- * stays in the cell and the ray descends; first-root test per group of lines and chunk of
- * pixels. What is reduced to bounds: per pixel, the largest squared rate over a group's lines
- * (the per-ray rates are read only for a chunk whose bound fails). A ray the fast path does
- * not certify is left with hit = 2 and its line flagged: the safe path (numba, kernel.py)
- * takes it after this call. So only arithmetic moves here; every decision that can send a ray
- * elsewhere is kernel.py's.
+ * rays at once in float32 with int32 DEM indices and hardware gathers of 8-byte corner pairs.
+ * The method and its certification are kernel.py's (the package docstring): two Newton steps on
+ * the start cell's bilinear patch, accepted when the last step is tiny, stays in the cell and
+ * the ray descends; the first-root test per group of lines and chunk of pixels. What differs:
+ *   - the models are relative to each ray's start cell (< 1 cell: float32 rounds to 1e-7 cells
+ *     there, not 1e-4 as relative to a block): 0.002 mm on the bench scene against 0.035;
+ *   - a ray accepted on the previous line starts from its end point there, moved in float32 by
+ *     the change of the line's terms; float64 only on a group's first line and for 8 rays any of
+ *     which was not accepted (from_previous);
+ *   - a ray whose first step left the start cell restarts from that step's end, the float32
+ *     models shifted there;
+ *   - per pixel, the largest squared rate over the group's lines: the per-ray rates are read
+ *     only for a chunk whose bound fails.
+ * A ray the fast path does not certify is left with hit = 2 and its line flagged: the safe path
+ * (numba, kernel.safe_pass) takes it after this call, so every decision that sends a ray
+ * elsewhere is kernel.py's, with its constants (passed in `params`).
+ *
+ * A line is cast in passes over its rays, each a short loop (many iterations in flight: the
+ * gathers' and divisions' latencies overlap) over per-thread scratch rows.
  *
  * Built on any CPU (the AVX2 code is compiled for that target only, function by function);
  * `castkernel_usable()` says whether this CPU runs it, else cast.py takes numba's kernel.
@@ -86,25 +95,26 @@ static float slope_bound(const struct job *J, i32 tx0, i32 tx1, i32 ty0, i32 ty1
 #define AVX __attribute__((target("avx2,fma"), always_inline)) static inline
 #define AVXFN __attribute__((target("avx2,fma")))
 
-/* Per-thread scratch; pixel arrays padded to p8, a multiple of 8. */
+/* Per-thread scratch: rows of ps elements, the first p8 used (p rounded up to 8; the padding
+ * lanes repeat pixel p - 1). */
 struct scratch {
-    i64 p8, ps; /* row stride ps = p8 + 16: rows 4 KB apart would alias in the load/store
-                 * queues (loads wait on unrelated stores) */
+    i64 p8, ps; /* ps = p8 + 16: rows 2 or 4 KB apart made loads wait on unrelated stores (4K
+                 * aliasing): 15.9 against 13.9 ns a ray */
     double *s; /* each ray's range: the previous line's, then this one's */
-    double *look; /* 9 x p8, padded with the last pixel's */
-    float *tiles; /* 4 x p8: boxes x0, x1, y0, y1 (cells) of the group's accepted paths */
-    float *rmax; /* ps: largest squared rate of the group's accepted rays */
-    float *ratio; /* group x p8: each ray's squared rate */
+    double *look; /* 9 rows: look products */
+    float *tiles; /* 4 rows: boxes x0, x1, y0, y1 (cells) of the group's accepted paths */
+    float *rmax; /* largest squared rate of the group's accepted rays */
+    float *ratio; /* group rows: each ray's squared rate */
     i32 *redo; /* pixels to restart */
     double *s0; /* this line's start ranges */
-    float *mod; /* 12 x p8: models, zr, start cell (x, y) */
-    i32 *k; /* ps: start cells' DEM indices */
-    float *z; /* 4 x p8: their corners */
-    float *t1; /* ps: the first Newton step */
-    i32 *pf; /* ps: DEM cells to prefetch */
-    uint8_t *okb; /* ps / 8: acceptance bits */
-    float *lookf; /* 9 x p8: the look products in float32 */
-    float *bc; /* 6 x p8: each ray's B and C (x, y, h) in float32, for the next line */
+    float *mod; /* 12 rows: models m0-m8, zr, start cell (x, y) */
+    i32 *k; /* start cells' DEM indices */
+    float *z; /* 4 rows: their corners; then the patch; then t, x, y, h at the end */
+    float *t1; /* the first Newton step */
+    i32 *pf; /* DEM cells to prefetch */
+    uint8_t *okb; /* acceptance bits of each 8 rays */
+    float *lookf; /* 9 rows: the look products in float32 */
+    float *bc; /* 6 rows: each ray's B and C (x, y, h) in float32, for the next line */
     void *mem;
 };
 

@@ -61,7 +61,6 @@ struct job {
     i64 group, chunk, tile, cold, prefetch, pf_stride;
     float max_step, root_tol2, margin2;
     i64 next; /* atomic */
-    int failed;
 };
 
 int castkernel_usable(void)
@@ -752,7 +751,6 @@ static void *worker(void *arg)
     struct scratch S;
     S.mem = aligned_alloc(64, (bytes + 63) & ~(size_t)63);
     if (S.mem == NULL) {
-        __atomic_store_n(&J->failed, 1, __ATOMIC_RELAXED);
         return NULL;
     }
     memset(S.mem, 0, bytes);
@@ -802,7 +800,7 @@ static void *worker(void *arg)
 }
 
 /* The fast path for every block on `threads` threads (each takes the next block); returns 0,
- * or -1 if memory or a thread could not be had (nothing is then certain of the outputs). */
+ * or -1 if no thread had memory for its scratch (the outputs are then unfinished). */
 int cast_fast(const float *dem, i64 rows, i64 cols, const float *table, i64 trows, i64 tcols,
               const i64 *log2, const double *coef, const double *look9, i64 p,
               const i64 *starts, i64 blocks, const double *blk, const double *consts,
@@ -819,7 +817,6 @@ int cast_fast(const float *dem, i64 rows, i64 cols, const float *table, i64 trow
         .cold = (i64)params[3], .root_tol2 = (float)(2.0 * params[4]),
         .max_step = (float)params[5], .margin2 = (float)(params[6] * params[6]),
         .prefetch = (i64)params[7], .pf_stride = (i64)params[8], .next = 0,
-        .failed = 0,
     };
     if (threads < 1) threads = 1;
     if (threads > 64) threads = 64;
@@ -831,7 +828,8 @@ int cast_fast(const float *dem, i64 rows, i64 cols, const float *table, i64 trow
     }
     worker(&J);
     for (i64 t = 0; t < started; t++) pthread_join(tid[t], NULL);
-    return J.failed ? -1 : 0;
+    /* a thread without its scratch took no block; the others took them all, unless none had */
+    return J.next >= J.blocks ? 0 : -1;
 }
 
 #else /* no AVX2 build: castkernel_usable() is 0 and this is never called */

@@ -55,14 +55,21 @@ def cast_fast(flat: npt.NDArray[np.float32], rows: int, cols: int,
     """kernel.cast_blocks' fast path and certification (hit 1: certified; 2: left to the safe
     path, its line flagged in line_safe), blocks on numba's thread count of threads."""
     assert LIB is not None
-    arrays = (flat, slope_table, log2, coef, look9, starts, blk, consts, out_e, out_n, out_h,
-              out_hit, line_safe, counts, _PARAMS)
-    if not all(a.flags.c_contiguous for a in arrays):
-        raise ValueError("cast_fast: arrays must be C-contiguous")
+    f4, f8, i8, u1 = np.float32, np.float64, np.int64, np.uint8
+    typed = ((flat, f4), (slope_table, f4), (log2, i8), (coef, f8), (look9, f8), (starts, i8),
+             (blk, f8), (consts, f8), (out_e, f8), (out_n, f8), (out_h, f8), (out_hit, u1),
+             (line_safe, u1), (counts, i8), (_PARAMS, f8))
+    if not (all(a.flags.c_contiguous and a.dtype == t for a, t in typed)
+            and out_e.size == out_n.size == out_h.size == out_hit.size
+            == coef.shape[0] * look9.shape[1] and line_safe.size == coef.shape[0]
+            and counts.shape == (starts.size - 1, 4) and flat.size == rows * cols
+            and slope_table.ndim == 3 and blk.shape[0] == starts.size - 1):
+        raise ValueError("cast_fast: arrays of the wrong type, layout or size")
+    arrays = [a for a, _ in typed]
     ptr = [a.ctypes.data for a in arrays]
     got = LIB.cast_fast(ptr[0], rows, cols, ptr[1], slope_table.shape[1],
                         slope_table.shape[2], ptr[2], ptr[3], ptr[4], look9.shape[1], ptr[5],
                         starts.size - 1, ptr[6], ptr[7], ptr[8], ptr[9], ptr[10], ptr[11],
                         ptr[12], ptr[13], ptr[14], numba.get_num_threads())
     if got != 0:
-        raise MemoryError("the ray caster's C kernel could not get its scratch or threads")
+        raise MemoryError("the ray caster's C kernel could not get memory for its scratch")

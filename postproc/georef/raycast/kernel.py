@@ -2,7 +2,9 @@
 coefficients, the footprints that size the blocks' maps) and the cast itself: the fast path
 (Newton steps from the previous line's range), the first-root certification, and the safe path
 (a cell-by-cell walk) for every ray the fast path could not certify. The method is in the
-package's docstring.
+package's docstring. Where the CPU has AVX2 and FMA the fast path and certification run in C
+instead (`_castkernel.c`, through fastpath.py, reading the constants here), and `safe_pass`
+takes the rays it leaves; `cast_blocks` is the fast path everywhere else.
 
 All of it stays in this one file, with every constant it reads: numba's on-disk cache is
 invalidated only by a change to the file that defines the cached function, not by a change to

@@ -667,7 +667,13 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         double snext[8];
         int bits;
         outputs8(&L, &M, &N, s0, s1, ebuf, nbuf, hbuf, snext, &bits);
-        float rt[8];
+        float rt[8], ex[8], ey[8], eh[8], ncx[8], ncy[8];
+        _mm256_storeu_ps(ex, N.x);
+        _mm256_storeu_ps(ey, N.y);
+        _mm256_storeu_ps(eh, N.h);
+        _mm256_storeu_ps(ncx, M.cxa);
+        _mm256_storeu_ps(ncy, M.cya);
+        int okbits = _mm256_movemask_ps(N.ok);
         float t0[8], t1[8], t2[8], t3[8];
         _mm256_storeu_ps(rt, N.ratio);
         _mm256_storeu_ps(t0, N.x0);
@@ -690,6 +696,14 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             tl[ps + j] = t1[a] > tl[ps + j] ? t1[a] : tl[ps + j];
             tl[2 * ps + j] = t2[a] < tl[2 * ps + j] ? t2[a] : tl[2 * ps + j];
             tl[3 * ps + j] = t3[a] > tl[3 * ps + j] ? t3[a] : tl[3 * ps + j];
+            if ((okbits >> a) & 1) { /* accepted now: the next line can start from here */
+                S->z[ps + j] = ex[a];
+                S->z[2 * ps + j] = ey[a];
+                S->z[3 * ps + j] = eh[a];
+                S->mod[10 * ps + j] = ncx[a];
+                S->mod[11 * ps + j] = ncy[a];
+                S->okb[j / 8] |= (uint8_t)(1 << (j % 8));
+            }
         }
     }
 }

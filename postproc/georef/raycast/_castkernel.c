@@ -112,6 +112,7 @@ struct scratch {
     float *t1; /* the first Newton step */
     i32 *pf; /* DEM cells to prefetch */
     uint8_t *okb; /* acceptance bits of each 8 rays */
+    i32 *acc; /* per line of the group: rays with hit 1 */
     float *lookf; /* 9 rows: the look products in float32 */
     float *bc; /* 6 rows: each ray's B and C (x, y, h) in float32, for the next line */
     void *mem;
@@ -498,6 +499,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         guess = _mm256_set1_pd(-c[2] / bh);
     }
     i64 redo_n = 0;
+    int accepted = 0; /* rays with hit 1 */
     float *ratio = S->ratio + gl * ps;
     /* pass 1: each ray's start range, float32 models in t = s - start relative to its start
      * cell, the cell. In float64 (`half_models`) on a group's first line, and for 8 rays any of
@@ -610,7 +612,9 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         __m256d e = _mm256_fmadd_pd(x, L.cell_ed, L.ebase);
         __m256d nn = _mm256_fnmadd_pd(y, L.cell_nd, L.nbase);
         int front = _mm256_movemask_pd(_mm256_cmp_pd(sn, _mm256_setzero_pd(), _CMP_GT_OQ));
-        uint32_t hb = STATUS4[(S->okb[j / 8] >> (j & 4)) & front];
+        int bits4 = (S->okb[j / 8] >> (j & 4)) & front;
+        uint32_t hb = STATUS4[bits4];
+        accepted += __builtin_popcount(j + 4 <= p ? bits4 : j < p ? bits4 & ((1 << (p - j)) - 1) : 0);
         if (j + 4 <= p) {
             _mm256_storeu_pd(oe + j, e);
             _mm256_storeu_pd(on + j, nn);
@@ -688,6 +692,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             oh[j] = hbuf[a];
             S->s[j] = snext[a];
             hit[j] = (bits >> a) & 1 ? 1 : 2;
+            accepted += (bits >> a) & 1;
             ratio[j] = rt[a];
             /* the first try added nothing to the group's bounds (it was not accepted) */
             S->rmax[j] = rt[a] > S->rmax[j] ? rt[a] : S->rmax[j];
@@ -706,6 +711,7 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
             }
         }
     }
+    S->acc[gl] = accepted;
 }
 
 /* First-root test for the group's lines i0 .. i0 + lines - 1, chunk by chunk: the steepest
@@ -739,16 +745,16 @@ static void certify(const struct job *J, struct scratch *S, i64 i0, i64 lines, i
             uint8_t *hit = J->ohit + (i0 + g) * p;
             const float *ratio = S->ratio + g * ps;
             for (i64 j = c0; j < c1; j++)
-                if (hit[j] == 1 && !(ratio[j] < limit)) hit[j] = 2;
+                if (hit[j] == 1 && !(ratio[j] < limit)) {
+                    hit[j] = 2;
+                    S->acc[g]--;
+                }
         }
     }
     i64 passed = 0;
     for (i64 g = 0; g < lines; g++) {
-        const uint8_t *hit = J->ohit + (i0 + g) * p;
-        i64 line_passed = 0;
-        for (i64 j = 0; j < p; j++) line_passed += hit[j] == 1;
-        passed += line_passed;
-        J->line_safe[i0 + g] = line_passed != p;
+        passed += S->acc[g];
+        J->line_safe[i0 + g] = S->acc[g] != p;
     }
     J->counts[b * 4] += passed;
 }
@@ -759,7 +765,7 @@ static void *worker(void *arg)
     i64 p8 = (J->p + 7) & ~(i64)7, ps = p8 + 16;
     /* rows of ps elements (4 or 8 bytes): s, look 9, tiles 4, rmax, ratio group, redo, s0,
      * mod 12, k, z 4, t1, pf, lookf 9, bc 6, okb (bytes) */
-    size_t rows4 = 4 + 1 + (size_t)J->group + 1 + 12 + 1 + 4 + 1 + 1 + 9 + 6 + 1;
+    size_t rows4 = 4 + 1 + (size_t)J->group + 1 + 12 + 1 + 4 + 1 + 1 + 9 + 6 + 1 + 1;
     size_t rows8 = 1 + 9 + 1;
     size_t bytes = (size_t)ps * (4 * rows4 + 8 * rows8);
     struct scratch S;
@@ -789,6 +795,7 @@ static void *worker(void *arg)
     CARVE(lookf, float, 9)
     CARVE(bc, float, 6)
     CARVE(okb, uint8_t, 4)
+    CARVE(acc, i32, 1)
 #undef CARVE
     for (int r = 0; r < 9; r++)
         for (i64 j = 0; j < p8; j++) {

@@ -203,9 +203,6 @@ struct newton {
     __m256 x0, x1, y0, y1; /* box of the path back up, cells (empty if not ok) */
 };
 
-/* kernel.py's `_newton` for 8 rays: two float32 Newton steps on the start cell's bilinear
- * patch, the acceptance test, the rate and tile range of the path back up to the block's
- * highest terrain. */
 /* The four corners of 8 cells: per row, two gathers of 4 8-byte pairs (half the elements of
  * 4-byte gathers: a gather's cost is per element), lanes (0, 1, 4, 5) and (2, 3, 6, 7) so that
  * one in-lane shuffle leaves each corner in ray order. */
@@ -244,8 +241,9 @@ AVX __m256 step1(const __m256 *m, __m256 zr, __m256 *z)
     return _mm256_div_ps(_mm256_sub_ps(surf, m[6]), rate);
 }
 
-/* After step1 (its patch p and step t1): the second step, the acceptance test, the rate and
- * tile range of the path back up. */
+/* kernel.py's `_newton` for 8 rays, after step1 (its patch p and step t1): the second step
+ * on the same patch, the acceptance test, the rate and box of the path back up to the block's
+ * highest terrain. */
 AVX void newton8(const struct job *J, const struct line *L, const struct models *M,
                  const __m256 *p, __m256 t1, struct newton *N)
 {

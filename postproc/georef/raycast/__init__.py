@@ -46,7 +46,7 @@ reach) so no crossing can be skipped, then bisection to 1e-7 m.
 Two kernels run the fast path. Where the CPU has AVX2 and FMA, `_castkernel.c` (built at
 install, called through ctypes by `fastpath`, its own threads): 8 rays at once, models relative
 to each ray's start cell (float32 rounds to 1e-7 cells there: 0.002 mm on the benchmark's
-scene, 0.006 mm on the alpine ribs), a ray accepted on the previous line started from its end
+scene, 0.009 mm on the alpine ribs), a ray accepted on the previous line started from its end
 point there moved by the change of the line's terms (float64 only on each group's first line
 and where a ray was not accepted); the rays it does not certify go to the safe path in numba
 (`kernel.safe_pass`). Elsewhere numba's `kernel.cast_blocks`, the same method in one loop (the

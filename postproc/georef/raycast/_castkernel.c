@@ -612,7 +612,8 @@ AVXFN static void cast_line(const struct job *J, struct scratch *S, i64 i, i64 b
         int front = _mm256_movemask_pd(_mm256_cmp_pd(sn, _mm256_setzero_pd(), _CMP_GT_OQ));
         int bits4 = (S->okb[j / 8] >> (j & 4)) & front;
         uint32_t hb = STATUS4[bits4];
-        accepted += __builtin_popcount(j + 4 <= p ? bits4 : j < p ? bits4 & ((1 << (p - j)) - 1) : 0);
+        int real = j + 4 <= p ? 15 : j < p ? (1 << (p - j)) - 1 : 0; /* lanes < p */
+        accepted += __builtin_popcount((unsigned)(bits4 & real));
         if (j + 4 <= p) {
             _mm256_storeu_pd(oe + j, e);
             _mm256_storeu_pd(on + j, nn);

@@ -12,7 +12,8 @@ DEMO   := runs/bench-demo
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml postproc/products/_orthokernels.c
+$(VENV)/.installed: pyproject.toml postproc/products/_orthokernels.c \
+		postproc/georef/raycast/_castkernel.c
 	PYTHON=$(PYTHON) bash tools/deps.sh demo
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip

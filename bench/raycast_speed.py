@@ -3,7 +3,7 @@ written here from the issue's method, interleaved in one process; a numpy baseli
 stage split of `intersect`; the accuracy of all three against the slow float64 reference.
 
     .venv/bin/python bench/raycast_speed.py [--lines 20000] [--pairs 6] [--check-lines 4]
-                                            [--profile N]
+                                            [--profile N] [--numba] [--one-thread N]
 
 The scene is CASI-like: 512 pixels (15 µm, f = 9.33 mm), a 20 ms line period at 60 m/s (1.2 m
 per line, a 24 km strip for 20 000 lines) flown due grid north ~1500 m above a synthetic 2 m
@@ -25,7 +25,10 @@ fallback: a bound on speed, not a replacement; its accuracy is measured like the
 The baseline is what a careful numpy implementation does: the fast path's own set-up (fitted
 local maps, per-line coefficients), then 8 fixed-point iterations over all rays at once
 (range to the height of the DEM under the previous estimate), timed once. --profile N times
-`intersect`'s stages separately (as cast.py runs them), N times, medians. Accuracy is measured
+`intersect`'s stages separately (as cast.py runs them), N times, medians. `intersect` runs the
+C kernel where the CPU has AVX2 and FMA (postproc/georef/raycast/fastpath.py); --numba also
+times it on numba's kernel, the fallback, in every pair, and --one-thread N times the two
+kernels alone on one thread, alternating (ns of CPU a ray). Accuracy is measured
 on every pixel of --check-lines random lines and of the two lines over the steepest terrain,
 against `reference_intersect` (pyproj at every point, bisection): the 3-D distance between
 the ground points and the difference in range along the ray.
@@ -47,7 +50,7 @@ from scipy import fft as sfft
 from scipy.ndimage import gaussian_filter1d
 
 from postproc.georef import CastStats, Dem, GroundPoints, intersect, reference_intersect
-from postproc.georef.raycast import blocks, kernel, rays, reference, surface, tables
+from postproc.georef.raycast import blocks, fastpath, kernel, rays, reference, surface, tables
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 
@@ -462,13 +465,72 @@ def _stages(dem: Dem, centre: F64, rot: F64, look: F64, out: GroundPoints) -> di
                                            kernel.scratch(p), tables.look_products(unit)))
     (blk, consts), sc, look9 = got["kernel tables, scratch"]
     flag, counts = np.zeros(n, np.uint8), np.zeros((maps.starts.size - 1, 4), np.int64)
-    run("cast kernel", lambda: kernel.cast_blocks(
-        surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2,
-        got["per-line coefficients"], look9, maps.starts, blk, consts, out.easting_m,
-        out.northing_m, out.height_m, out.hit.view(np.uint8), flag, counts, *sc))
+    coef, hit = got["per-line coefficients"], out.hit.view(np.uint8)
+    if fastpath.usable(surf.flat.size):  # as cast.py: the C kernel, then the safe path
+        safe = np.zeros(n, np.uint8)
+        run("cast kernel (C, AVX2)", lambda: fastpath.cast_fast(
+            surf.flat, surf.rows, surf.cols, surf.slope_table, surf.log2, coef, look9,
+            maps.starts, blk, consts, out.easting_m, out.northing_m, out.height_m, hit, safe,
+            counts))
+        if safe.any():
+            run("safe path (numba)", lambda: kernel.safe_pass(
+                surf.flat, surf.cols, coef, look9, maps.starts, blk, consts, out.easting_m,
+                out.northing_m, out.height_m, hit, safe, flag, counts))
+    else:
+        run("cast kernel (numba)", lambda: kernel.cast_blocks(
+            surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef, look9,
+            maps.starts, blk, consts, out.easting_m, out.northing_m, out.height_m, hit, flag,
+            counts, *sc))
     run("reference method (rays off the maps)",
         lambda: reference.resolve_exact(dem, out, flag, c, r, unit))
     return times
+
+
+def one_thread_kernels(dem: Dem, centre: F64, rot: F64, look: F64, repeats: int) -> None:
+    """The cast kernel alone on one thread, C and numba's alternating (the set-up once): ns of
+    CPU a ray (the thread's own CPU time), medians and ranges."""
+    surf = surface.surface_of(dem)
+    unit = look / np.linalg.norm(look, axis=0)
+    maps = blocks.fit_block_maps(surf, centre, rot, unit)
+    coef = tables.line_coefficients(maps, centre, rot)
+    blk, consts = tables.kernel_tables(surf, maps)
+    look9 = tables.look_products(unit)
+    n, p = centre.shape[0], look.shape[1]
+    out = GroundPoints.empty(n, p)
+    hit = out.hit.view(np.uint8)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    sc = kernel.scratch(p)
+
+    def c_kernel() -> None:
+        fastpath.cast_fast(surf.flat, surf.rows, surf.cols, surf.slope_table, surf.log2, coef,
+                           look9, maps.starts, blk, consts, out.easting_m, out.northing_m,
+                           out.height_m, hit, np.zeros(n, np.uint8),
+                           np.zeros((maps.starts.size - 1, 4), np.int64))
+
+    def numba_kernel() -> None:
+        kernel.cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef,
+                           look9, maps.starts, blk, consts, out.easting_m, out.northing_m,
+                           out.height_m, hit, np.zeros(n, np.uint8),
+                           np.zeros((maps.starts.size - 1, 4), np.int64), *sc)
+
+    kernels = {"C": c_kernel, "numba": numba_kernel} if fastpath.LIB is not None else {
+        "numba": numba_kernel}
+    ns: dict[str, list[float]] = {name: [] for name in kernels}
+    try:
+        for fn in kernels.values():
+            fn()
+        for k in range(repeats):
+            for name, fn in (list(kernels.items())[::1 if k % 2 == 0 else -1]):
+                c0 = time.thread_time()
+                fn()
+                ns[name].append((time.thread_time() - c0) / (n * p) * 1e9)
+    finally:
+        numba.set_num_threads(threads)
+    print(f"cast kernel alone, one thread, {repeats} runs alternating (load "
+          f"{os.getloadavg()[0]:.1f}): " + "; ".join(
+              f"{name} {np.median(v):.2f} ns of CPU a ray ({min(v):.2f}–{max(v):.2f})"
+              for name, v in ns.items()))
 
 
 def check_lines(dem: Dem, out: GroundPoints, count: int) -> npt.NDArray[np.intp]:
@@ -525,6 +587,12 @@ def main() -> None:
     ap.add_argument("--check-lines", type=int, default=4)
     ap.add_argument("--profile", type=int, default=0, metavar="N",
                     help="also time intersect's stages separately, N times")
+    ap.add_argument("--one-thread", type=int, default=0, metavar="N",
+                    help="also time the cast kernel alone on one thread, C and numba's "
+                         "alternating, N times each")
+    ap.add_argument("--numba", action="store_true",
+                    help="also time intersect on numba's kernel (the fallback for CPUs without "
+                         "AVX2/FMA) in every pair")
     args = ap.parse_args()
     length = SPEED_MPS * LINE_PERIOD_S * args.lines + 600.0
     t0 = time.perf_counter()
@@ -538,8 +606,10 @@ def main() -> None:
           f"{np.degrees(np.arctan(slope.max())):.0f}° (built in {time.perf_counter() - t0:.1f} s)"
           f"; {os.cpu_count()} cores, numba threads {numba.get_num_threads()}")
 
-    outs = {name: GroundPoints.empty(n, p)
-            for name in ("intersect", "reference kernel", "numpy baseline")}
+    names = ["intersect", "reference kernel", "numpy baseline"] + (
+        ["intersect (numba)"] if args.numba else [])
+    outs = {name: GroundPoints.empty(n, p) for name in names}
+    print(f"intersect's kernel: {'C (AVX2, FMA)' if fastpath.LIB is not None else 'numba'}")
     flat = np.ascontiguousarray(dem.heights_m, dtype=np.float32).ravel()
     scratch = reference_scratch(n, p)
     stats = CastStats()
@@ -548,25 +618,36 @@ def main() -> None:
     def fast() -> None:
         intersect(dem, centre, rot, look, out=outs["intersect"], stats=stats)
 
+    def fast_numba() -> None:
+        lib = fastpath.LIB
+        fastpath.LIB = None
+        try:
+            intersect(dem, centre, rot, look, out=outs["intersect (numba)"])
+        finally:
+            fastpath.LIB = lib
+
     def ref_setup() -> None:
         setup[:] = [reference_setup(dem, centre, rot, look)]
 
     def ref_kernel() -> None:
         reference_kernel(dem, flat, setup[0], scratch, outs["reference kernel"])
 
-    for warm in (fast, ref_setup, ref_kernel):  # compilation, caches, first touch
+    for warm in (fast, ref_setup, ref_kernel) + ((fast_numba,) if args.numba else ()):  # caches
         warm()
     print(f"{args.pairs} pairs, alternating which goes first; M rays/s wall (per CPU-second); "
           "the reference's whole call is its set-up (maps, per-line terms) plus its kernel")
     ratios, ratios_k = [], []
     fast_t: list[Timed] = []
     ref_t: list[Timed] = []
+    numba_t: list[Timed] = []
     for k in range(args.pairs):
         load = os.getloadavg()[0]
         if k % 2 == 0:
             tf, ts, tk = timed(fast), timed(ref_setup), timed(ref_kernel)
         else:
             ts, tk, tf = timed(ref_setup), timed(ref_kernel), timed(fast)
+        if args.numba:
+            numba_t.append(timed(fast_numba))
         tr = Timed(ts.wall_s + tk.wall_s, ts.cpu_s + tk.cpu_s)
         fast_t.append(tf)
         ref_t.append(tr)
@@ -576,10 +657,16 @@ def main() -> None:
               f"({rays_m / tf.cpu_s:5.1f}); reference {rays_m / tr.wall_s:6.1f} "
               f"({rays_m / tr.cpu_s:5.1f}), its kernel alone {rays_m / tk.wall_s:6.1f} "
               f"({rays_m / tk.cpu_s:5.1f}); time ratio intersect / reference "
-              f"{ratios[-1]:.2f} (/ its kernel {ratios_k[-1]:.2f})")
+              f"{ratios[-1]:.2f} (/ its kernel {ratios_k[-1]:.2f})"
+              + (f"; on numba's kernel {rays_m / numba_t[-1].wall_s:6.1f} "
+                 f"({rays_m / numba_t[-1].cpu_s:5.1f})" if args.numba else ""))
     print(f"intersect:        {rays_m / max(t.wall_s for t in fast_t):.1f}–"
           f"{rays_m / min(t.wall_s for t in fast_t):.1f} M rays/s, per CPU-second "
           f"{rays_m / np.median([t.cpu_s for t in fast_t]):.1f} M (median)")
+    if args.numba:
+        print(f"on numba's kernel: {rays_m / max(t.wall_s for t in numba_t):.1f}–"
+              f"{rays_m / min(t.wall_s for t in numba_t):.1f} M rays/s, per CPU-second "
+              f"{rays_m / np.median([t.cpu_s for t in numba_t]):.1f} M (median)")
     print(f"reference kernel: {rays_m / max(t.wall_s for t in ref_t):.1f}–"
           f"{rays_m / min(t.wall_s for t in ref_t):.1f} M rays/s, per CPU-second "
           f"{rays_m / np.median([t.cpu_s for t in ref_t]):.1f} M (median), whole call")
@@ -596,6 +683,8 @@ def main() -> None:
           "median time")
     if args.profile:
         print_stages(dem, centre, rot, look, GroundPoints.empty(n, p), args.profile)
+    if args.one_thread:
+        one_thread_kernels(dem, centre, rot, look, args.one_thread)
     accuracy(dem, centre, rot, look, check_lines(dem, outs["intersect"], args.check_lines),
              outs)
 

@@ -17,6 +17,7 @@ from emulators.render import exact_ground_point
 from emulators.scenario import load_scenario
 from emulators.terrain import Terrain
 from postproc.georef import CastStats, Dem, GroundPoints, intersect, reference_intersect
+from postproc.georef.raycast import fastpath
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.sensor import R_NOMINAL_C_TO_B, ScannerGeometry
 
@@ -314,10 +315,22 @@ def test_every_compiled_loop_is_in_the_kernel_file() -> None:
             assert not any(word in text for word in ("njit", "intrinsic", "@_jit")), path.name
 
 
-def test_fast_path_within_a_tenth_of_a_millimetre_on_steep_slopes_and_strip_edges() -> None:
+@pytest.fixture(params=["c", "numba"])
+def kernel_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Each test taking this runs on both fast paths: the C one (AVX2 + FMA; skipped where this
+    CPU or build has none) and numba's, the fallback."""
+    if request.param == "c" and fastpath.LIB is None:
+        pytest.skip("the C fast path is not built or this CPU lacks AVX2/FMA")
+    if request.param == "numba":
+        monkeypatch.setattr(fastpath, "LIB", None)
+    return str(request.param)
+
+
+def test_fast_path_within_a_tenth_of_a_millimetre_on_steep_slopes_and_strip_edges(
+        kernel_path: str) -> None:
     """The accuracy the fast path is held to (issue 38: < 0.1 mm against the float64
     reference), on every pixel of lines over ribs with slopes up to ~1 m/m, both strip edges
-    included: the float32 Newton steps (with fused multiply-adds) keep it."""
+    included: the float32 Newton steps (with fused multiply-adds) keep it, in C and numba."""
     dem = alpine_dem(1000.0)
     centre, rot, look = strip(dem, 120, 1000.0, seed=6, step_m=1.5)
     stats = CastStats()
@@ -331,3 +344,32 @@ def test_fast_path_within_a_tenth_of_a_millimetre_on_steep_slopes_and_strip_edge
     assert d3.size == sub.hit.size
     assert d3.max() < 1e-4
     assert dr.max() < 1e-4
+
+
+@pytest.mark.skipif(fastpath.LIB is None, reason="the C fast path is not built or this CPU "
+                    "lacks AVX2/FMA")
+@pytest.mark.parametrize("terrain", ["alpine", "steep"])
+def test_the_c_and_numba_paths_agree(terrain: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Which kernel a CPU runs changes no hit and moves no point by 0.1 mm: on alpine ribs
+    (slopes to ~1 m/m, some rays on the safe path) and on the ridge and cliff (many)."""
+    if terrain == "alpine":
+        dem = alpine_dem(1000.0)
+        centre, rot, look = strip(dem, 200, 1000.0, seed=6, step_m=1.5)
+    else:
+        dem = steep_dem()
+        centre, rot, look = fan(40, 4_600_300.0, 1.7, 780.0, 400_401.0, 128, 40.0)
+    got: dict[str, tuple[GroundPoints, CastStats]] = {}
+    for path in ("c", "numba"):
+        if path == "numba":
+            monkeypatch.setattr(fastpath, "LIB", None)
+        stats = CastStats()
+        got[path] = intersect(dem, centre, rot, look, stats=stats), stats
+    (c, c_stats), (nb, nb_stats) = got["c"], got["numba"]
+    np.testing.assert_array_equal(c.hit, nb.hit)
+    assert c.hit.any()
+    d3 = np.sqrt((c.easting_m - nb.easting_m) ** 2 + (c.northing_m - nb.northing_m) ** 2
+                 + (c.height_m - nb.height_m) ** 2)[c.hit]
+    assert d3.max() < 1e-4
+    if terrain == "steep":  # the safe path ran after the C one
+        assert c_stats.safe_hit > 0
+    assert abs(c_stats.fast - nb_stats.fast) < 0.01 * c.hit.size

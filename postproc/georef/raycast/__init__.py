@@ -43,10 +43,21 @@ in CastStats.unresolved).
 point, DEM heights from `Dem.height_at`, steps no longer than gap / (1 + steepest slope within
 reach) so no crossing can be skipped, then bisection to 1e-7 m.
 
+Two kernels run the fast path. Where the CPU has AVX2 and FMA, `_castkernel.c` (built at
+install, called through ctypes by `fastpath`, its own threads): 8 rays at once, models relative
+to each ray's start cell (float32 rounds to 1e-7 cells there: 0.002 mm on the benchmark's
+scene, 0.009 mm on the alpine ribs), a ray accepted on the previous line started from its end
+point there moved by the change of the line's terms (float64 only on each group's first line
+and where a ray was not accepted); the rays it does not certify go to the safe path in numba
+(`kernel.safe_pass`). Elsewhere numba's `kernel.cast_blocks`, the same method in one loop (the
+models relative to the block: 0.035 mm, 0.074 mm). Which one runs changes no hit and moves no
+point by 0.1 mm (tests/postproc/test_raycast.py).
+
 Inside, by job: `rays` (what a cast takes and gives), `maps` (the fitted local maps), `surface`
 (the prepared DEM), `blocks` (the lines in blocks, each with its map), `tables` (what the
 kernel reads of each line and block), `kernel` (every compiled loop, in one file for numba's
-cache), `reference` (the reference method) and `cast` (`intersect`: one call, start to end).
+cache), `fastpath` (the C kernel), `reference` (the reference method) and `cast` (`intersect`:
+one call, start to end).
 """
 
 from postproc.georef.raycast.cast import intersect

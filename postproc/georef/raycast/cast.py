@@ -7,8 +7,9 @@ import numpy as np
 import numpy.typing as npt
 
 from postproc.georef.dem import Dem
+from postproc.georef.raycast import fastpath
 from postproc.georef.raycast.blocks import fit_block_maps
-from postproc.georef.raycast.kernel import cast_blocks, scratch
+from postproc.georef.raycast.kernel import cast_blocks, safe_pass, scratch
 from postproc.georef.raycast.rays import CastStats, GroundPoints, checked_rays, output_buffers
 from postproc.georef.raycast.reference import resolve_exact
 from postproc.georef.raycast.surface import surface_of
@@ -45,9 +46,21 @@ def intersect(dem: Dem, centre_ecef_m: F64, r_ecef_from_camera: F64, look_camera
     blk, consts = kernel_tables(surf, maps)
     line_flag = np.zeros(n, np.uint8)
     counts = np.zeros((maps.starts.size - 1, 4), np.int64)
-    cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef,
-                look_products(unit), maps.starts, blk, consts, out.easting_m, out.northing_m,
-                out.height_m, out.hit.view(np.uint8), line_flag, counts, *scratch(p))
+    look9 = look_products(unit)
+    hit = out.hit.view(np.uint8)
+    if fastpath.usable(surf.flat.size):  # AVX2 + FMA: C, then the safe path for its leftovers
+        line_safe = np.zeros(n, np.uint8)
+        fastpath.cast_fast(surf.flat, surf.rows, surf.cols, surf.slope_table, surf.log2, coef,
+                           look9, maps.starts, blk, consts, out.easting_m, out.northing_m,
+                           out.height_m, hit, line_safe, counts)
+        if line_safe.any():  # (a parallel region costs ~1 ms of waking threads)
+            safe_pass(surf.flat, surf.cols, coef, look9, maps.starts, blk, consts,
+                      out.easting_m, out.northing_m, out.height_m, hit, line_safe, line_flag,
+                      counts)
+    else:
+        cast_blocks(surf.flat, surf.flat, surf.cols, surf.slope_table, surf.log2, coef, look9,
+                    maps.starts, blk, consts, out.easting_m, out.northing_m, out.height_m, hit,
+                    line_flag, counts, *scratch(p))
     exact, unresolved = resolve_exact(dem, out, line_flag, centre, rot, unit)
     if stats is not None:
         total = counts.sum(axis=0)

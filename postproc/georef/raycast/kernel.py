@@ -2,7 +2,9 @@
 coefficients, the footprints that size the blocks' maps) and the cast itself: the fast path
 (Newton steps from the previous line's range), the first-root certification, and the safe path
 (a cell-by-cell walk) for every ray the fast path could not certify. The method is in the
-package's docstring.
+package's docstring. Where the CPU has AVX2 and FMA the fast path and certification run in C
+instead (`_castkernel.c`, through fastpath.py, reading the constants here), and `safe_pass`
+takes the rays it leaves; `cast_blocks` is the fast path everywhere else.
 
 All of it stays in this one file, with every constant it reads: numba's on-disk cache is
 invalidated only by a change to the file that defines the cached function, not by a change to
@@ -782,3 +784,22 @@ def cast_blocks(dem: Any, dem_safe: Any, cols: int, table: Any, log2: Any, coef:
                                blk, b, consts, st, ratio, tiles, limit, out_e, out_n, out_h,
                                out_hit, line_flag, counts)
                 i0 = i + 1
+
+
+@_jit(parallel=True)
+def safe_pass(dem: Any, cols: int, coef: Any, look9: Any, starts: Any, blk: Any, consts: Any,
+              out_e: Any, out_n: Any, out_h: Any, out_hit: Any, line_safe: Any,
+              line_flag: Any, counts: Any) -> None:
+    """After the C fast path (fastpath.py): its rays left uncertified (hit 2, in the lines
+    line_safe flags) on the safe path, blocks in parallel."""
+    for b in numba.prange(starts.size - 1):
+        for i in range(starts[b], starts[b + 1]):
+            if line_safe[i] == 0:
+                continue
+            for j in range(look9.shape[1]):
+                if out_hit[i, j] == 2:
+                    code = _safe_to_output(i, j, dem, cols, coef, look9, blk, b, consts,
+                                           out_e, out_n, out_h, out_hit)
+                    counts[b, 1 + code] += 1
+                    if code == _EXACT:
+                        line_flag[i] = 1

@@ -315,6 +315,22 @@ def test_every_compiled_loop_is_in_the_kernel_file() -> None:
             assert not any(word in text for word in ("njit", "intrinsic", "@_jit")), path.name
 
 
+def _cpu_has_avx2_and_fma() -> bool:
+    flags = set()
+    for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
+        if line.startswith("flags"):
+            flags.update(line.split(":", 1)[1].split())
+    return {"avx2", "fma"} <= flags
+
+
+def test_the_c_kernel_is_built_and_used_where_the_cpu_can_run_it() -> None:
+    """The C tests below skip only on a CPU without AVX2/FMA: on one that has them (this
+    machine, CI's) an extension that failed to build must not pass as a silent fallback."""
+    if not Path("/proc/cpuinfo").is_file():
+        pytest.skip("no /proc/cpuinfo to ask the CPU's features")
+    assert (fastpath.LIB is not None) == _cpu_has_avx2_and_fma()
+
+
 @pytest.fixture(params=["c", "numba"])
 def kernel_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
     """Each test taking this runs on both fast paths: the C one (AVX2 + FMA; skipped where this

@@ -168,12 +168,13 @@ OBSERVED_TOPICS: Final = frozenset(
 records, headers, edges and raw bytes)."""
 
 
-def _start_server(host: str, port: int, context: foxglove.Context) -> WebSocketServer:
+def start_server(host: str, port: int, context: foxglove.Context) -> WebSocketServer:
     """foxglove-sdk's server, its threads at SERVER_NICENESS: they are created by the thread
     that starts the server and take its priority (Linux keeps one per thread), so they are
     started from a short-lived thread that lowers its own first. Its log records stay in the
-    SDK: a Python logger's level above CRITICAL is what pyo3-log caches, so a record is dropped
-    in the server thread without the interpreter lock."""
+    SDK: the `foxglove` logger's level is set above CRITICAL first, and pyo3-log caches it, so
+    a record (one per bad frame of a client) is dropped in the server thread without entering
+    Python; forwarded, each took the interpreter lock and printed on the crew's terminal."""
     logging.getLogger("foxglove").setLevel(logging.CRITICAL + 1)
     started: list[WebSocketServer | BaseException] = []
 
@@ -230,7 +231,7 @@ class LiveView:
         self.log = log
         self._ctx = foxglove.Context()
         try:
-            self.server = _start_server(host, port, self._ctx)
+            self.server = start_server(host, port, self._ctx)
         except Exception as exc:  # the SDK's own error type: a port in use, a bad address
             raise InputError(f"--live {host}:{port}: cannot serve: {exc}") from None
         self.port = self.server.port

@@ -400,7 +400,7 @@ SERVER_PROBE = """
 import json, logging, os, socket, sys, time
 from pathlib import Path
 import foxglove
-from sisa.wiring.live import _start_server
+from sisa.wiring.live import start_server
 from tests.live import RawClient
 
 def threads():
@@ -416,7 +416,7 @@ class Catch(logging.Handler):
         caught.append(record.getMessage())
 logging.getLogger("foxglove").addHandler(Catch())
 before = threads()
-server = _start_server("127.0.0.1", 0, foxglove.Context())
+server = start_server("127.0.0.1", 0, foxglove.Context())
 after = threads()
 for _ in range(3):  # what no client should send: each one a record of the SDK's
     with socket.create_connection(("127.0.0.1", server.port), timeout=2) as s:

@@ -24,7 +24,6 @@ recorder as it was, window A only), for the same hour's figure.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import re
@@ -167,20 +166,27 @@ def garbage(port: int, rng: np.random.Generator) -> None:
 
 def flood(port: int) -> None:
     """A client subscribed to everything that never reads, and two senders of garbage back to
-    back (--server-cost's flood; runs until killed)."""
+    back (--server-cost's flood): until killed, or until its parent or the server is gone."""
+    parent = os.getppid()
     stalled = RawClient(port, receive_buffer=4096)
     stalled.handshake()
     stalled.subscribe_all()
+    gone = threading.Event()
 
     def send(seed: int) -> None:
         rng = np.random.default_rng(seed)
-        while True:
-            with contextlib.suppress(OSError):
+        while not gone.is_set():
+            try:
                 garbage(port, rng)
+            except ConnectionRefusedError:
+                gone.set()
+            except OSError:
+                continue
 
     for seed in (1, 2):
         threading.Thread(target=send, args=(seed,), daemon=True).start()
-    threading.Event().wait()
+    while not gone.wait(1.0) and os.getppid() == parent:
+        continue
 
 
 def server_cost(seconds: float) -> None:

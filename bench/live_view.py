@@ -18,6 +18,7 @@ recorder as it was, window A only), for the same hour's figure.
     .venv/bin/python bench/live_view.py [--baseline] [--keep DIR]
     .venv/bin/python bench/live_view.py --pass-cost FLIGHT.mcap   (a pass's CPU on a long log)
     .venv/bin/python bench/live_view.py --late RUN [RUN ...]   (late edges by window of kept runs)
+    .venv/bin/python bench/live_view.py --server-cost SECONDS  (the server alone, under a flood)
 """
 
 from __future__ import annotations
@@ -65,8 +66,10 @@ def long_strip_scenario(folder: Path) -> Path:
     return path
 
 
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def cpu_s(pid: int, tid: int | None = None) -> float:
+    """CPU seconds of a process, or of one of its threads."""
+    stat = Path(f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat")
+    fields = stat.read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
@@ -161,6 +164,81 @@ def garbage(port: int, rng: np.random.Generator) -> None:
         c.close()
 
 
+def flood(port: int) -> None:
+    """A client subscribed to everything that never reads, and two senders of garbage back to
+    back (--server-cost's flood): until killed, or until its parent or the server is gone."""
+    parent = os.getppid()
+    stalled = RawClient(port, receive_buffer=4096)
+    stalled.handshake()
+    stalled.subscribe_all()
+    gone = threading.Event()
+
+    def send(seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        while not gone.is_set():
+            try:
+                garbage(port, rng)
+            except ConnectionRefusedError:
+                gone.set()
+            except OSError:
+                continue
+
+    for seed in (1, 2):
+        threading.Thread(target=send, args=(seed,), daemon=True).start()
+    while not gone.wait(1.0) and os.getppid() == parent:
+        continue
+
+
+def server_cost(seconds: float) -> None:
+    """What a client makes foxglove-sdk's server cost the process serving it, without the
+    rest of a recording: the live view's server (its threads lowered as `sisa record` lowers
+    them) and the recorder's channels, a loop that wakes every 5 ms and logs a 300-byte
+    message each wake; with no client, then the bench's garbage (window C), then a flood
+    (another process). The process's CPU, and how late the loop woke (what makes an edge
+    late)."""
+    import foxglove
+
+    from recorder.writer import SCHEMA_BYTES, TOPIC_TYPES
+    from sisa.wiring.live import start_server
+
+    ctx = foxglove.Context()
+    server = start_server("127.0.0.1", 0, ctx)
+    channels = [foxglove.Channel(str(t), context=ctx, message_encoding="json",
+                                 schema=foxglove.Schema(name=c.schema_name, encoding="jsonschema",
+                                                        data=SCHEMA_BYTES[c.schema_name]))
+                for t, c in TOPIC_TYPES.items()]
+    payload = json.dumps({"t_host_ns": 1, "data": "x" * 300}).encode()
+    here = [sys.executable, str(Path(__file__).resolve())]
+    for phase in ("no client", "garbage", "flood", "no client"):
+        helper: Any = None
+        if phase == "garbage":
+            helper = Hostile(server.port)
+            helper.start()
+        elif phase == "flood":
+            helper = subprocess.Popen([*here, "--flood", str(server.port)])
+        time.sleep(1.0)
+        late_ms, cpu0, t0 = [], time.process_time(), time.monotonic()
+        wake = t0
+        while time.monotonic() - t0 < seconds:
+            wake += 0.005
+            time.sleep(max(0.0, wake - time.monotonic()))
+            late_ms.append((time.monotonic() - wake) * 1e3)
+            wake = max(wake, time.monotonic() - 0.005)  # after a long stall: not a burst
+            channels[len(late_ms) % len(channels)].log(payload, log_time=time.time_ns())
+        cpu = 100 * (time.process_time() - cpu0) / (time.monotonic() - t0)
+        late = np.array(late_ms)
+        print(f"{phase}: process CPU {cpu:.1f} % of a core; loop woke late by median "
+              f"{np.median(late):.2f} ms, p99.9 {np.percentile(late, 99.9):.1f} ms, max "
+              f"{late.max():.1f} ms, {int((late > 15).sum())} wakes over 15 ms; load "
+              f"{os.getloadavg()[0]:.1f}", flush=True)
+        if isinstance(helper, Hostile):
+            helper.close()
+        elif helper is not None:
+            helper.kill()
+            helper.wait()
+    server.stop()
+
+
 def run(folder: Path, scenario: Path, live: bool) -> dict[str, Any]:
     port = free_port()
     out = folder / ("live" if live else "plain")
@@ -170,7 +248,8 @@ def run(folder: Path, scenario: Path, live: bool) -> dict[str, Any]:
         cmd += ["--live", str(port)]
     scratch = None
     bench = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    samples: list[tuple[int, float, float]] = []  # wall ns, recorder CPU s, live sync CPU s
+    # wall ns, recorder CPU s, live sync CPU s, the recorder's main thread (its loop, the tap)
+    samples: list[tuple[int, float, float, float]] = []
     done = threading.Event()
 
     def sample() -> None:
@@ -182,7 +261,8 @@ def run(folder: Path, scenario: Path, live: bool) -> dict[str, Any]:
                 sync = next((p for p in children(rec) if "livesync" in cmdline(p)), None)
             try:
                 samples.append((time.time_ns(), cpu_s(rec) if rec else float("nan"),
-                                cpu_s(sync) if sync else 0.0))
+                                cpu_s(sync) if sync else 0.0,
+                                cpu_s(rec, rec) if rec else float("nan")))
             except OSError:
                 continue
 
@@ -220,7 +300,7 @@ def run(folder: Path, scenario: Path, live: bool) -> dict[str, Any]:
         if len(win) < 2 or (not live and name != "A"):
             continue
         span = (win[-1][0] - win[0][0]) / 1e9
-        cpu[name] = (100 * (win[-1][1] - win[0][1]) / span, 100 * (win[-1][2] - win[0][2]) / span)
+        cpu[name] = tuple(100 * (win[-1][k] - win[0][k]) / span for k in (1, 2, 3))
     counts = SUMMARY.search(stdout)
     lag = re.search(r"latest emission ([\d.]+) ms behind", stdout)
     return {"out": out, "cpu": cpu, "client": summary, "stdout": stdout,
@@ -305,7 +385,16 @@ def main() -> None:
     parser.add_argument("--baseline", action="store_true",
                         help="first the same run without --live (window A only)")
     parser.add_argument("--keep", type=Path, default=None, help="keep the runs here")
+    parser.add_argument("--server-cost", type=float, default=None, metavar="SECONDS",
+                        help="only measure the server under no client, garbage and a flood")
+    parser.add_argument("--flood", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.flood is not None:
+        flood(args.flood)
+        return
+    if args.server_cost is not None:
+        server_cost(args.server_cost)
+        return
     if args.late:
         for folder in args.late:
             print(f"{folder}: late edges by window {late_by_window(folder / 'flight.mcap')}")
@@ -321,16 +410,19 @@ def main() -> None:
     scenario = long_strip_scenario(folder)
     if args.baseline:
         base = run(folder, scenario, live=False)
-        print(f"without --live: recorder {base['cpu']['A'][0]:.1f} % of a core (window A); "
+        print(f"without --live: recorder {base['cpu']['A'][0]:.1f} % of a core (window A; "
+              f"its loop's thread {base['cpu']['A'][2]:.1f} %); "
               f"late edges {base['late_edges']}, drops {base['drops']}, decode errors "
               f"{base['decode_errors']}; emulator lag {base['emulator_lag_ms']:.1f} ms; late "
               f"edges by window {late_by_window(base['out'] / 'flight.mcap')}")
     r = run(folder, scenario, live=True)
     names = {"A": "no client", "B": "a client reading every channel",
              "C": "a client that never reads + a garbage sender"}
-    for name, (rec, sync) in r["cpu"].items():
-        print(f"with --live, {names[name]}: recorder {rec:.1f} %, incremental sync {sync:.1f} %,"
-              f" together {rec + sync:.1f} % of a core")
+    for name, (rec, sync, main_thread) in r["cpu"].items():
+        print(f"with --live, {names[name]}: recorder {rec:.1f} % (its loop's thread "
+              f"{main_thread:.1f} %, its other threads {rec - main_thread:.1f} %: flush, live "
+              f"view, foxglove-sdk server), incremental sync {sync:.1f} %, together "
+              f"{rec + sync:.1f} % of a core")
     print(f"late edges {r['late_edges']}, drops {r['drops']}, decode errors "
           f"{r['decode_errors']}; emulator lag {r['emulator_lag_ms']:.1f} ms; stalled client "
           f"subscribed to {r['stalled_channels']} channels, {r['garbage_rounds']} garbage rounds; "

@@ -4,10 +4,17 @@ the crew sees in the air what `sisa sync` would say after landing (docs/live.md)
 The recorder's duties come first. The recorder hands each message to `LiveView.tap` after
 writing it, already encoded: the tap passes the same bytes to a foxglove-sdk channel (the
 SDK's server runs in its own native threads and drops the oldest messages of a client that
-does not keep up) and notes a few fields of the sync unit's and the health messages. A thread
-publishes the derived topics once a second; the incremental sync runs in a process of its own
-at the lowest priority (`sisa.wiring.livesync`) and its passes come back through a pipe. A
-failure of any of it is counted, never raised into the recording.
+does not keep up; with no client subscribed the SDK drops the message at once) and notes a few
+fields of the sync unit's and the health messages. A thread builds the derived topics once a
+second, each only while a client is subscribed to it; the incremental sync runs in a process of
+its own at a lower priority (`sisa.wiring.livesync`) and its passes come back through a pipe.
+A failure of any of it is counted, never raised into the recording.
+
+What a client does must not reach the recording (docs/live.md): the SDK's server threads run
+at the incremental sync's lower priority, so a flood of connections competes with the sync
+unit's real-time loop only for what the loop leaves; and the SDK's own log records (one for
+every bad frame or failed handshake) are not forwarded into Python, where each took the
+interpreter lock in a server thread and printed a line on the crew's terminal.
 
 Topics served, besides every logged one with its schema:
     /live/sync            sisa.LiveSync: mode, LFSR, pulses forwarded and tagged, PPS lock, and
@@ -23,6 +30,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
+import os
 import shutil
 import subprocess
 import sys
@@ -35,6 +44,7 @@ from typing import IO, TYPE_CHECKING, Any, Final, Literal
 import foxglove
 from foxglove.channels import GeoJsonChannel, LocationFixChannel
 from foxglove.messages import Color, GeoJson, LocationFix, Timestamp
+from foxglove.websocket import WebSocketServer
 
 from recorder.messages import (
     GpsFix,
@@ -60,6 +70,7 @@ DISK_RATE_WINDOW_S: Final = 30.0
 SYNC_PERIOD_S: Final = 5.0
 FINAL_PASS_TIMEOUT_S: Final = 120.0
 STALE_SYNC_S: Final = 60.0  # no pass for this long: the crew is told the view is old
+SERVER_NICENESS: Final = 10  # the SDK's threads: as the incremental sync (livesync.NICENESS)
 GREEN: Final = Color(r=0.17, g=0.63, b=0.17, a=1.0)
 AMBER: Final = Color(r=1.0, g=0.5, b=0.05, a=1.0)
 RED: Final = Color(r=0.84, g=0.15, b=0.16, a=1.0)
@@ -150,6 +161,65 @@ class _SyncUnit:
             self.fix = msg
 
 
+OBSERVED_TOPICS: Final = frozenset(
+    cls.topic for cls in (SyncPps, SyncForward, GpsTimeTag, SyncModeSwitch, SyncSession,
+                          StreamHealth, GpsFix))
+"""What `_SyncUnit.observe` reads; the tap hands it nothing else (most messages are INS
+records, headers, edges and raw bytes)."""
+
+
+def start_server(host: str, port: int, context: foxglove.Context) -> WebSocketServer:
+    """foxglove-sdk's server, its threads at SERVER_NICENESS: they are created by the thread
+    that starts the server and take its priority (Linux keeps one per thread), so they are
+    started from a short-lived thread that lowers its own first. Its log records stay in the
+    SDK: the `foxglove` logger's level is set above CRITICAL first, and pyo3-log caches it, so
+    a record (one per bad frame of a client) is dropped in the server thread without entering
+    Python; forwarded, each took the interpreter lock and printed on the crew's terminal."""
+    logging.getLogger("foxglove").setLevel(logging.CRITICAL + 1)
+    started: list[WebSocketServer | BaseException] = []
+
+    def start() -> None:
+        with contextlib.suppress(OSError):  # not lowered: the server still serves
+            os.setpriority(os.PRIO_PROCESS, 0, SERVER_NICENESS)  # this thread only (Linux)
+        try:
+            started.append(foxglove.start_server(name="sisa", host=host, port=port,
+                                                 context=context))
+        except BaseException as exc:  # handed to the caller's thread
+            started.append(exc)
+
+    starter = threading.Thread(target=start, name="sisa-live-start")
+    starter.start()
+    starter.join()
+    if isinstance(started[0], BaseException):
+        raise started[0]
+    return started[0]
+
+
+class _Latched:
+    """A channel whose latest message a newly subscribed client gets at once (the plan, the
+    footprint), and nothing is sent while no client is subscribed."""
+
+    def __init__(self, channel: GeoJsonChannel) -> None:
+        self.channel = channel
+        self.latest: str = ""
+        self._subscribed = False
+
+    def put(self, geojson: str) -> None:
+        self.latest = geojson
+        if self.channel.has_sinks():
+            self.channel.log(GeoJson(geojson=geojson), log_time=time.time_ns())
+
+    def resend_if_new_subscriber(self, again_at: float) -> bool:
+        """Send the latest again if a client has subscribed since the last look, or at
+        `again_at` (monotonic s; a second client subscribed beside the first); whether sent."""
+        subscribed = self.channel.has_sinks()
+        fresh, self._subscribed = subscribed and not self._subscribed, subscribed
+        if self.latest and subscribed and (fresh or time.monotonic() >= again_at):
+            self.channel.log(GeoJson(geojson=self.latest), log_time=time.time_ns())
+            return True
+        return False
+
+
 class LiveView:
     """A Foxglove WebSocket server for one recording; `tap` is the recorder's."""
 
@@ -159,11 +229,9 @@ class LiveView:
         """`camera`: a frame camera is recorded, so its topics are served (a flight without
         one advertises no channel that can never carry a message)."""
         self.log = log
-        self._strips = strips_geojson
         self._ctx = foxglove.Context()
         try:
-            self.server = foxglove.start_server(name="sisa", host=host, port=port,
-                                                context=self._ctx)
+            self.server = start_server(host, port, self._ctx)
         except Exception as exc:  # the SDK's own error type: a port in use, a bad address
             raise InputError(f"--live {host}:{port}: cannot serve: {exc}") from None
         self.port = self.server.port
@@ -178,8 +246,9 @@ class LiveView:
         self._health_ch = foxglove.Channel("/live/health", schema=LIVE_HEALTH_SCHEMA,
                                            context=self._ctx)
         self._position_ch = LocationFixChannel("/live/position", context=self._ctx)
-        self._strips_ch = GeoJsonChannel("/live/map/strips", context=self._ctx)
-        self._footprint_ch = GeoJsonChannel("/live/map/footprint", context=self._ctx)
+        self._strips = _Latched(GeoJsonChannel("/live/map/strips", context=self._ctx))
+        self._strips.latest = strips_geojson
+        self._footprint = _Latched(GeoJsonChannel("/live/map/footprint", context=self._ctx))
         self.unit = _SyncUnit()
         self.served = 0
         self.failures = 0
@@ -210,9 +279,9 @@ class LiveView:
             data: bytes) -> None:
         """A message the recorder has just written: to its channel, as written."""
         try:
-            self._channels[str(topic)].log(data, log_time=log_ns)
+            self._channels[topic].log(data, log_time=log_ns)
             self.served += 1
-            if topic != Topic.GPS_LOCATION:  # (the fix itself comes on its own topic)
+            if topic in OBSERVED_TOPICS:  # (not GPS_LOCATION: the fix comes on its own)
                 self.unit.observe(msg)
         except Exception:  # the view loses a message, never the log
             self.failures += 1
@@ -232,8 +301,7 @@ class LiveView:
                 with self._lock:
                     self._sync, self._sync_wall_ns = result, time.time_ns()
                     self.sync_passes += 1
-                self._footprint_ch.log(GeoJson(geojson=result["footprint"]),
-                                       log_time=time.time_ns())
+                self._footprint.put(result["footprint"])
             except (ValueError, KeyError, TypeError):
                 self.sync_failures += 1
 
@@ -242,21 +310,25 @@ class LiveView:
         while not self._stop.wait(PUBLISH_PERIOD_S):
             try:
                 self.publish()
-                now = time.monotonic()
-                if self._strips and now >= next_strips:
-                    self._strips_ch.log(GeoJson(geojson=self._strips), log_time=time.time_ns())
-                    next_strips = now + STRIPS_PERIOD_S
+                if self._strips.resend_if_new_subscriber(next_strips):
+                    next_strips = time.monotonic() + STRIPS_PERIOD_S
+                self._footprint.resend_if_new_subscriber(float("inf"))
             except Exception:  # the next second tries again
                 self.failures += 1
 
-    def publish(self) -> None:
-        """The derived topics, now."""
+    def publish(self, *, every: bool = False) -> None:
+        """The derived topics, now: those a client is subscribed to (`every`: all of them)."""
         now_ns = time.time_ns()
+        want_sync, want_fix = self._sync_ch.has_sinks(), self._position_ch.has_sinks()
+        if every or self._health_ch.has_sinks():
+            self._health_ch.log(self.health(now_ns), log_time=now_ns)
+        if not (every or want_sync or want_fix):
+            return
         state = self.sync_state(now_ns)
-        self._sync_ch.log(state, log_time=now_ns)
-        self._health_ch.log(self.health(now_ns), log_time=now_ns)
+        if every or want_sync:
+            self._sync_ch.log(state, log_time=now_ns)
         fix = self.unit.fix
-        if fix is not None:
+        if fix is not None and (every or want_fix):
             colour = RED if state["warning_count"] else GREEN if state["ins_timed"] else AMBER
             self._position_ch.log(LocationFix(
                 timestamp=Timestamp(sec=fix.t_host_ns // 10**9, nsec=fix.t_host_ns % 10**9),
@@ -337,7 +409,7 @@ class LiveView:
         self._stop.set()
         self._publisher.join(timeout=5.0)
         with contextlib.suppress(Exception):
-            self.publish()
+            self.publish(every=True)
         self.server.stop()
 
     def summary(self) -> str:

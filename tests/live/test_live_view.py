@@ -38,6 +38,7 @@ from sisa.wiring.live import (
     CAMERA_TOPICS,
     LIVE_HEALTH_SCHEMA,
     LIVE_SYNC_SCHEMA,
+    SERVER_NICENESS,
     LiveView,
     layout_json,
     listen_address,
@@ -217,6 +218,9 @@ def test_a_client_that_never_reads_and_one_that_sends_garbage_leave_the_recordin
     # a late edge is the recorder's only if the emulator kept to its schedule (sisa bench says
     # which side made it late: a loaded desk machine is not the recorder)
     assert " 0 late edges" in out or "not the recorder's doing" in live_run["stderr"], out
+    # nor did the garbage reach the crew's terminal (the SDK's records of it stay in the SDK)
+    for said in ("handshake failed", "Invalid message from", "Error receiving from client"):
+        assert said not in live_run["stderr"], live_run["stderr"][-2000:]
     ins = read_columns(run / "flight.mcap", Topic.INS_RECORD)["ins_time_ticks"]
     sent = read_truth_csv(run / "truth" / "ins_records.csv")["ins_time_ticks"]
     assert len(ins) >= DURATION_S * 64 - 2
@@ -390,6 +394,61 @@ def test_the_crew_is_told_when_the_incremental_sync_has_stopped(tmp_path: Path) 
         assert view.health(time.time_ns())["log_bytes"] == 0  # no log yet: nothing, no error
     finally:
         view.close()
+
+
+SERVER_PROBE = """
+import json, logging, os, socket, sys, time
+from pathlib import Path
+import foxglove
+from sisa.wiring.live import start_server
+from tests.live import RawClient
+
+def threads():
+    out = {}
+    for task in Path("/proc/self/task").iterdir():
+        stat = (task / "stat").read_text()
+        out[int(task.name)] = int(stat.rsplit(")", 1)[1].split()[16])  # nice
+    return out
+
+caught = []
+class Catch(logging.Handler):
+    def emit(self, record):
+        caught.append(record.getMessage())
+logging.getLogger("foxglove").addHandler(Catch())
+before = threads()
+server = start_server("127.0.0.1", 0, foxglove.Context())
+after = threads()
+for _ in range(3):  # what no client should send: each one a record of the SDK's
+    with socket.create_connection(("127.0.0.1", server.port), timeout=2) as s:
+        s.sendall(os.urandom(256))
+    c = RawClient(server.port, timeout_s=2)
+    c.handshake()
+    c.send_frame(b"{not json")
+    c.send_frame(b'{"op":"explode"}')
+    c.close()
+time.sleep(1.0)
+server.stop()
+print(json.dumps({"main": os.getpriority(os.PRIO_PROCESS, 0),
+                  "server": [after[t] for t in after if t not in before], "caught": caught}))
+"""
+
+
+def test_the_servers_threads_give_way_to_the_recorder_and_its_records_stay_in_the_sdk(
+        ) -> None:
+    """foxglove-sdk's server threads run below the recorder's loop (a flood of connections
+    costs them a quarter of a core: docs/live.md), the loop's own thread keeps its priority,
+    and a bad client's frames make no Python log record (each took the interpreter lock in a
+    server thread and printed a line on the crew's terminal). In a process of its own: the
+    SDK's log bridge caches a logger's level at its first record."""
+    done = subprocess.run([sys.executable, "-c", SERVER_PROBE], capture_output=True,
+                          text=True, timeout=60, cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0, done.stderr
+    said = json.loads(done.stdout)
+    assert said["main"] == 0
+    assert said["server"], said
+    assert all(nice >= SERVER_NICENESS for nice in said["server"]), said
+    assert said["caught"] == []
+    assert done.stderr == ""
 
 
 def test_a_port_in_use_is_one_line_and_exit_2_before_anything_is_recorded(tmp_path: Path

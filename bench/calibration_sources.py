@@ -69,6 +69,7 @@ from postproc.calibration.problem import (
 from postproc.calibration.solve import Solution, posterior
 from postproc.calibration.surface import DemSurface
 from postproc.georef import AntennaFixes, InsSamples, Trajectory, ecef_to_geodetic, fuse_ins_gps
+from sisa.commands.process import sensor_of
 from sisa.core.frames import body_to_ned_matrix, ned_to_ecef_matrix
 from sisa.core.timescale import NS_PER_S, seconds_since
 from sisa.wiring.gcpsim import (
@@ -212,7 +213,7 @@ def adjust_b(ex: Exact, traj: Trajectory, points: GroundPoints, obs: ImageObserv
              surface: OffsetSurface | DemSurface, boresight: tuple[float, float, float]
              ) -> dict[str, Any]:
     f = ex.flight
-    s = mc.sensor_of(f.scn)
+    s = sensor_of(f.scn)
     m = s.mounting.model_copy(update={"boresight_arcsec": boresight})
     sensor = s.model_copy(update={"mounting": m, "time_delay_ms": 0.0})
     inp = CalibrationInput(traj, f.clock, points, obs, sensor, surface, f.navigation)
@@ -232,7 +233,8 @@ def draw(ex: Exact, source: str, i: int, base_traj: Trajectory, base_surface: De
     on = frozenset(EXPANDS.get(source, {source} - {"none"}))
     f = ex.flight
     rng = np.random.default_rng([f.scn.seed, SOURCES.index(source), i, 3232])
-    obs, points, surface = ex.obs, ex.points, base_surface
+    obs, points = ex.obs, ex.points
+    surface: OffsetSurface | DemSurface = base_surface
     noise = mc.SETTINGS.noise_px
     if "image" in on:
         n = len(obs)
@@ -244,7 +246,8 @@ def draw(ex: Exact, source: str, i: int, base_traj: Trajectory, base_surface: De
         ties = ex.true_points.kind == "tie"
         err = rng.normal(0.0, mc.SETTINGS.tie_height_noise_m, int(ties.sum()))
         surface = OffsetSurface(base_surface, ex.true_points.ecef_m[ties], err)
-    boresight = tuple(float(v) for v in f.scn.mounting.boresight_arcsec)
+    b = f.scn.mounting.boresight_arcsec
+    boresight = (float(b[0]), float(b[1]), float(b[2]))
     traj = base_traj
     if on & NAV_SOURCES:
         traj, att = navigation(f, on, rng)
@@ -252,7 +255,7 @@ def draw(ex: Exact, source: str, i: int, base_traj: Trajectory, base_surface: De
         truth = FlightTruth(f.truth.scn, f.truth.traj, f.truth.segments, f.truth.dem,
                             att.bias_rad / arcsec, att.drift_rad_per_s * 3600.0 / arcsec)
         boresight = effective_boresight_arcsec(truth, ex.t_obs_ns)  # B's "known" boresight
-    out = adjust_b(ex, traj, points, obs, surface, boresight)  # type: ignore[arg-type]
+    out = adjust_b(ex, traj, points, obs, surface, boresight)
     out.update({"flight": int(f.scn.seed - 32_000), "source": source, "draw": i})
     return out
 

@@ -3,14 +3,13 @@ the COG layout (rio-cogeo), and checked by rio-cogeo's validator."""
 
 from __future__ import annotations
 
-import contextlib
-import os
+import shutil
 from pathlib import Path
 from typing import Final
 
-from postproc.products import TIFF_BLOCK
+from postproc.products import TIFF_BLOCK, replace_file
 from sisa.core.errors import InputError
-from sisa.core.outdir import create_partial
+from sisa.core.outdir import create_partial, new_private_dir
 
 # nearest: the overviews keep the scanner's own values (no mixing of spectra), as the ortho does
 OVERVIEW_RESAMPLING: Final = "nearest"
@@ -30,17 +29,17 @@ def write_cog(src: Path, dst: Path) -> None:
     profile = dict(cog_profiles.get("deflate"))  # type: ignore[no-untyped-call]
     profile.update(blockxsize=TIFF_BLOCK, blockysize=TIFF_BLOCK, interleave="band",
                    predictor=3 if floats else 2)
-    tmp, fd = create_partial(dst)
-    os.close(fd)
+    # made new in a hidden folder of ours and put in place by replace_file: over a placeholder
+    # or over `src` ext4 would write the whole COG out to disk on our time (new_private_dir)
+    folder, _ = create_partial(dst, new_private_dir)
     try:
+        tmp = folder / dst.name
         cog_translate(str(src), str(tmp), profile, overview_resampling=OVERVIEW_RESAMPLING,
                       in_memory=False, quiet=True, forward_band_tags=True,
                       forward_ns_tags=True)
-        os.replace(tmp, dst)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+        replace_file(tmp, dst)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def check_cog(path: Path) -> None:

@@ -19,6 +19,7 @@ from postproc.products.igm import (
     igm_epsg,
     igm_pixel_spacing_m,
     open_igm,
+    replace_file,
     write_geolocation_vrt,
 )
 from postproc.products.mosaic import mosaic
@@ -39,5 +40,6 @@ __all__ = [
     "Resampling", "RgbView",
     "SwathIndex", "common_lines", "footprint_feature", "igm_bounds", "igm_epsg",
     "igm_pixel_spacing_m", "mosaic", "nice_cell_m", "open_igm", "orthorectify", "read_rgb",
-    "signed_area", "write_footprints_geojson", "write_geolocation_vrt", "write_quicklook",
+    "replace_file", "signed_area", "write_footprints_geojson", "write_geolocation_vrt",
+    "write_quicklook",
 ]

@@ -18,7 +18,6 @@ from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from pyproj import Geod, Transformer
 
 from postproc.products.igm import IgmSource, iter_igm_blocks, projected_crs
 from sisa.core.errors import InputError
@@ -161,6 +160,10 @@ def footprint_feature(igm: IgmSource, epsg: int, *, properties: Mapping[str, Any
                              "last_line": fp.last_line, "area_m2": 0.0}
     geometry: dict[str, Any] | None = None
     if fp.ring_m.shape[0] >= 4:
+        # here, not at the top: every user of postproc.products imports this module, and
+        # pyproj's import cost `sisa ortho`, which never needs it, ~0.05 s
+        from pyproj import Geod, Transformer
+
         to_geo = Transformer.from_crs(int(epsg), 4326, always_xy=True)
         lon, lat = to_geo.transform(fp.ring_m[:, 0], fp.ring_m[:, 1])
         lon = np.round(np.asarray(lon), COORD_DECIMALS)

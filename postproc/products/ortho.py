@@ -23,7 +23,9 @@ import dataclasses
 import importlib
 import itertools
 import math
+import mmap
 import os
+import shutil
 import warnings
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -57,7 +59,7 @@ from postproc.products.igm import (
 from postproc.products.resample import Resampling, fractional_offsets, interpolate
 from sisa.core.errors import InputError
 from sisa.core.interrupt import raise_if_stopped
-from sisa.core.outdir import create_partial
+from sisa.core.outdir import create_partial, new_private_dir
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
@@ -440,6 +442,7 @@ class Scratch:
 
     def __init__(self) -> None:
         self._bufs: dict[str, npt.NDArray[Any]] = {}
+        self._maps: dict[str, mmap.mmap | None] = {}
 
     def get(self, name: str, shape: tuple[int, ...], dtype: npt.DTypeLike,
             fill: float | None = None) -> npt.NDArray[Any]:
@@ -467,21 +470,26 @@ class Scratch:
 
     def read_lines(self, name: str, raster: EnviRaster, line0: int, line1: int
                    ) -> npt.NDArray[Any]:
-        """raster.read_lines(line0, line1), into a reused array when the file is BIL in
-        native byte order (a fresh array per read costs more in page faults than the copy);
-        anything else, and errors, are read_lines' own."""
+        """raster.read_lines(line0, line1), read-only, as a view of the file mapped into memory
+        when the file is BIL in native byte order: no copy of the page cache into a buffer
+        (an IGM's heights, a third of it, are then never touched), valid until the next read
+        of this name; anything else, and errors, are read_lines' own."""
         if raster.interleave != "bil" or not raster.dtype.isnative or \
-                not 0 <= line0 <= line1 <= raster.lines:
+                not 0 <= line0 < line1 <= raster.lines:
             return raster.read_lines(line0, line1)
-        out = self.get(name, (line1 - line0, raster.bands, raster.pixels), raster.dtype)
-        view, at = out.data.cast("B"), 0
+        start = raster.header_offset + line0 * raster.line_bytes
+        length = (line1 - line0) * raster.line_bytes
+        skip = start % mmap.ALLOCATIONGRANULARITY
         with raster.path.open("rb", buffering=0) as fh:
-            fh.seek(raster.header_offset + line0 * raster.line_bytes)
-            while at < len(view) and (got := fh.readinto(view[at:])):
-                at += got
-        if at != len(view):
-            raise InputError(f"{raster.path}: truncated while reading")
-        return out
+            if os.fstat(fh.fileno()).st_size < start + length:  # cut since it was opened
+                raise InputError(f"{raster.path}: truncated while reading")
+            self._maps[name] = None  # the last mapping of this name goes with its arrays
+            mapped = mmap.mmap(fh.fileno(), skip + length, offset=start - skip,
+                               access=mmap.ACCESS_READ)
+        self._maps[name] = mapped
+        out = np.frombuffer(mapped, raster.dtype, (line1 - line0) * raster.bands
+                            * raster.pixels, skip)
+        return out.reshape(line1 - line0, raster.bands, raster.pixels)
 
 
 @dataclass(frozen=True)
@@ -515,6 +523,7 @@ def nearest_pixels(index: SwathIndex, grid: OrthoGrid, row0: int, col0: int, row
         hi = min(q1 + 1 + DESCENT_MARGIN_LINES, index.raster.lines)
         blk = sc.read_lines("igm", index.raster, lo, hi)
         if index.far is not None:
+            blk = np.array(blk)  # the file's view is read-only
             index.far.void(blk, lo)
         u = sc.get("u", (hi - lo, blk.shape[2]), np.float64)
         v = sc.get("v", (hi - lo, blk.shape[2]), np.float64)
@@ -691,8 +700,10 @@ class TiffWriter:
             raise InputError(f"GeoTIFF compression {compress!r}: use one of "
                              f"{', '.join(TIFF_COMPRESSIONS)}")
         self.path = Path(path)
-        self._tmp, fd = create_partial(self.path)  # its name taken (GDAL then writes it by its
-        os.close(fd)  # path)
+        # GDAL creates the file new, in a hidden folder of ours (see new_private_dir: a 600 MB
+        # GeoTIFF opened over a placeholder was written out to disk in its close, 0.06 s)
+        self._dir, _ = create_partial(self.path, new_private_dir)
+        self._tmp = self._dir / self.path.name
         kind = np.dtype(raw.dtype.name).kind
         packing: dict[str, Any] = {"compress": compress}
         if compress != "none":
@@ -714,10 +725,10 @@ class TiffWriter:
                 # the 4th then an alpha mask over the data (found by a bad-input sweep)
                 photometric="MINISBLACK", num_threads="ALL_CPUS", **packing)
         except RasterioIOError as exc:  # a grid GDAL cannot hold, a folder it cannot write
-            self._tmp.unlink(missing_ok=True)
+            shutil.rmtree(self._dir, ignore_errors=True)
             raise InputError(f"{self.path}: GDAL cannot create a {grid.width} x {grid.height} "
                              f"GeoTIFF of {raw.bands} bands: "
-                             f"{str(exc).replace(self._tmp.name, self.path.name)}") from None
+                             f"{str(exc).replace(str(self._tmp), str(self.path))}") from None
         self._ds.update_tags(AREA_OR_POINT="Area", TIFFTAG_IMAGEDESCRIPTION=description)
         labels = band_labels(raw)
         for k, b in enumerate(range(raw.bands) if self._bands is None else self._bands):
@@ -762,7 +773,10 @@ class TiffWriter:
         except BaseException:
             self.abort()
             raise
-        replace_file(self._tmp, self.path)
+        try:
+            replace_file(self._tmp, self.path)
+        finally:
+            shutil.rmtree(self._dir, ignore_errors=True)
 
     def abort(self) -> None:
         try:
@@ -771,7 +785,7 @@ class TiffWriter:
         finally:
             self._pool.shutdown()
             self._ds.close()
-            self._tmp.unlink(missing_ok=True)
+            shutil.rmtree(self._dir, ignore_errors=True)
 
 
 class GltWriter:

@@ -37,6 +37,15 @@ def open_new_file(path: Path) -> int:
     return os.open(path, _NEW_FILE_FLAGS, 0o644)
 
 
+def new_private_dir(path: Path) -> None:
+    """Create the folder `path`, which must not exist, open to this user alone (an opener for
+    `create_partial`): nobody else can plant a link in it under the name a file is then made
+    by. For files another library creates by their path: created new in it, not opened over a
+    placeholder, which truncating (even empty) has ext4 write the whole file out to disk when
+    it is closed (auto_da_alloc), on the writer's time."""
+    os.mkdir(path, 0o700)
+
+
 @overload
 def create_partial(final: Path) -> tuple[Path, int]: ...
 

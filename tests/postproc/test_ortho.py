@@ -426,15 +426,23 @@ def test_the_ortho_starts_without_numba() -> None:
     assert got.stdout.strip() == "[]"
 
 
-def test_reads_into_reused_arrays_match_read_lines(tmp_path: Path) -> None:
+def test_mapped_reads_match_read_lines(tmp_path: Path) -> None:
     img = write_raw(tmp_path / "a.bil", 50, 9)
     raw = EnviRaster.open(tmp_path / "a.bil")
     sc = ortho.Scratch()
     first = sc.read_lines("raw", raw, 3, 20)
     np.testing.assert_array_equal(first, img[3:20])
+    assert not first.flags.writeable  # a view of the file, not a copy
     again = sc.read_lines("raw", raw, 10, 12)
-    assert np.shares_memory(first, again)  # the same array, reused
     np.testing.assert_array_equal(again, img[10:12])
+    np.testing.assert_array_equal(first, img[3:20])  # an earlier read stays valid while held
+    # a file cut after it was opened: said, not a crash on a page past its end
+    with (tmp_path / "a.bil").open("r+b") as fh:
+        fh.truncate(raw.header_offset + 30 * raw.line_bytes)
+    np.testing.assert_array_equal(sc.read_lines("raw", raw, 0, 30), img[:30])
+    with pytest.raises(InputError, match="truncated"):
+        sc.read_lines("raw", raw, 20, 31)
+    img = write_raw(tmp_path / "a.bil", 50, 9)
     # big-endian or band-sequential: raster.read_lines, which converts
     img.astype(">u2").transpose(1, 0, 2).tofile(tmp_path / "b.bil")
     hdr = (tmp_path / "a.hdr").read_text().replace("interleave = bil", "interleave = bsq")

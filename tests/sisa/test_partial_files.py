@@ -102,3 +102,42 @@ def test_a_guessed_name_with_a_link_under_it_is_never_followed(
     with pytest.raises(FileExistsError):
         outdir.create_partial(final)
     assert victim.read_bytes() == VICTIM
+
+
+def test_a_private_folder_is_made_new_and_never_through_a_link(
+        tmp_path: Path, victim: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The hidden folder a GeoTIFF or COG is made in (GDAL then creates the file new in it):
+    a link planted under a guessed name is passed over, and the folder is the user's alone."""
+    import stat
+
+    from sisa.core import outdir
+    tokens = iter(["guessed", "fresh"])
+    monkeypatch.setattr(outdir.secrets, "token_hex", lambda _n: next(tokens))
+    final = tmp_path / "ortho.tif"
+    link = tmp_path / f".ortho.tif.partial-{os.getpid()}-guessed"
+    link.symlink_to(victim.parent)
+    folder, _ = outdir.create_partial(final, outdir.new_private_dir)
+    assert folder.name.endswith("-fresh")
+    assert folder.is_dir()
+    assert not folder.is_symlink()
+    assert stat.S_IMODE(folder.stat().st_mode) == 0o700
+    assert list(victim.parent.iterdir()) == [victim]
+
+
+def test_a_cog_rewritten_in_place_leaves_nothing_beside_it(tmp_path: Path) -> None:
+    """write_cog(tif, tif), as the campaign calls it: the COG in place, valid, the same
+    pixels, and no hidden folder or set-aside file left in the folder."""
+    import rasterio
+
+    from postproc.campaign import check_cog, write_cog
+    tif = tmp_path / "seg.tif"
+    data = np.arange(3 * 300 * 200, dtype=np.uint16).reshape(3, 300, 200)
+    with rasterio.open(tif, "w", driver="GTiff", width=200, height=300, count=3,
+                       dtype="uint16", crs="EPSG:32631", nodata=0,
+                       transform=rasterio.Affine(1, 0, 461_000, 0, -1, 4_661_000)) as ds:
+        ds.write(data)
+    write_cog(tif, tif)
+    check_cog(tif)
+    with rasterio.open(tif) as ds:
+        np.testing.assert_array_equal(ds.read(), data)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seg.tif"]

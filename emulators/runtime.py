@@ -151,8 +151,19 @@ class Runner:
                     self._deliver(dev.emit(t_ns))
                 self._reschedule(i)
         finally:
-            for dev in self.devices:
+            self._finish_all()
+
+    def _finish_all(self) -> None:
+        """Every device's finish, even after one raised (a disk error writing the scanner's
+        last lines must not leave the other devices' truth unwritten); then the first error."""
+        error: BaseException | None = None
+        for dev in self.devices:
+            try:
                 dev.finish()
+            except BaseException as exc:
+                error = error or exc
+        if error is not None:
+            raise error
 
     def _reschedule(self, i: int) -> None:
         """Ask device i for its next time; a new time replaces its entry in the heap."""

@@ -13,9 +13,10 @@ What it does, and why:
   counter value is used, but it is not recorded: no header and no image line.
 - The recording (with `out_dir`) is what the CASI itself writes: per segment an ENVI BIL of
   uint16 DN, its .hdr, and a CSV of the frame counter of every recorded line, which is the only
-  link between an image line and the pulse that timed it. It is written block by block, so
-  memory does not depend on the segment length. Lines are rendered by emulators.render from
-  the TRUE pose at the frame's true mid-exposure time.
+  link between an image line and the pulse that timed it. It is written block by block (a
+  block's exposed lines in one append, its header rewritten once), so memory does not depend
+  on the segment length and the files are not rewritten per line. Lines are rendered by
+  emulators.render from the TRUE pose at the frame's true mid-exposure time.
 - Truth (table `frames`, and `faults` for dropped frames) stays beside the run: the recording
   holds nothing a real scanner would not know.
 """
@@ -332,6 +333,9 @@ class ScannerEmulator(Device):
         self._next_tick = self._segments[0].first_tick if self._segments else 0
         self._counter = 0
         self._staged: list[_Staged] = []
+        # exposed frames not yet in the recording and the frames table: (frames, line index
+        # of each, their lines)
+        self._unwritten: list[tuple[_Block, I64, U16 | None]] = []
         self._lines_segment, self._lines_in_segment = -1, 0
         self._pending: list[tuple[int, int, Output]] = []
         self._order = 0
@@ -364,7 +368,10 @@ class ScannerEmulator(Device):
 
     def finish(self) -> None:
         self._staged.clear()  # scheduled, never exposed: the run stopped before them
-        self._close_writer()
+        try:
+            self._write_exposed()
+        finally:
+            self._close_writer()
 
     # --- truth and statistics -----------------------------------------------------------------
 
@@ -433,6 +440,7 @@ class ScannerEmulator(Device):
                 return
             self._staged.pop(0)
             self._record(staged.block, staged.dn)
+            self._write_exposed()
             if staged.ends_segment:
                 self._close_writer()
 
@@ -451,16 +459,41 @@ class ScannerEmulator(Device):
         return _Block(segment, t_mid, t_hdr, counters, dropped)
 
     def _record(self, block: _Block, dn: U16 | None) -> None:
-        """Write exposed frames (their rendered lines `dn`, if any) and their truth."""
+        """Exposed frames (their rendered lines `dn`, if any): their dropped-frame faults now,
+        their lines and their rows of the frames table once their block is exposed
+        (`_write_exposed`)."""
         if block.segment != self._lines_segment:
             self._lines_segment, self._lines_in_segment = block.segment, 0
         kept = ~block.dropped
         line_index = np.full(block.counters.size, -1, dtype=np.int64)
         line_index[kept] = self._lines_in_segment + np.arange(int(kept.sum()))
         self._lines_in_segment += int(kept.sum())
-        if dn is not None and len(dn):
-            self._writer_for(block.segment).append(dn, block.counters[kept])
-        self._log_truth(block, line_index)
+        self._unwritten.append((block, line_index, dn))
+        for i in np.flatnonzero(block.dropped):
+            self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
+                               target="scanner", detail=f"segment {block.segment} frame_counter "
+                               f"{int(block.counters[i])}")
+
+    def _write_exposed(self) -> None:
+        """The exposed frames not yet written: their lines in one append (the recording),
+        then their rows of the frames table (the truth of what was recorded, no more: a disk
+        error leaves both at the last whole block). A block's frames are exposed one
+        emission at a time; an append per frame rewrote the segment's header for every line,
+        most of a garrotxa simulation's time went in those files' renames."""
+        if not self._unwritten:
+            return
+        parts, self._unwritten = self._unwritten, []
+        lines = [(dn, block.counters[~block.dropped]) for block, _, dn in parts
+                 if dn is not None and len(dn)]
+        if lines:
+            writer = self._writer_for(parts[0][0].segment)
+            if len(lines) == 1:
+                writer.append(*lines[0])
+            else:
+                writer.append(np.concatenate([d for d, _ in lines]),
+                              np.concatenate([c for _, c in lines]))
+        for block, line_index, _ in parts:
+            self._log_truth(block, line_index)
 
     def _writer_for(self, segment: int) -> BilSegmentWriter:
         if self._writer is None:
@@ -481,10 +514,6 @@ class ScannerEmulator(Device):
                            frame_counter=block.counters.tolist(),
                            t_mid_gps_ns=block.t_mid_ns.tolist(),
                            dropped=block.dropped.astype(int).tolist())
-        for i in np.flatnonzero(block.dropped):
-            self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
-                               target="scanner", detail=f"segment {block.segment} frame_counter "
-                               f"{int(block.counters[i])}")
 
     def _queue(self, block: _Block) -> None:
         sc = self.scn.scanner

@@ -182,7 +182,14 @@ def _check_record(rec: InsRecord, counter_bits: int) -> None:
 
 
 def _pack_frames(values: dict[str, float]) -> list[bytes]:
-    return [spec.layout.pack({n: values[n] for n in spec.layout.names}) for spec in FRAMES]
+    """The frames' data, the checksum put in the last byte (packed as 0 first: the CRC
+    covers the 55 bytes before it, checked above)."""
+    datas = [spec.layout.pack_from(values) for spec in FRAMES]
+    datas[-1] = datas[-1][:-1] + bytes((crc8_sae_j1850(b"".join(datas)[:-1]),))
+    return datas
+
+
+_FRAME_IDS = tuple(int(spec.frame_id) for spec in FRAMES)
 
 
 def encode_record(rec: InsRecord, *, counter_bits: int = 16) -> list[can.Message]:
@@ -192,10 +199,8 @@ def encode_record(rec: InsRecord, *, counter_bits: int = 16) -> list[can.Message
     counter_bits (the emulator wraps its counter; this refuses one that was not wrapped).
     """
     _check_record(rec, counter_bits)
-    values = _wire_values(rec)
-    values["crc8"] = crc8_sae_j1850(b"".join(_pack_frames(values))[:-1])
-    return [can.Message(arbitration_id=int(spec.frame_id), data=data, is_extended_id=False)
-            for spec, data in zip(FRAMES, _pack_frames(values), strict=True)]
+    return [can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
+            for frame_id, data in zip(_FRAME_IDS, _pack_frames(_wire_values(rec)), strict=True)]
 
 
 # --- decoding -------------------------------------------------------------------------------

@@ -245,6 +245,30 @@ class Layout:
         """Bytes → raw integers."""
         return dict(zip(self.names, self._walk(data), strict=True))
 
+    def unpack_raw_into(self, data: bytes, raws: dict[str, int]) -> list[str]:
+        """Bytes → raw integers put into `raws` (a record spread over several layouts is
+        gathered in one dict); the names of those outside their declared range, as
+        out_of_range gives them."""
+        if len(data) != self.size_bytes:
+            raise DecodeError(f"{self.name}: {len(data)} bytes, expected {self.size_bytes}",
+                              raw=bytes(data))
+        word = int.from_bytes(data, "little")
+        bad = []
+        for name, shift, mask, sign, low, high in self._unpackers:
+            raw = (word >> shift) & mask
+            if raw & sign:
+                raw -= mask + 1
+            raws[name] = raw
+            if not low <= raw <= high:
+                bad.append(name)
+        return bad
+
+    @cached_property
+    def _unpackers(self) -> tuple[tuple[str, int, int, int, int, int], ...]:
+        """(name, shift, mask, sign bit or 0, raw_min, raw_max) of every field."""
+        return tuple((name, *extract, low, high) for extract, (name, low, high)
+                     in zip(self._extractors, self._ranges, strict=True))
+
     def out_of_range(self, raws: Mapping[str, int]) -> list[str]:
         """Names of the fields whose raw value lies outside the declared range."""
         return [name for name, low, high in self._ranges if not low <= raws[name] <= high]

@@ -221,15 +221,17 @@ def _unpack_frames(datas: list[bytes]) -> tuple[dict[str, int], list[str]]:
     raws: dict[str, int] = {}
     bad: list[str] = []
     for spec, data in zip(FRAMES, datas, strict=True):
-        values = spec.layout.unpack_raw(data)
-        raws.update(values)
-        bad += spec.layout.out_of_range(values)
+        bad += spec.layout.unpack_raw_into(data, raws)
     return raws, bad
 
 
+_SCALING = {name: (f.scale, f.offset) for name, f in _FIELD_BY_NAME.items()}
+
+
 def _record_from_raws(raws: dict[str, int]) -> InsRecord:
-    def phys(name: str) -> float:
-        return _FIELD_BY_NAME[name].to_physical(raws[name])
+    def phys(name: str) -> float:  # (Field.to_physical, its scaling looked up once)
+        scale, offset = _SCALING[name]
+        return raws[name] * scale + offset
 
     status = InsStatus(raws["status"])
     return InsRecord(

@@ -187,12 +187,12 @@ class Runner:
                 self._edge(edge)
 
     def _drain_inbox(self) -> None:
-        while True:
-            try:
-                edge = self.inbox.get_nowait()
-            except queue.Empty:
-                return
-            self._edge(edge)
+        """(Asked before every emission, and nearly always empty: an exception per asking
+        cost more than the emission in a virtual-time run. Only this thread takes from the
+        inbox, so what it holds when asked is there to take.)"""
+        inbox = self.inbox
+        while not inbox.empty():
+            self._edge(inbox.get_nowait())
 
     def _pace(self, due_wall_ns: int, should_stop: Callable[[], bool] | None) -> bool:
         """Sleep until the emission is due, never spin: what a device emits carries its own

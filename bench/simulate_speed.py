@@ -7,13 +7,16 @@ Each round runs `sisa simulate --preset P` (images on) as a child process, once 
 checkout's code and, with `--baseline REV`, once with REV's (checked out into a temporary
 detached `git worktree` under /tmp, removed after), alternating, and prints per run:
 - the wall time, the CPU time of the process (user + sys, all its threads) and the speed-up over
-  real time (target >= 50x for garrotxa: 6 445 s of flight in <= 129 s);
+  real time (target >= 50x for garrotxa: 6 445 s of flight in <= 129 s), and the main thread's
+  own CPU time: the event loop's path, what the wall time comes down to on two free cores
+  while the scanner renders on its own thread;
 - with the split (the default), the time by stage, measured in the same child by wrapping the
   stages' entry points (exclusive wall time: a stage's nested stages are not counted twice),
   plus the recorder's background thread (its CPU time). The wrappers cost ~0.3 us a call, a few
   seconds on garrotxa's ~9 M calls (`--no-split` runs without them). `~CPU s` is a stage's
-  share of the wall time times the process's CPU time: per-call CPU clocks cost 1.4 us a
-  call here, and on a loaded machine every stage waits for a core alike.
+  share of the main thread's wall time times that thread's CPU time: per-call CPU clocks
+  cost 1.4 us a call here, and on a loaded machine every stage waits for a core alike. The
+  rendering, on its own thread, is shown apart (its wall time).
 The load average is printed beside every run: on a shared machine compare runs of one round.
 Outputs go to a temporary folder (or --out-dir) and are deleted after each run.
 """
@@ -43,6 +46,7 @@ STAGES: dict[str, list[tuple[str, str | None, str]]] = {
                                ("emulators.terrain", "Terrain", "from_scenario")],
     "trajectory + scene": [("emulators.system", "EmulatedSystem", "__init__")],
     "rendering": [("emulators.render", "LineRenderer", "render")],
+    "waiting for rendered lines": [("emulators.scanner", "_Lines", "get")],
     "image files": [("emulators.scanner", "BilSegmentWriter", "__init__"),
                     ("emulators.scanner", "BilSegmentWriter", "append"),
                     ("emulators.scanner", "BilSegmentWriter", "close")],
@@ -69,14 +73,19 @@ class Split:
         self._stack: list[list[float]] = []  # per open call: [nested seconds]
         self._main = threading.main_thread()
         self.flush_thread_cpu_s = 0.0
+        self.off_main_s: dict[str, float] = {}  # stages run on other threads (wall)
 
     def wrap(self, stage: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         stack, seconds, calls, clock = self._stack, self.seconds, self.calls, time.perf_counter
-        main = self._main
+        main, off_main = self._main, self.off_main_s
 
         def timed(*args: Any, **kwargs: Any) -> Any:
-            if threading.current_thread() is not main:
-                return fn(*args, **kwargs)
+            if threading.current_thread() is not main:  # (the render-ahead thread)
+                t0 = clock()
+                try:
+                    return fn(*args, **kwargs)
+                finally:
+                    off_main[stage] = off_main.get(stage, 0.0) + clock() - t0
             frame = [0.0]
             stack.append(frame)
             t0 = clock()
@@ -132,11 +141,13 @@ def child(argv: list[str], split: bool) -> None:
     t0 = time.perf_counter()
     code = main(argv, batch_gc=True)
     wall = time.perf_counter() - t0
-    out: dict[str, object] = {"code": code, "command_wall_s": wall}
+    out: dict[str, object] = {"code": code, "command_wall_s": wall,
+                              "main_thread_cpu_s": time.thread_time()}
     if timing is not None:
         out["stages_s"] = timing.seconds
         out["calls"] = timing.calls
         out["recorder_thread_cpu_s"] = timing.flush_thread_cpu_s
+        out["off_main_s"] = timing.off_main_s
     print("SIMULATE_SPEED " + json.dumps(out), flush=True)
 
 
@@ -196,19 +207,25 @@ def _flight_s(summary: str) -> float | None:
 def report(name: str, r: dict[str, Any], cpu_s: float) -> None:
     flight = _flight_s(r["summary"])
     factor = f"{flight / r['wall_s']:.1f}x real time" if flight else "?"
-    print(f"{name}: wall {r['wall_s']:.1f} s (command {r['command_wall_s']:.1f} s), "
-          f"CPU {cpu_s:.1f} s, {factor}; load {r['load_before']} -> {r['load_after']}; "
+    main_cpu = r.get("main_thread_cpu_s")
+    critical = (f" (main thread {main_cpu:.1f} s = {flight / main_cpu:.1f}x)"
+                if main_cpu and flight else "")
+    print(f"{name}: wall {r['wall_s']:.1f} s (command {r['command_wall_s']:.1f} s) = {factor}; "
+          f"CPU {cpu_s:.1f} s{critical}; load {r['load_before']} -> {r['load_after']}; "
           f"outputs {r['out_bytes'] / 1e6:.0f} MB")
     if "stages_s" in r:
         total = r["command_wall_s"]
         stages = dict(r["stages_s"])
         stages["other (start-up, imports, ...)"] = total - sum(stages.values())
         print(f"    {'stage':30s} {'wall s':>8s} {'share':>6s} {'~CPU s':>7s}  calls")
+        per_cpu = main_cpu or cpu_s
         for stage, s in sorted(stages.items(), key=lambda kv: -kv[1]):
             share = s / total
-            print(f"    {stage:30s} {s:8.1f} {100 * share:5.1f}% {share * cpu_s:7.1f}  "
+            print(f"    {stage:30s} {s:8.1f} {100 * share:5.1f}% {share * per_cpu:7.1f}  "
                   f"{r['calls'].get(stage, '')}")
         print(f"    {'recorder thread (its CPU)':30s} {r['recorder_thread_cpu_s']:8.1f}")
+        for stage, s in r.get("off_main_s", {}).items():
+            print(f"    {stage + ' (own thread)':30s} {s:8.1f}  (wall, beside the main thread)")
 
 
 def _children_cpu_s() -> float:

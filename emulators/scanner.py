@@ -28,6 +28,7 @@ import errno
 import heapq
 import math
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -37,7 +38,7 @@ import numpy.typing as npt
 
 from acquisition.pulses import Edge, PulseLine
 from acquisition.scanner_header import FrameHeader, ScannerMode, encode_header
-from emulators.render import LineRenderer, raw_dn_envi_header
+from emulators.render import LineRenderer, raw_dn_envi_header, render_on_one_thread
 from emulators.runtime import Device, Output, Port
 from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
@@ -290,6 +291,21 @@ class _Block:
                       self.counters[lo:hi], self.dropped[lo:hi])
 
 
+class _Lines:
+    """A block's rendered lines (its kept frames'), rendered at once or on the render-ahead
+    thread: `get` waits for them."""
+
+    def __init__(self, dn: U16 | None = None, future: Future[U16] | None = None) -> None:
+        self._dn, self._future = dn, future
+
+    def get(self) -> U16:
+        if self._dn is None:
+            assert self._future is not None
+            self._dn = self._future.result()
+            self._future = None
+        return self._dn
+
+
 @dataclass
 class _Staged:
     """Frames scheduled and rendered ahead of time, not yet exposed: they join the recording
@@ -297,7 +313,8 @@ class _Staged:
     never exposed."""
 
     block: _Block
-    dn: U16 | None  # the kept frames' lines (rendering on)
+    lines: _Lines | None  # the kept frames' lines (rendering on)
+    first_line: int  # of `lines`: the first not yet recorded (a block exposed in parts)
     ends_segment: bool
 
 
@@ -310,13 +327,20 @@ class ScannerEmulator(Device):
     throughput in virtual time; in real time pass a block that renders within the gap between
     a header and the next PPF (line period − integration/2 − 3 ms), e.g. 8–16 lines, so that
     rendering never delays an output.
+
+    `render_ahead` (virtual time): a block is rendered on a thread of its own while the
+    emulation runs on (its lines are wanted only once its frames are exposed, seconds of
+    flight later), so on two cores rendering leaves the event loop's path. One thread, in
+    block order, rendering on one core: the detector noise is drawn in the same order, the
+    lines are the same.
     """
 
     name = "scanner"
 
     def __init__(self, scn: Scenario, traj: TruthTrajectory, terrain: Terrain | None,
                  scene: Scene | None, rng: np.random.Generator, faults: TruthTable,
-                 out_dir: Path | None, *, block_lines: int = DEFAULT_BLOCK_LINES) -> None:
+                 out_dir: Path | None, *, block_lines: int = DEFAULT_BLOCK_LINES,
+                 render_ahead: bool = False) -> None:
         self.scn = scn
         self.traj = traj
         self.faults = faults
@@ -334,8 +358,10 @@ class ScannerEmulator(Device):
         self._counter = 0
         self._staged: list[_Staged] = []
         # exposed frames not yet in the recording and the frames table: (frames, line index
-        # of each, their lines)
-        self._unwritten: list[tuple[_Block, I64, U16 | None]] = []
+        # of each, the lines of their block, the range of those that are theirs)
+        self._unwritten: list[tuple[_Block, I64, _Lines | None, int, int]] = []
+        self._render_ahead = render_ahead
+        self._render_thread: ThreadPoolExecutor | None = None
         self._lines_segment, self._lines_in_segment = -1, 0
         self._pending: list[tuple[int, int, Output]] = []
         self._order = 0
@@ -372,6 +398,9 @@ class ScannerEmulator(Device):
             self._write_exposed()
         finally:
             self._close_writer()
+            if self._render_thread is not None:  # (its last renders done: the counts whole)
+                self._render_thread.shutdown(wait=True)
+                self._render_thread = None
 
     # --- truth and statistics -----------------------------------------------------------------
 
@@ -416,9 +445,9 @@ class ScannerEmulator(Device):
         block = self._draw_block(seg.number, np.arange(self._next_tick, stop, dtype=np.int64))
         self._next_tick = stop
         kept = ~block.dropped
-        dn = (self.renderer.render(self.traj.state(block.t_mid_ns[kept]))
-              if self.renderer is not None and kept.any() else None)
-        self._staged.append(_Staged(block, dn, ends_segment=stop > seg.last_tick))
+        lines = (self._render(block.t_mid_ns[kept])
+                 if self.renderer is not None and kept.any() else None)
+        self._staged.append(_Staged(block, lines, 0, ends_segment=stop > seg.last_tick))
         self._queue(block)
         if self._next_tick > seg.last_tick:
             self._skip_empty_segments()
@@ -433,13 +462,12 @@ class ScannerEmulator(Device):
             if n < staged.block.counters.size:
                 k = int((~staged.block.dropped[:n]).sum())
                 head, tail = staged.block.part(0, n), staged.block.part(n)
-                dn = staged.dn
-                self._record(head, None if dn is None else dn[:k])
-                self._staged[0] = _Staged(tail, None if dn is None else dn[k:],
+                self._record(head, staged.lines, staged.first_line)
+                self._staged[0] = _Staged(tail, staged.lines, staged.first_line + k,
                                           staged.ends_segment)
                 return
             self._staged.pop(0)
-            self._record(staged.block, staged.dn)
+            self._record(staged.block, staged.lines, staged.first_line)
             self._write_exposed()
             if staged.ends_segment:
                 self._close_writer()
@@ -458,17 +486,35 @@ class ScannerEmulator(Device):
         dropped = self._rng.random(n) < self.scn.faults.dropped_frame_fraction
         return _Block(segment, t_mid, t_hdr, counters, dropped)
 
-    def _record(self, block: _Block, dn: U16 | None) -> None:
-        """Exposed frames (their rendered lines `dn`, if any): their dropped-frame faults now,
-        their lines and their rows of the frames table once their block is exposed
-        (`_write_exposed`)."""
+    def _render(self, t_mid_ns: I64) -> _Lines:
+        """The lines of frames at these mid-exposure times: rendered now, or on the
+        render-ahead thread."""
+        renderer = self.renderer
+        assert renderer is not None
+
+        def render() -> U16:
+            return renderer.render(self.traj.state(t_mid_ns))
+
+        if not self._render_ahead:
+            return _Lines(render())
+        if self._render_thread is None:
+            # on one core: the event loop has the other (numba's thread count is per thread)
+            self._render_thread = ThreadPoolExecutor(1, thread_name_prefix="sisa-render",
+                                                     initializer=render_on_one_thread)
+        return _Lines(future=self._render_thread.submit(render))
+
+    def _record(self, block: _Block, lines: _Lines | None, first_line: int) -> None:
+        """Exposed frames (their rendered lines from `first_line` of `lines`, if any): their
+        dropped-frame faults now, their lines and their rows of the frames table once their
+        block is exposed (`_write_exposed`)."""
         if block.segment != self._lines_segment:
             self._lines_segment, self._lines_in_segment = block.segment, 0
         kept = ~block.dropped
         line_index = np.full(block.counters.size, -1, dtype=np.int64)
         line_index[kept] = self._lines_in_segment + np.arange(int(kept.sum()))
         self._lines_in_segment += int(kept.sum())
-        self._unwritten.append((block, line_index, dn))
+        self._unwritten.append((block, line_index, lines, first_line,
+                                first_line + int(kept.sum())))
         for i in np.flatnonzero(block.dropped):
             self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
                                target="scanner", detail=f"segment {block.segment} frame_counter "
@@ -483,8 +529,8 @@ class ScannerEmulator(Device):
         if not self._unwritten:
             return
         parts, self._unwritten = self._unwritten, []
-        lines = [(dn, block.counters[~block.dropped]) for block, _, dn in parts
-                 if dn is not None and len(dn)]
+        lines = [(source.get()[lo:hi], block.counters[~block.dropped])
+                 for block, _, source, lo, hi in parts if source is not None and hi > lo]
         if lines:
             writer = self._writer_for(parts[0][0].segment)
             if len(lines) == 1:
@@ -492,7 +538,7 @@ class ScannerEmulator(Device):
             else:
                 writer.append(np.concatenate([d for d, _ in lines]),
                               np.concatenate([c for _, c in lines]))
-        for block, line_index, _ in parts:
+        for block, line_index, *_ in parts:
             self._log_truth(block, line_index)
 
     def _writer_for(self, segment: int) -> BilSegmentWriter:

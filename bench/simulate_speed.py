@@ -18,7 +18,8 @@ detached `git worktree` under /tmp, removed after), alternating, and prints per 
   cost 1.4 us a call here, and on a loaded machine every stage waits for a core alike. The
   rendering, on its own thread, is shown apart (its wall time).
 The load average is printed beside every run: on a shared machine compare runs of one round.
-Outputs go to a temporary folder (or --out-dir) and are deleted after each run.
+Outputs go to a temporary folder (or --out-dir) and are deleted after each run. Each tree's
+numba kernels are compiled by a warm-up before the first round (a fresh worktree has no cache).
 """
 
 from __future__ import annotations
@@ -105,8 +106,9 @@ class Split:
         for stage, points in STAGES.items():
             for module_name, cls_name, fn_name in points:
                 module = importlib.import_module(module_name)
-                owner = getattr(module, cls_name) if cls_name else module
-                fn = owner.__dict__.get(fn_name) if cls_name else getattr(module, fn_name, None)
+                owner = getattr(module, cls_name, None) if cls_name else module
+                fn = (getattr(owner, "__dict__", {}).get(fn_name) if cls_name
+                      else getattr(module, fn_name, None))
                 if fn is None:  # (a baseline without this entry point)
                     continue
                 if isinstance(fn, classmethod):
@@ -149,6 +151,23 @@ def child(argv: list[str], split: bool) -> None:
         out["recorder_thread_cpu_s"] = timing.flush_thread_cpu_s
         out["off_main_s"] = timing.off_main_s
     print("SIMULATE_SPEED " + json.dumps(out), flush=True)
+
+
+def warm() -> None:
+    """Compile (into the tree's numba cache) the kernels a simulation uses: a fresh
+    worktree's first run would otherwise count their compilation."""
+    import numpy as np
+
+    from emulators.render import LineRenderer
+    from emulators.scenario import load_scenario
+    from emulators.terrain import Scene, Terrain
+    from emulators.trajectory import TruthTrajectory
+    scn = load_scenario("bench")
+    traj = TruthTrajectory.from_scenario(scn)
+    terrain = Terrain.from_scenario(scn)
+    renderer = LineRenderer(scn.scanner, scn.mounting, terrain, Scene.from_scenario(scn, terrain),
+                            np.random.default_rng(0))
+    renderer.render(traj.state(np.array([traj.strips[0].t_start_ns], dtype=np.int64)))
 
 
 def _load() -> str:
@@ -240,12 +259,18 @@ def main() -> None:
     parser.add_argument("--preset", default="garrotxa")
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--baseline", help="a git revision to run beside this checkout")
+    parser.add_argument("--baseline-first", action="store_true",
+                        help="round 1 runs the baseline first (then alternating)")
     parser.add_argument("--no-split", action="store_true", help="no stage wrappers")
     parser.add_argument("--out-dir", type=Path, default=None,
                         help="where the runs write (deleted after each); default a temp dir")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--warm", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.warm:
+        warm()
+        return
     if args.child:
         child(["simulate", "--preset", args.preset, "--out", args.out], not args.no_split)
         return
@@ -257,8 +282,11 @@ def main() -> None:
         if args.baseline:
             trees.append((f"baseline {_rev(REPO, args.baseline)}",
                           stack.enter_context(baseline_tree(args.baseline))))
+        for _, root in trees:
+            subprocess.run([sys.executable, str(Path(__file__).resolve()), "--warm"], check=True,
+                           env={**os.environ, "PYTHONPATH": str(root)}, cwd=root)
         for rnd in range(args.rounds):
-            order = trees if rnd % 2 == 0 else trees[::-1]
+            order = trees if (rnd + args.baseline_first) % 2 == 0 else trees[::-1]
             for name, root in order:
                 c0 = _children_cpu_s()
                 r = run_once(root, args.preset, out_root, not args.no_split)

@@ -182,7 +182,14 @@ def _check_record(rec: InsRecord, counter_bits: int) -> None:
 
 
 def _pack_frames(values: dict[str, float]) -> list[bytes]:
-    return [spec.layout.pack({n: values[n] for n in spec.layout.names}) for spec in FRAMES]
+    """The frames' data, the checksum put in the last byte (packed as 0 first: the CRC
+    covers the 55 bytes before it, checked above)."""
+    datas = [spec.layout.pack_from(values) for spec in FRAMES]
+    datas[-1] = datas[-1][:-1] + bytes((crc8_sae_j1850(b"".join(datas)[:-1]),))
+    return datas
+
+
+_FRAME_IDS = tuple(int(spec.frame_id) for spec in FRAMES)
 
 
 def encode_record(rec: InsRecord, *, counter_bits: int = 16) -> list[can.Message]:
@@ -192,10 +199,8 @@ def encode_record(rec: InsRecord, *, counter_bits: int = 16) -> list[can.Message
     counter_bits (the emulator wraps its counter; this refuses one that was not wrapped).
     """
     _check_record(rec, counter_bits)
-    values = _wire_values(rec)
-    values["crc8"] = crc8_sae_j1850(b"".join(_pack_frames(values))[:-1])
-    return [can.Message(arbitration_id=int(spec.frame_id), data=data, is_extended_id=False)
-            for spec, data in zip(FRAMES, _pack_frames(values), strict=True)]
+    return [can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
+            for frame_id, data in zip(_FRAME_IDS, _pack_frames(_wire_values(rec)), strict=True)]
 
 
 # --- decoding -------------------------------------------------------------------------------
@@ -216,15 +221,17 @@ def _unpack_frames(datas: list[bytes]) -> tuple[dict[str, int], list[str]]:
     raws: dict[str, int] = {}
     bad: list[str] = []
     for spec, data in zip(FRAMES, datas, strict=True):
-        values = spec.layout.unpack_raw(data)
-        raws.update(values)
-        bad += spec.layout.out_of_range(values)
+        bad += spec.layout.unpack_raw_into(data, raws)
     return raws, bad
 
 
+_SCALING = {name: (f.scale, f.offset) for name, f in _FIELD_BY_NAME.items()}
+
+
 def _record_from_raws(raws: dict[str, int]) -> InsRecord:
-    def phys(name: str) -> float:
-        return _FIELD_BY_NAME[name].to_physical(raws[name])
+    def phys(name: str) -> float:  # (Field.to_physical, its scaling looked up once)
+        scale, offset = _SCALING[name]
+        return raws[name] * scale + offset
 
     status = InsStatus(raws["status"])
     return InsRecord(

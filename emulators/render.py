@@ -57,9 +57,10 @@ TILE_CELLS: Final = 8  # DEM cells per side of the tiles whose height extremes b
 
 
 def _jit(parallel: bool = False) -> Callable[[_Fn], _Fn]:
-    """numba.njit, cached on disk, with IEEE division (no ZeroDivisionError checks)."""
-    return cast(Callable[[_Fn], _Fn],
-                numba.njit(cache=True, parallel=parallel, error_model="numpy"))
+    """numba.njit, cached on disk, with IEEE division (no ZeroDivisionError checks), without
+    the GIL (the scanner renders on a thread of its own while the emulation runs on)."""
+    return cast(Callable[[_Fn], _Fn], numba.njit(cache=True, parallel=parallel,
+                                                 error_model="numpy", nogil=True))
 
 
 def render_on_one_thread() -> None:

@@ -13,9 +13,10 @@ What it does, and why:
   counter value is used, but it is not recorded: no header and no image line.
 - The recording (with `out_dir`) is what the CASI itself writes: per segment an ENVI BIL of
   uint16 DN, its .hdr, and a CSV of the frame counter of every recorded line, which is the only
-  link between an image line and the pulse that timed it. It is written block by block, so
-  memory does not depend on the segment length. Lines are rendered by emulators.render from
-  the TRUE pose at the frame's true mid-exposure time.
+  link between an image line and the pulse that timed it. It is written block by block (a
+  block's exposed lines in one append, its header rewritten once), so memory does not depend
+  on the segment length and the files are not rewritten per line. Lines are rendered by
+  emulators.render from the TRUE pose at the frame's true mid-exposure time.
 - Truth (table `frames`, and `faults` for dropped frames) stays beside the run: the recording
   holds nothing a real scanner would not know.
 """
@@ -27,6 +28,7 @@ import errno
 import heapq
 import math
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -36,7 +38,7 @@ import numpy.typing as npt
 
 from acquisition.pulses import Edge, PulseLine
 from acquisition.scanner_header import FrameHeader, ScannerMode, encode_header
-from emulators.render import LineRenderer, raw_dn_envi_header
+from emulators.render import LineRenderer, raw_dn_envi_header, render_on_one_thread
 from emulators.runtime import Device, Output, Port
 from emulators.scenario import Scenario
 from emulators.terrain import WAVELENGTH_RANGE_NM, Scene, Terrain, band_centres_nm
@@ -289,6 +291,21 @@ class _Block:
                       self.counters[lo:hi], self.dropped[lo:hi])
 
 
+class _Lines:
+    """A block's rendered lines (its kept frames'), rendered at once or on the render-ahead
+    thread: `get` waits for them."""
+
+    def __init__(self, dn: U16 | None = None, future: Future[U16] | None = None) -> None:
+        self._dn, self._future = dn, future
+
+    def get(self) -> U16:
+        if self._dn is None:
+            assert self._future is not None
+            self._dn = self._future.result()
+            self._future = None
+        return self._dn
+
+
 @dataclass
 class _Staged:
     """Frames scheduled and rendered ahead of time, not yet exposed: they join the recording
@@ -296,7 +313,8 @@ class _Staged:
     never exposed."""
 
     block: _Block
-    dn: U16 | None  # the kept frames' lines (rendering on)
+    lines: _Lines | None  # the kept frames' lines (rendering on)
+    first_line: int  # of `lines`: the first not yet recorded (a block exposed in parts)
     ends_segment: bool
 
 
@@ -309,13 +327,20 @@ class ScannerEmulator(Device):
     throughput in virtual time; in real time pass a block that renders within the gap between
     a header and the next PPF (line period − integration/2 − 3 ms), e.g. 8–16 lines, so that
     rendering never delays an output.
+
+    `render_ahead` (virtual time): a block is rendered on a thread of its own while the
+    emulation runs on (its lines are wanted only once its frames are exposed, seconds of
+    flight later), so on two cores rendering leaves the event loop's path. One thread, in
+    block order, rendering on one core: the detector noise is drawn in the same order, the
+    lines are the same.
     """
 
     name = "scanner"
 
     def __init__(self, scn: Scenario, traj: TruthTrajectory, terrain: Terrain | None,
                  scene: Scene | None, rng: np.random.Generator, faults: TruthTable,
-                 out_dir: Path | None, *, block_lines: int = DEFAULT_BLOCK_LINES) -> None:
+                 out_dir: Path | None, *, block_lines: int = DEFAULT_BLOCK_LINES,
+                 render_ahead: bool = False) -> None:
         self.scn = scn
         self.traj = traj
         self.faults = faults
@@ -332,6 +357,11 @@ class ScannerEmulator(Device):
         self._next_tick = self._segments[0].first_tick if self._segments else 0
         self._counter = 0
         self._staged: list[_Staged] = []
+        # exposed frames not yet in the recording and the frames table: (frames, line index
+        # of each, the lines of their block, the range of those that are theirs)
+        self._unwritten: list[tuple[_Block, I64, _Lines | None, int, int]] = []
+        self._render_ahead = render_ahead
+        self._render_thread: ThreadPoolExecutor | None = None
         self._lines_segment, self._lines_in_segment = -1, 0
         self._pending: list[tuple[int, int, Output]] = []
         self._order = 0
@@ -364,7 +394,13 @@ class ScannerEmulator(Device):
 
     def finish(self) -> None:
         self._staged.clear()  # scheduled, never exposed: the run stopped before them
-        self._close_writer()
+        try:
+            self._write_exposed()
+        finally:
+            self._close_writer()
+            if self._render_thread is not None:  # (its last renders done: the counts whole)
+                self._render_thread.shutdown(wait=True)
+                self._render_thread = None
 
     # --- truth and statistics -----------------------------------------------------------------
 
@@ -409,9 +445,9 @@ class ScannerEmulator(Device):
         block = self._draw_block(seg.number, np.arange(self._next_tick, stop, dtype=np.int64))
         self._next_tick = stop
         kept = ~block.dropped
-        dn = (self.renderer.render(self.traj.state(block.t_mid_ns[kept]))
-              if self.renderer is not None and kept.any() else None)
-        self._staged.append(_Staged(block, dn, ends_segment=stop > seg.last_tick))
+        lines = (self._render(block.t_mid_ns[kept])
+                 if self.renderer is not None and kept.any() else None)
+        self._staged.append(_Staged(block, lines, 0, ends_segment=stop > seg.last_tick))
         self._queue(block)
         if self._next_tick > seg.last_tick:
             self._skip_empty_segments()
@@ -426,13 +462,13 @@ class ScannerEmulator(Device):
             if n < staged.block.counters.size:
                 k = int((~staged.block.dropped[:n]).sum())
                 head, tail = staged.block.part(0, n), staged.block.part(n)
-                dn = staged.dn
-                self._record(head, None if dn is None else dn[:k])
-                self._staged[0] = _Staged(tail, None if dn is None else dn[k:],
+                self._record(head, staged.lines, staged.first_line)
+                self._staged[0] = _Staged(tail, staged.lines, staged.first_line + k,
                                           staged.ends_segment)
                 return
             self._staged.pop(0)
-            self._record(staged.block, staged.dn)
+            self._record(staged.block, staged.lines, staged.first_line)
+            self._write_exposed()
             if staged.ends_segment:
                 self._close_writer()
 
@@ -450,17 +486,60 @@ class ScannerEmulator(Device):
         dropped = self._rng.random(n) < self.scn.faults.dropped_frame_fraction
         return _Block(segment, t_mid, t_hdr, counters, dropped)
 
-    def _record(self, block: _Block, dn: U16 | None) -> None:
-        """Write exposed frames (their rendered lines `dn`, if any) and their truth."""
+    def _render(self, t_mid_ns: I64) -> _Lines:
+        """The lines of frames at these mid-exposure times: rendered now, or on the
+        render-ahead thread."""
+        renderer = self.renderer
+        assert renderer is not None
+
+        def render() -> U16:
+            return renderer.render(self.traj.state(t_mid_ns))
+
+        if not self._render_ahead:
+            return _Lines(render())
+        if self._render_thread is None:
+            # on one core: the event loop has the other (numba's thread count is per thread)
+            self._render_thread = ThreadPoolExecutor(1, thread_name_prefix="sisa-render",
+                                                     initializer=render_on_one_thread)
+        return _Lines(future=self._render_thread.submit(render))
+
+    def _record(self, block: _Block, lines: _Lines | None, first_line: int) -> None:
+        """Exposed frames (their rendered lines from `first_line` of `lines`, if any): their
+        dropped-frame faults now, their lines and their rows of the frames table once their
+        block is exposed (`_write_exposed`)."""
         if block.segment != self._lines_segment:
             self._lines_segment, self._lines_in_segment = block.segment, 0
         kept = ~block.dropped
         line_index = np.full(block.counters.size, -1, dtype=np.int64)
         line_index[kept] = self._lines_in_segment + np.arange(int(kept.sum()))
         self._lines_in_segment += int(kept.sum())
-        if dn is not None and len(dn):
-            self._writer_for(block.segment).append(dn, block.counters[kept])
-        self._log_truth(block, line_index)
+        self._unwritten.append((block, line_index, lines, first_line,
+                                first_line + int(kept.sum())))
+        for i in np.flatnonzero(block.dropped):
+            self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
+                               target="scanner", detail=f"segment {block.segment} frame_counter "
+                               f"{int(block.counters[i])}")
+
+    def _write_exposed(self) -> None:
+        """The exposed frames not yet written: their lines in one append (the recording),
+        then their rows of the frames table (the truth of what was recorded, no more: a disk
+        error leaves both at the last whole block). A block's frames are exposed one
+        emission at a time; an append per frame rewrote the segment's header for every line,
+        most of a garrotxa simulation's time went in those files' renames."""
+        if not self._unwritten:
+            return
+        parts, self._unwritten = self._unwritten, []
+        lines = [(source.get()[lo:hi], block.counters[~block.dropped])
+                 for block, _, source, lo, hi in parts if source is not None and hi > lo]
+        if lines:
+            writer = self._writer_for(parts[0][0].segment)
+            if len(lines) == 1:
+                writer.append(*lines[0])
+            else:
+                writer.append(np.concatenate([d for d, _ in lines]),
+                              np.concatenate([c for _, c in lines]))
+        for block, line_index, *_ in parts:
+            self._log_truth(block, line_index)
 
     def _writer_for(self, segment: int) -> BilSegmentWriter:
         if self._writer is None:
@@ -481,10 +560,6 @@ class ScannerEmulator(Device):
                            frame_counter=block.counters.tolist(),
                            t_mid_gps_ns=block.t_mid_ns.tolist(),
                            dropped=block.dropped.astype(int).tolist())
-        for i in np.flatnonzero(block.dropped):
-            self.faults.append(t_gps_ns=int(block.t_mid_ns[i]), kind="dropped_frame",
-                               target="scanner", detail=f"segment {block.segment} frame_counter "
-                               f"{int(block.counters[i])}")
 
     def _queue(self, block: _Block) -> None:
         sc = self.scn.scanner

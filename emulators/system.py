@@ -65,7 +65,8 @@ class EmulatedSystem:
         # in real time, render small blocks so a block fits between two frame pulses
         self.scanner = ScannerEmulator(scn, self.traj, terrain, scene, self._rng(Stream.SCANNER),
                                        self.faults, scanner_dir,
-                                       block_lines=8 if real_time else 128)
+                                       block_lines=8 if real_time else 128,
+                                       render_ahead=not real_time)
         self.devices: list[Device] = [self.gps, self.ins, self.scanner]
         if scn.faults.spurious_pulse_rate_hz > 0:
             self.devices.append(SpuriousPulses(

@@ -59,8 +59,9 @@ CONTROL_BORDER_FRACTION: Final = 97.0 / 111.0
 
 
 def _jit(parallel: bool = False) -> Callable[[_Fn], _Fn]:
-    """numba.njit with a typed signature (numba has no stubs), cached on disk."""
-    return cast(Callable[[_Fn], _Fn], numba.njit(cache=True, parallel=parallel))
+    """numba.njit with a typed signature (numba has no stubs), cached on disk, without the
+    GIL (the scanner renders on a thread of its own, emulators.scanner)."""
+    return cast(Callable[[_Fn], _Fn], numba.njit(cache=True, parallel=parallel, nogil=True))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import can
 import numpy as np
@@ -34,6 +33,7 @@ SERIAL_BAUD = 115_200  # the scanner's and the camera's ports (the GPS receiver'
 USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
 CAN_LATENCY_NS = (100_000, 400_000)
 TICK_NS = 100_000_000
+Deliver = Callable[[int, Any], None]  # an Acquisition input: (host receive time, payload)
 
 
 class Steps(Protocol):
@@ -72,53 +72,65 @@ class VirtualWiring:
             (system.traj.t_start_ns + round(f.at_s * NS_PER_S), round(f.duration_s * NS_PER_S))
             for f in scn.faults.sync_restarts)
         self._last_t_host_ns = 0
-        self._arrivals: list[tuple[int, int, Callable[[int], None]]] = []  # (t, seq, deliver)
+        # (t, seq, deliver, payload): deliver(host receive time, payload)
+        self._arrivals: list[tuple[int, int, Deliver, Any]] = []
         self._arrived = 0
         self._port_last: dict[Port, int] = {}
+        self._integers = self.rng.integers
+        acq = self.acq
+        gps_baud = scn.gps.serial_baud
+        # port → (deliver, baud): the serial ports
+        self._serial: dict[Port, tuple[Deliver, int]] = {
+            Port.GPS_SERIAL: (acq.on_gps_bytes, gps_baud),
+            Port.CAMERA_SERIAL: (acq.on_camera_bytes, SERIAL_BAUD)}
 
     def _log(self, msg: LoggedMessage, topic: Topic | None) -> None:
         self.recorder.write(msg, topic)
 
     def _latency(self, lo_hi: tuple[int, int]) -> int:
-        return int(self.rng.integers(lo_hi[0], lo_hi[1]))
+        return int(self._integers(lo_hi[0], lo_hi[1]))
 
     def __call__(self, out: Output) -> Sequence[Edge]:
-        self._maybe_crash(out.t_ns)
-        self._run_until(out.t_ns)
+        t_ns = out.t_ns
+        if self._restarts and self._restarts[0][0] <= t_ns:
+            self._maybe_crash(t_ns)
+        self._run_until(t_ns)
         payload = out.payload
-        if isinstance(payload, Edge):
-            self.acq.on_edge(self._host(out.t_ns + 50_000), payload)
-        elif isinstance(payload, can.Message):
-            self._arrive(out.port, out.t_ns + self._latency(CAN_LATENCY_NS),
-                         partial(self.acq.on_can_frame, msg=payload))
+        if isinstance(payload, can.Message):  # (most outputs: seven frames an INS record)
+            self._arrive(out.port, t_ns + self._latency(CAN_LATENCY_NS), self.acq.on_can_frame,
+                         payload)
+        elif isinstance(payload, Edge):
+            self.acq.on_edge(self._host(t_ns + 50_000), payload)
         else:
-            gps = out.port is Port.GPS_SERIAL
-            baud = self.system.scn.gps.serial_baud if gps else SERIAL_BAUD
-            at = out.t_ns + wire_time_ns(len(payload), baud) + self._latency(USB_LATENCY_NS)
-            deliver = {Port.GPS_SERIAL: self.acq.on_gps_bytes,
-                       Port.CAMERA_SERIAL: self.acq.on_camera_bytes}.get(
-                           out.port, self.acq.on_scanner_bytes)
-            self._arrive(out.port, at, partial(deliver, data=payload))
+            deliver, baud = self._serial.get(out.port, (self.acq.on_scanner_bytes, SERIAL_BAUD))
+            at = t_ns + wire_time_ns(len(payload), baud) + self._latency(USB_LATENCY_NS)
+            self._arrive(out.port, at, deliver, payload)
+        if not self._pending:
+            return ()
         edges, self._pending[:] = list(self._pending), []
         return edges
 
-    def _arrive(self, port: Port, t_ns: int, deliver: Callable[[int], None]) -> None:
-        """Hand `deliver` its host receive time once the emulation reaches `t_ns`, or what came
-        before it on the same port has arrived (a port delivers in order)."""
-        t_ns = max(t_ns, self._port_last.get(port, t_ns))
+    def _arrive(self, port: Port, t_ns: int, deliver: Deliver, payload: Any) -> None:
+        """Hand `deliver` its host receive time and `payload` once the emulation reaches
+        `t_ns`, or what came before it on the same port has arrived (a port delivers in
+        order)."""
+        last = self._port_last.get(port, t_ns)
+        if last > t_ns:
+            t_ns = last
         self._port_last[port] = t_ns
         self._arrived += 1
-        heapq.heappush(self._arrivals, (t_ns, self._arrived, deliver))
+        heapq.heappush(self._arrivals, (t_ns, self._arrived, deliver, payload))
 
     def _run_until(self, t_ns: int | None) -> None:
         """Ticks and arrivals up to `t_ns` (None: every arrival left), in time order."""
-        while self._arrivals or (t_ns is not None and self._next_tick_ns <= t_ns):
-            arrival = self._arrivals[0][0] if self._arrivals else None
+        arrivals = self._arrivals
+        while arrivals or (t_ns is not None and self._next_tick_ns <= t_ns):
+            arrival = arrivals[0][0] if arrivals else None
             limit = t_ns if t_ns is not None else arrival
             if arrival is not None and arrival < self._next_tick_ns and (
                     limit is None or arrival <= limit):
-                _, _, deliver = heapq.heappop(self._arrivals)
-                deliver(self._host(arrival))
+                _, _, deliver, payload = heapq.heappop(arrivals)
+                deliver(self._host(arrival), payload)
             elif limit is not None and self._next_tick_ns <= limit:
                 self.acq.tick(self._host(self._next_tick_ns), self._next_tick_ns)
                 self._next_tick_ns += TICK_NS

@@ -244,9 +244,12 @@ def test_recording_is_written_as_it_goes_and_closed_cleanly(
     assert (tmp_path / "segment_000.bil").stat().st_size == hdr_lines * line_bytes
     dev.finish()
     dev.finish()  # idempotent
+    exposed = int((dev.frames.column("line_index") >= 0).sum())
+    assert hdr_lines <= exposed < hdr_lines + 64  # written by whole blocks, the rest at the end
     assert not (tmp_path / "segment_001.bil").exists()  # stopped before the second strip
     with rasterio.open(tmp_path / "segment_000.bil") as ds:
-        assert ds.height == hdr_lines
+        assert ds.height == exposed
+    assert int(read_envi_header(tmp_path / "segment_000.hdr")["lines"]) == exposed
 
 
 def test_a_run_stopped_early_records_only_the_frames_it_exposed(

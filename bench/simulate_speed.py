@@ -35,11 +35,11 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parent.parent
+from baseline import REPO, baseline_tree, rev_of  # bench/baseline.py
 
 # stage → the (module, class or None, function) entry points timed as that stage
 STAGES: dict[str, list[tuple[str, str | None, str]]] = {
@@ -199,23 +199,6 @@ def run_once(code_root: Path, preset: str, out_root: Path, split: bool) -> dict[
     return result
 
 
-@contextlib.contextmanager
-def baseline_tree(rev: str) -> Iterator[Path]:
-    """REV checked out (detached) in a temporary worktree, with the compiled kernels copied."""
-    tmp = Path(tempfile.mkdtemp(prefix="sim-baseline-", dir="/tmp"))
-    tree = tmp / "tree"
-    subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(tree), rev],
-                   check=True, capture_output=True)
-    try:
-        for so in (REPO / "postproc" / "products").glob("_orthokernels*.so"):
-            shutil.copy2(so, tree / "postproc" / "products" / so.name)
-        yield tree
-    finally:
-        subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tree)],
-                       check=False, capture_output=True)
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def _flight_s(summary: str) -> float | None:
     try:
         return float(summary.split(", ")[1].split(" s of flight")[0])
@@ -275,13 +258,14 @@ def main() -> None:
         child(["simulate", "--preset", args.preset, "--out", args.out], not args.no_split)
         return
     print(f"sisa simulate --preset {args.preset}, {time.strftime('%Y-%m-%d %H:%M', time.gmtime())}"
-          f" UTC, {os.cpu_count()} CPUs, HEAD {_rev(REPO, 'HEAD')}")
+          f" UTC, {os.cpu_count()} CPUs, HEAD {rev_of('HEAD')}")
     with contextlib.ExitStack() as stack:
         out_root = args.out_dir or Path(stack.enter_context(tempfile.TemporaryDirectory()))
         trees = [("this", REPO)]
         if args.baseline:
-            trees.append((f"baseline {_rev(REPO, args.baseline)}",
-                          stack.enter_context(baseline_tree(args.baseline))))
+            base = stack.enter_context(baseline_tree(args.baseline))
+            assert base is not None  # a REV was given
+            trees.append((f"baseline {rev_of(args.baseline)}", base))
         for _, root in trees:
             subprocess.run([sys.executable, str(Path(__file__).resolve()), "--warm"], check=True,
                            env={**os.environ, "PYTHONPATH": str(root)}, cwd=root)
@@ -291,11 +275,6 @@ def main() -> None:
                 c0 = _children_cpu_s()
                 r = run_once(root, args.preset, out_root, not args.no_split)
                 report(f"round {rnd + 1} {name}", r, _children_cpu_s() - c0)
-
-
-def _rev(repo: Path, rev: str) -> str:
-    return subprocess.run(["git", "-C", str(repo), "rev-parse", "--short", rev], check=True,
-                          capture_output=True, text=True).stdout.strip()
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -78,11 +79,14 @@ def main() -> None:
                 results[name].append(r)
                 show(f"round {k + 1}, {name}", r)
     print()
+    medians = {}
     for name, rs in results.items():
-        walls = sorted(r["wall_s"] for r in rs)
-        print(f"{name}: median {walls[len(walls) // 2]:.1f} s wall over {len(rs)} runs")
+        walls = [r["wall_s"] for r in rs]
+        medians[name] = statistics.median(walls)
+        print(f"{name}: median {medians[name]:.1f} s wall over {len(rs)} runs "
+              f"({', '.join(f'{w:.1f}' for w in walls)})")
     if len(trees) == 2:
-        a, b = (sorted(r["wall_s"] for r in results[n])[len(results[n]) // 2] for n, _ in trees)
+        a, b = (medians[n] for n, _ in trees)
         print(f"time ratio this / baseline: {a / b:.2f}")
 
 

@@ -9,7 +9,7 @@ from typing import Final
 
 from postproc.products import TIFF_BLOCK, replace_file
 from sisa.core.errors import InputError
-from sisa.core.outdir import create_partial, new_private_dir
+from sisa.core.outdir import private_partial
 
 # nearest: the overviews keep the scanner's own values (no mixing of spectra), as the ortho does
 OVERVIEW_RESAMPLING: Final = "nearest"
@@ -30,10 +30,9 @@ def write_cog(src: Path, dst: Path) -> None:
     profile.update(blockxsize=TIFF_BLOCK, blockysize=TIFF_BLOCK, interleave="band",
                    predictor=3 if floats else 2)
     # made new in a hidden folder of ours and put in place by replace_file: over a placeholder
-    # or over `src` ext4 would write the whole COG out to disk on our time (new_private_dir)
-    folder, _ = create_partial(dst, new_private_dir)
+    # or over `src` ext4 would write the whole COG out to disk on our time (private_partial)
+    folder, tmp = private_partial(dst)
     try:
-        tmp = folder / dst.name
         cog_translate(str(src), str(tmp), profile, overview_resampling=OVERVIEW_RESAMPLING,
                       in_memory=False, quiet=True, forward_band_tags=True,
                       forward_ns_tags=True)

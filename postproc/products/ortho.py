@@ -59,7 +59,7 @@ from postproc.products.igm import (
 from postproc.products.resample import Resampling, fractional_offsets, interpolate
 from sisa.core.errors import InputError
 from sisa.core.interrupt import raise_if_stopped
-from sisa.core.outdir import create_partial, new_private_dir
+from sisa.core.outdir import create_partial, private_partial
 
 F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
@@ -700,10 +700,9 @@ class TiffWriter:
             raise InputError(f"GeoTIFF compression {compress!r}: use one of "
                              f"{', '.join(TIFF_COMPRESSIONS)}")
         self.path = Path(path)
-        # GDAL creates the file new, in a hidden folder of ours (see new_private_dir: a 600 MB
+        # GDAL creates the file new, in a hidden folder of ours (see private_partial: a 600 MB
         # GeoTIFF opened over a placeholder was written out to disk in its close, 0.06 s)
-        self._dir, _ = create_partial(self.path, new_private_dir)
-        self._tmp = self._dir / self.path.name
+        self._dir, self._tmp = private_partial(self.path)
         kind = np.dtype(raw.dtype.name).kind
         packing: dict[str, Any] = {"compress": compress}
         if compress != "none":

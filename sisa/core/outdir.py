@@ -70,6 +70,15 @@ def create_partial(final: Path, opener: Callable[[Path], Any] = open_new_file
     raise FileExistsError(errno.EEXIST, "no free name for a partial file", str(final))
 
 
+def private_partial(final: Path) -> tuple[Path, Path]:
+    """(a new hidden folder beside `final`, open to this user alone, the path in it to make
+    `final` by): for a file another library creates by its path (GDAL, rio-cogeo), made new
+    rather than over a placeholder (`new_private_dir`). The caller renames the file into place
+    and removes the folder, whatever happens."""
+    folder, _ = create_partial(final, new_private_dir)
+    return folder, folder / final.name
+
+
 def write_whole(final: Path, data: bytes | str, encoding: str = "utf-8") -> None:
     """Write `final` whole: into a new partial file (`create_partial`), renamed into place
     once written; on failure nothing is left. OSError as the write or the rename gives it."""

@@ -45,15 +45,14 @@ def run_once(code_root: Path, run: Path) -> dict[str, Any]:
     if done.returncode not in (0, 3):
         raise SystemExit(f"sisa process failed ({done.returncode}): {done.stderr.strip()}")
     lines = done.stdout.splitlines()
-    split = [ln for ln in lines[next((i for i, ln in enumerate(lines)
-                                      if ln.strip().startswith("time ")), len(lines)):]]
-    return {"wall_s": wall, "cpu_s": cpu, "load": load, "split": split}
+    head = next((i for i, ln in enumerate(lines) if ln.strip().startswith("time ")), len(lines))
+    return {"wall_s": wall, "cpu_s": cpu, "load": load, "split": lines[head + 1:]}
 
 
 def show(name: str, r: dict[str, Any]) -> None:
     print(f"{name}: {r['wall_s']:6.1f} s wall, {r['cpu_s']:6.1f} s CPU "
           f"({100 * r['cpu_s'] / r['wall_s']:.0f} % of a core), load {r['load']:.1f}")
-    for line in r["split"][1:]:
+    for line in r["split"]:  # the command's stages (its own total line left out)
         print(f"    {line.strip()}")
 
 

@@ -1,6 +1,7 @@
 """Wrong time tags under random mixes of faults: flights the fault matrix never flies.
 
     .venv/bin/python bench/fault_sweep.py [--runs 40] [--first-seed 1000] [--out runs/fault_sweep]
+                                          [--wide]
 
 The fault matrix in the tests flies one fault at a time on two seeds. Here every run draws its
 own mix from the seed: the receiver (Z-12, F9P, OEM7), the LFSR length (4–7 bits), 1-of-n
@@ -93,10 +94,74 @@ def draw_mix(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
-def one_run(seed: int) -> dict[str, Any]:
+def draw_wide_mix(rng: np.random.Generator) -> dict[str, Any]:
+    """A harsher mix than `draw_mix`: rates several times higher, up to three PPS outages and
+    four INS clock jumps (1 µs to 10 s, either way), reboots and sync restarts that may come
+    twice, line clock drift, counters as narrow as they go, and timed faults drawn close to
+    one another (a jump inside an outage, a reboot just after a restart): the coincidences
+    a fixed matrix never flies."""
+    def maybe(p: float) -> bool:
+        return bool(rng.random() < p)
+
+    placed: list[float] = []
+
+    def at() -> float:
+        if placed and maybe(0.5):  # near a fault already placed
+            t = placed[int(rng.integers(len(placed)))] + float(rng.uniform(-5.0, 5.0))
+        else:
+            t = float(rng.uniform(22.0, FLIGHT_S))
+        t = round(min(max(t, 22.0), FLIGHT_S), 2)
+        placed.append(t)
+        return t
+
+    def timed(n_max: int, lo_s: float, hi_s: float) -> list[dict[str, float]]:
+        return [{"at_s": at(), "duration_s": round(float(rng.uniform(lo_s, hi_s)), 2)}
+                for _ in range(int(rng.integers(1, n_max + 1)))]
+
+    faults: dict[str, Any] = {}
+    if maybe(0.6):
+        faults["lost_pulse_fraction"] = round(float(rng.uniform(0.0, 0.3)), 4)
+    if maybe(0.6):
+        faults["spurious_pulse_rate_hz"] = round(float(rng.uniform(0.0, 10.0)), 3)
+        if maybe(0.5):
+            faults["spurious_pps_near_second_ms"] = round(float(rng.uniform(0.05, 5.0)), 3)
+    if maybe(0.4):
+        faults["corrupt_byte_rate"] = float(rng.choice([5e-4, 1e-3, 3e-3]))
+    if maybe(0.3):
+        faults["lost_byte_rate"] = float(rng.choice([5e-4, 1e-3]))
+    if maybe(0.3):
+        faults["lost_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.05)), 4)
+    if maybe(0.3):
+        faults["corrupt_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.05)), 4)
+    if maybe(0.4):
+        faults["dropped_frame_fraction"] = round(float(rng.uniform(0.0, 0.2)), 4)
+    if maybe(0.5):
+        faults["pps_outages"] = timed(3, 1.0, 90.0)
+    if maybe(0.3):
+        faults["sync_restarts"] = timed(2, 0.5, 10.0)
+    if maybe(0.3):
+        faults["ins_reboots"] = timed(2, 0.5, 15.0)
+    if maybe(0.6):
+        faults["ins_clock_jumps"] = [
+            {"at_s": at(), "jump_ms": round(float(rng.choice([-1, 1]) * 10 ** rng.uniform(
+                -3.0, 4.0)), 6)} for _ in range(int(rng.integers(1, 5)))]
+    one_of_n = int(rng.integers(1, 13))
+    return {
+        "gps": {"receiver": str(rng.choice(["ashtech_z12", "ublox_f9p", "novatel_oem7"])),
+                "max_event_rate_hz": float(rng.choice([1.0, 2.0, 5.0, 10.0, 20.0, 25.0, 50.0]))},
+        "sisa": {"lfsr_bits": int(rng.choice([3, 4, 5, 6, 7, 8])), "one_of_n": one_of_n},
+        "scanner": {"frame_counter_bits": int(rng.choice([8, 12, 16, 32])),
+                    "line_clock_drift_ppm": round(float(rng.uniform(-300.0, 300.0)), 2)},
+        "ins": {"counter_bits": int(rng.choice([8, 10, 16, 32])),
+                "clock_drift_ppm": round(float(rng.uniform(-500.0, 500.0)), 2)},
+        "faults": faults,
+    }
+
+
+def one_run(seed: int, wide: bool = False) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     for _ in range(20):
-        mix = draw_mix(rng)
+        mix = (draw_wide_mix if wide else draw_mix)(rng)
         try:
             scn = scenario_from_table(merged({"base": "bench", "seed": seed, **SHORT}, mix))
             break
@@ -146,6 +211,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=40)
     ap.add_argument("--first-seed", type=int, default=1000)
     ap.add_argument("--out", type=Path, default=Path("runs/fault_sweep"))
+    ap.add_argument("--wide", action="store_true",
+                    help="harsher mixes (draw_wide_mix): higher rates, several timed faults, "
+                         "drawn close together")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "fault_sweep.json"
@@ -155,7 +223,7 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.runs):
         if seed in done:
             continue
-        r = one_run(seed)
+        r = one_run(seed, args.wide)
         rows.append(r)
         path.write_text(json.dumps(rows) + "\n", encoding="utf-8")
         print(f"seed {seed}: INS {r['ins'][0]}/{r['ins'][1]}, lines {r['lines'][0]}/"

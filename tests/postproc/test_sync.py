@@ -58,14 +58,25 @@ TAG_LSB_NS = 100  # PTT/TTT resolution
 # --- helpers: truth joins and the noise model -----------------------------------------------
 
 def ins_truth_ns(run: Path, inp: SyncInput) -> np.ndarray:
-    """True measurement epoch of every logged INS record, joined on (counter, clock ticks)."""
+    """True measurement epoch of every logged INS record, joined on (counter, clock ticks).
+
+    An INS that reboots twice starts its counter and clock from the same values each time, so
+    a key can stand for several records: the logged records come in the order the INS sent
+    them, so each such record is the first of its key's records after the one logged before
+    it."""
     tr = read_truth_csv(run / "truth" / "ins_records.csv")
     key_t = tr["counter"] * (1 << 48) + tr["ins_time_ticks"]
     key_o = inp.ins.counter * (1 << 48) + inp.ins.ins_time_ticks
-    order = np.argsort(key_t)
-    pos = np.clip(np.searchsorted(key_t[order], key_o), 0, key_t.size - 1)
-    assert np.array_equal(key_t[order][pos], key_o), "a logged record is not in the truth"
-    return tr["t_meas_gps_ns"][order][pos]
+    order = np.argsort(key_t, kind="stable")  # a key's records in the order sent
+    lo = np.searchsorted(key_t[order], key_o, side="left")
+    hi = np.searchsorted(key_t[order], key_o, side="right")
+    assert np.all(hi > lo), "a logged record is not in the truth"
+    pos = order[lo]  # the truth row of each logged record
+    for i in np.flatnonzero(hi - lo > 1):
+        rows = order[lo[i]:hi[i]]
+        later = rows[rows > pos[i - 1]] if i > 0 else rows
+        pos[i] = later[0] if later.size else rows[-1]
+    return tr["t_meas_gps_ns"][pos]
 
 
 def line_truth_ns(run: Path, res: SyncResult) -> np.ndarray:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from postproc.sync import sync_log
+from postproc.sync import TimeStatus, sync_log
 from recorder.messages import FrameHeaderLog, PulseEdgeLog, RawBytes, StreamHealth, Topic
 from recorder.reader import read_log, read_messages
 from recorder.replay import Wire, iter_schedule
@@ -134,7 +134,12 @@ def test_sync_log_gives_every_record_and_line_the_same_gps_time(flights):
     a, b = sync_log(original), sync_log(again)
     assert a.ins.t_gps_ns.size > 5000
     assert a.lines.t_gps_ns.size > 300
-    assert np.all(a.ins.status == 0)
+    # every INS record timed but those before the first latched pulse and after the last
+    # (no pulse can time them: docs/sync.md, Limits), and every line
+    beyond = a.ins_solution.timeline.outside_latch_span()
+    assert np.all(a.ins.status[~beyond] == 0)
+    assert beyond.sum() < 5 * 64
+    assert np.all(a.ins.status[beyond] == TimeStatus.OUTSIDE_FIT)
     assert np.all(a.lines.status == 0)
     for name in ("seq", "counter", "t_gps_ns", "status"):
         _same(getattr(b.ins, name), getattr(a.ins, name), f"INS {name}")

@@ -26,7 +26,10 @@ class SyncConfig:
 
     pattern: PatternConfig = field(default_factory=PatternConfig)
     assoc_tol_s: float = 2e-6  # latch ↔ pulse, once a clock fit predicts it (+ resolution)
-    max_extrapolation_s: float = 30.0  # INS records beyond the first/last fitted latch
+    # INS records beyond the first/last latch of their run: none by default. A clock jump
+    # smaller than a record period shows only in the latches (insjumps), so one past the last
+    # latch is invisible, and a record timed there could be wrong by up to a period, unflagged
+    max_extrapolation_s: float = 0.0
     max_time_sigma_s: float = 1e-6  # predicted error (1 σ) of a time from its fit
     line_max_extrapolation_s: float = 2.0  # scan lines beyond the first/last timed frame
     ttt_window_ns: int = 50_000  # forward ↔ TTT tag through the timing board

@@ -67,6 +67,18 @@ class InsTimeline:
     counter_modulus: int
     counts: dict[str, int]
 
+    def outside_latch_span(self) -> Bool:
+        """Records measured before the log's first latched pulse or after its last (the record
+        carrying a latch is measured after its pulse): no pulse can show the INS clock there,
+        so none of them is timed (insrecords): the flight's first and last seconds. A log
+        without latches has no span: none is outside it (its records are all untimed, and
+        that is a loss, not the flight's ends)."""
+        out = np.zeros(self.seq.size, dtype=np.bool_)
+        if self.latch_record.size:
+            out[:int(self.latch_record.min())] = True
+            out[int(self.latch_record.max()):] = True
+        return out
+
     def seconds(self, ticks: npt.ArrayLike, piece: npt.ArrayLike) -> F64:
         """INS clock seconds relative to the first record of the piece."""
         epoch = self.clock_ticks[self.piece_first[np.asarray(piece, dtype=np.int64)]]

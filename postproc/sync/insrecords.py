@@ -3,10 +3,11 @@
 A record between two latches of one run takes that run's line at its own clock value (the INS
 clock tags the measurement epoch; the output delay plays no part). A record between latches of
 two runs sits across a clock jump of unknown place: CLOCK_JUMP. A record beyond the first or last
-latch of its piece is extrapolated, but only up to `max_extrapolation_s`, only while the line's
-own predicted error stays below `max_time_sigma_s` (else OUTSIDE_FIT), and never past a latch no
-run claimed (the clock may have jumped there: AMBIGUOUS). A piece with latches but no run is
-AMBIGUOUS; one without latches NO_PULSES.
+latch of its run is OUTSIDE_FIT (`max_extrapolation_s`, 0 by default: a clock jump smaller than
+a record period shows only in later latches, and there are none; docs/sync.md, Limits), as is
+one where the line's own predicted error exceeds `max_time_sigma_s`; with extrapolation allowed,
+never past a latch no run claimed (the clock may have jumped there: AMBIGUOUS). A piece with
+latches but no run is AMBIGUOUS; one without latches NO_PULSES.
 """
 
 from __future__ import annotations

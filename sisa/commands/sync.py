@@ -115,6 +115,9 @@ def _run(args: argparse.Namespace) -> int:
         say_warning("sync", note)
     ok_ins = int((ins.status == TimeStatus.OK).sum())
     ok_lines = int((ln.status == TimeStatus.OK).sum())
+    # the INS records the pulses promise: those from the first latched pulse to the last (none
+    # is timed outside them: the flight's first and last seconds; docs/sync.md, Limits)
+    beyond = result.ins_solution.timeline.outside_latch_span()
     # what the inputs promised: every INS record in the log; per segment, the lines of the
     # scanner's files or the log's frame headers, whichever says more (a log cut short holds
     # fewer headers; a lines file cut short, fewer lines)
@@ -132,7 +135,12 @@ def _run(args: argparse.Namespace) -> int:
             print(f"  {kind} flagged: " + ", ".join(f"{k} {v}" for k, v in flagged.items()))
     if unlisted:
         print(f"  scan lines not in the scanner's files: {unlisted} (frame headers in the log)")
-    counts = [("INS records", ok_ins, ins.status.size), ("scan lines", ok_lines, promised)]
+    if beyond.any():
+        print(f"  INS records before the first pulse the INS latched or after its last: "
+              f"{int(beyond.sum())} (never timed: no pulse shows the INS clock there)")
+    ok_spanned = int((ins.status[~beyond] == TimeStatus.OK).sum())
+    counts = [("INS records", ok_spanned, int((~beyond).sum())),
+              ("scan lines", ok_lines, promised)]
     if result.photos is not None:
         counts.append(("photos", *_photo_headline(result.report["photos"])))
     lost = [f"{n - ok} of {n} {what}" for what, ok, n in counts if ok < n]

@@ -187,6 +187,16 @@ def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult,
                    "its TTT output")
     stale = ins["log_time_ns"] < newest - int(stale_s * 1e9)
     untimed = stale & (res.ins.status != TimeStatus.OK)
+    tl = res.ins_solution.timeline
+    if tl.latch_record.size:  # before the first latch: the sync had not begun, nothing to do
+        untimed[:int(tl.latch_record.min())] = False
+        after_last = untimed & tl.outside_latch_span()
+        untimed &= ~after_last
+        if np.any(after_last):
+            out.append(f"no pulse latched: {int(np.count_nonzero(after_last))} INS records "
+                       f"logged over {stale_s:g} s ago, after the last pulse the INS latched, "
+                       "not timed (a record is timed only between two latched pulses): check "
+                       "the PPS and the sync cable to the INS")
     if np.any(untimed):
         latches = int(np.count_nonzero(ins["sync_flag"]))
         kinds = {TimeStatus(int(s)).name.lower(): int(n) for s, n in

@@ -18,7 +18,9 @@ def test_late_time_tags_do_not_bend_the_host_map() -> None:
     inp, t_meas, _ = _flight(100.0, 0, one_of_n=3, ttt_held_to_the_second=True)
     res = synchronise(inp)
     ok = res.ins.status == TimeStatus.OK
-    assert ok.mean() >= 0.999
+    beyond = res.ins_solution.timeline.outside_latch_span()  # the flight's ends: never timed
+    assert ok[~beyond].mean() >= 0.999
+    assert beyond.sum() <= 5 * 64
     assert np.abs(res.ins.t_gps_ns[ok] - t_meas[ok]).max() < 2_000
     host = res.report["pulses"]["host_map"]
     assert abs(host["rate_ppm"] - (-3.0)) < 1.0  # the host clock runs 3 ppm fast

@@ -257,3 +257,24 @@ def _report_shows_the_fault(profile: str, rep: dict[str, Any], run: Path) -> Non
     elif profile == "ins_drift_200ppm":
         assert all(m["ins_clock_fast_ppm"] == pytest.approx(200.0, abs=0.1)
                    for m in ins["clock_models"])
+
+
+def test_a_jump_past_the_last_latch_is_never_timed(tmp_path: Path) -> None:
+    """A +2 ms INS clock jump inside a 40 s PPS outage with the scanner off (no pulse latched),
+    then a −50 ms jump the records show (the clock piece ends there). Nothing in the log shows
+    the small one: the records after it were timed from the clock before it, extrapolated from
+    the last latch, and 896 came out `ok` and 2 ms wrong. Records past the last latch of their
+    piece are not timed now (`outside_fit`), and every record between latches is."""
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 7, **SHORT}, {"faults": {
+        "pps_outages": [{"at_s": 30.0, "duration_s": 40.0}],
+        "ins_clock_jumps": [{"at_s": 45.0, "jump_ms": 2.0}, {"at_s": 60.0, "jump_ms": -50.0}]}}))
+    simulate(scn, tmp_path, images=False)
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp)
+    truth = ins_truth_ns(tmp_path, inp)
+    assert np.abs(ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)).max() < WRONG_NS
+    t0 = scn.block.t_start_gps_ns
+    after_small = (truth > t0 + 45_000_000_000) & (truth < t0 + 60_000_000_000)
+    assert after_small.sum() > 800
+    assert not (res.ins.status[after_small] == TimeStatus.OK).any()
+    all_timed_between_latches(res, max_beyond=80 * 64)

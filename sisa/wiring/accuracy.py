@@ -14,6 +14,7 @@ in metres and in pixels (the segment's median pixel spacing across and along tra
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -275,10 +276,12 @@ def _invert(te: F64, tn: F64, e: float, n: float, i: int, j: int) -> tuple[float
 
 
 def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, Any],
-                     seed: int = 0) -> tuple[ErrorStats, list[CheckPoint]]:
+                     seed: int = 0, stop: threading.Event | None = None
+                     ) -> tuple[ErrorStats, list[CheckPoint]]:
     """One segment against truth, the truth cast once per block of lines: every pixel (IGM
     minus truth, along/across/height) and the check points inside its swath (found in the image
-    through the truth, the IGM interpolated there, compared with the surveyed coordinates)."""
+    through the truth, the IGM interpolated there, compared with the surveyed coordinates).
+    `stop` set: the blocks left are not judged (a command stopped: its figures are dropped)."""
     igm = open_igm(seg.igm)
     t = truth.line_times(seg.segment, seg.lines)
     px = np.array([seg.gsd_along_m, seg.gsd_across_m, seg.gsd_across_m])
@@ -286,6 +289,8 @@ def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, A
     rng = np.random.default_rng(seed)
     found: list[CheckPoint] = []
     for lo in range(0, seg.lines, BLOCK_LINES):
+        if stop is not None and stop.is_set():
+            break
         hi = min(lo + BLOCK_LINES + 1, seg.lines)  # one line of overlap between blocks
         own = min(BLOCK_LINES, hi - lo)  # the lines this block reports pixels for
         te, tn, th = truth.ground(t[lo:hi])
@@ -363,25 +368,46 @@ def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
     return out
 
 
+def no_check_points() -> dict[str, Any]:
+    """`check_points`' columns for a run without a ground points file."""
+    return {"id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
+            "height_m": np.zeros(0), "ecef_m": np.zeros((0, 3))}
+
+
+class RunAccuracy:
+    """A run's accuracy summed segment by segment, in the order they are added (the order
+    fixes the float sums): a caller may add each segment as soon as its IGM is written."""
+
+    def __init__(self, scn: Scenario, run: Path, epsg: int,
+                 log_fixes: AntennaFixes | None = None) -> None:
+        self.truth = TruthGround(scn, run, epsg, log_fixes)
+        gp_csv = run / "terrain" / "ground_points.csv"
+        self.points = check_points(gp_csv, epsg) if gp_csv.is_file() else no_check_points()
+        self.total = ErrorStats()
+        self.per_segment: list[dict[str, Any]] = []
+        self.checks: list[CheckPoint] = []
+
+    def add(self, seg: SegmentResult, stop: threading.Event | None = None) -> None:
+        stats, found = segment_accuracy(self.truth, seg, self.points, seed=seg.segment,
+                                        stop=stop)
+        self.per_segment.append({"segment": seg.segment, **stats.summary()})
+        self.total.merge(stats)
+        self.checks += found
+
+    def summary(self) -> dict[str, Any]:
+        """accuracy.json's figures, and the report's sample of pixel errors (`_sample_px`)."""
+        checks, sample = self.checks, self.total.sample_px
+        return {"pixels": self.total.summary(), "segments": self.per_segment,
+                "check_points": check_point_summary(checks),
+                "check_point_list": [{"id": c.id, "segment": c.segment, "line": c.line,
+                                      "pixel": c.pixel, "err_m": c.err_m.tolist(),
+                                      "err_px": c.err_px.tolist()} for c in checks],
+                "_sample_px": np.concatenate(sample) if sample else np.zeros((0, 3))}
+
+
 def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, Any]:
     """Every-pixel and check-point accuracy of a georeferenced simulated run."""
-    truth = TruthGround(scn, run, result.epsg, result.log_fixes)
-    total = ErrorStats()
-    per_segment = []
-    checks: list[CheckPoint] = []
-    gp_csv = run / "terrain" / "ground_points.csv"
-    chk = check_points(gp_csv, result.epsg) if gp_csv.is_file() else {
-        "id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
-        "height_m": np.zeros(0), "ecef_m": np.zeros((0, 3))}
+    acc = RunAccuracy(scn, run, result.epsg, result.log_fixes)
     for seg in result.segments:
-        stats, found = segment_accuracy(truth, seg, chk, seed=seg.segment)
-        per_segment.append({"segment": seg.segment, **stats.summary()})
-        total.merge(stats)
-        checks += found
-    return {"pixels": total.summary(), "segments": per_segment,
-            "check_points": check_point_summary(checks),
-            "check_point_list": [{"id": c.id, "segment": c.segment, "line": c.line,
-                                  "pixel": c.pixel, "err_m": c.err_m.tolist(),
-                                  "err_px": c.err_px.tolist()} for c in checks],
-            "_sample_px": np.concatenate(total.sample_px) if total.sample_px
-            else np.zeros((0, 3))}
+        acc.add(seg)
+    return acc.summary()

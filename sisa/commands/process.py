@@ -179,8 +179,9 @@ def _alongside_line(judge: AccuracyAlongside, started_s: float) -> str:
     theirs), and its step above is only the wait for its end."""
     begin_s, end_s = (t - started_s for t in judge.span_s)
     return (f"  alongside, in a thread of its own: accuracy against truth from {begin_s:.1f} "
-            f"to {end_s:.1f} s ({end_s - begin_s:.1f} s wall; its CPU is counted in the "
-            "steps it ran beside, its step above is the wait for its end)")
+            f"to {end_s:.1f} s ({end_s - begin_s:.1f} s wall, {judge.cpu_s:.1f} s CPU, counted "
+            f"in the steps it ran beside, {judge.ahead_lines} lines of truth cast while the "
+            "log was read; its step above is the wait for its end)")
 
 
 def _provenance(args: argparse.Namespace, run: Path, parts: list[Path],

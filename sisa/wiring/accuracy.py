@@ -148,9 +148,11 @@ def decompose(d_e: F64, d_n: F64, d_h: F64, along: F64, right: F64) -> F64:
 
 
 def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int64],
-                   log_fixes: AntennaFixes | None = None) -> TruthTrajectory:
+                   log_fixes: AntennaFixes | None = None, *, check_log: bool = True
+                   ) -> TruthTrajectory:
     """The scenario's true trajectory, checked against the run's truth frames: a scenario.toml
-    changed after the run (another preset) put the frames outside it, a traceback later."""
+    changed after the run (another preset) put the frames outside it, a traceback later; and
+    with `check_log` against the log's GPS fixes (`check_against_fixes`)."""
     traj = TruthTrajectory.from_scenario(scn)
     t = np.asarray(t_frames_gps_ns, dtype=np.int64)
     if t.size and (t.min() < traj.t_start_ns or t.max() > traj.t_end_ns):
@@ -158,11 +160,12 @@ def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int
                          f"({gps_span_label(traj.t_start_ns, traj.t_end_ns)}) does not hold the "
                          f"run's truth frames ({gps_span_label(int(t.min()), int(t.max()))}): "
                          "not the scenario this run was made from")
-    _check_against_fixes(run, scn, traj, log_fixes)
+    if check_log:
+        check_against_fixes(run, scn, traj, log_fixes)
     return traj
 
 
-def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
+def check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
                          fixes: AntennaFixes | None) -> None:
     """The flight a scenario.toml rebuilds against the run's own log: each logged GPS fix less
     the error the emulator recorded adding to it (truth/gps_fixes.csv) is where the rebuilt
@@ -194,20 +197,39 @@ def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
 
 
 class TruthGround:
-    """True ground position of every pixel of a segment, block by block."""
+    """True ground position of every pixel of a segment, block by block. Built without the
+    log (`check_log` False: `check_against_fixes` once it is read) and without the output CRS
+    (`use_crs` once it is known), it can cast blocks ahead (`cast_ahead`) while the log is
+    read."""
 
-    def __init__(self, scn: Scenario, run: Path, out_epsg: int,
-                 log_fixes: AntennaFixes | None = None) -> None:
+    def __init__(self, scn: Scenario, run: Path, out_epsg: int | None,
+                 log_fixes: AntennaFixes | None = None, *, check_log: bool = True) -> None:
         self.scn = scn
         frames = read_truth_csv(run / "truth" / "frames.csv")
-        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"], log_fixes)
+        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"], log_fixes,
+                                   check_log=check_log)
         self.terrain = Terrain.from_scenario(scn)
         self.intersector = GroundIntersector(self.terrain)
         self.look = scn.scanner.look_vectors_camera()
         kept = frames["line_index"] >= 0
         self.frames = {k: v[kept] for k, v in frames.items()}
+        self._to_out: Transformer | None = None
+        self._ahead: dict[tuple[int, int], tuple[npt.NDArray[np.int64], F64]] = {}
+        if out_epsg is not None:
+            self.use_crs(out_epsg)
+
+    def use_crs(self, out_epsg: int) -> None:
+        """The output CRS `ground` gives (E, N) in."""
         self._to_out = (None if out_epsg == self.terrain.epsg else
                         Transformer.from_crs(self.terrain.epsg, out_epsg, always_xy=True))
+
+    def segment_lines(self) -> dict[int, int]:
+        """segment → its lines as the truth knows them (an image may hold fewer)."""
+        lines: dict[int, int] = {}
+        for s, i in zip(self.frames["segment"].tolist(), self.frames["line_index"].tolist(),
+                        strict=True):
+            lines[s] = max(lines.get(s, 0), i + 1)
+        return dict(sorted(lines.items()))
 
     def line_times(self, segment: int, lines: int) -> npt.NDArray[np.int64]:
         """The true time of each of the segment's first `lines` lines (an image cut short is
@@ -217,17 +239,38 @@ class TruthGround:
         t[self.frames["line_index"][sel]] = self.frames["t_mid_gps_ns"][sel]
         return t
 
-    def ground(self, t_ns: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
-        """(E, N, h) (lines, pixels) in the output CRS; NaN rows where t < 0."""
+    def cast_ahead(self, segment: int, first_line: int, t_ns: npt.NDArray[np.int64]) -> int:
+        """Cast the block of the segment's lines from first_line at times t_ns now, for
+        `ground` to take later; its bytes."""
+        grid = self._cast(t_ns)
+        self._ahead[(segment, first_line)] = (t_ns.copy(), grid)
+        return grid.nbytes
+
+    def ground(self, t_ns: npt.NDArray[np.int64], block: tuple[int, int] | None = None
+               ) -> tuple[F64, F64, F64]:
+        """(E, N, h) (lines, pixels) in the output CRS; NaN rows where t < 0. `block`
+        (segment, first line): cast ahead at these very times, taken (the same numbers)."""
+        ahead = self._ahead.pop(block, None) if block is not None else None
+        out = ahead[1] if ahead is not None and np.array_equal(ahead[0], t_ns) else \
+            self._cast(t_ns)
+        e, n, h = out[..., 0], out[..., 1], out[..., 2]
+        if self._to_out is not None:
+            e, n = (np.asarray(v) for v in self._to_out.transform(e, n))
+        return e, n, h
+
+    def drop_ahead(self, before_segment: int) -> None:
+        """Blocks cast ahead for segments before this one, never asked for (skipped)."""
+        for key in [k for k in self._ahead if k[0] < before_segment]:
+            del self._ahead[key]
+
+    def _cast(self, t_ns: npt.NDArray[np.int64]) -> F64:
+        """(lines, pixels, 3) ground in the terrain's CRS."""
         ok = t_ns >= 0
         out = np.full((t_ns.size, self.look.shape[1], 3), np.nan)
         if ok.any():
             centre, r_ce = camera_pose_ecef(self.traj.state(t_ns[ok]), self.scn.mounting)
             out[ok] = self.intersector.intersect_lines(centre, r_ce, self.look)
-        e, n, h = out[..., 0], out[..., 1], out[..., 2]
-        if self._to_out is not None:
-            e, n = (np.asarray(v) for v in self._to_out.transform(e, n))
-        return e, n, h
+        return out
 
 
 @dataclass
@@ -293,7 +336,7 @@ def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, A
             break
         hi = min(lo + BLOCK_LINES + 1, seg.lines)  # one line of overlap between blocks
         own = min(BLOCK_LINES, hi - lo)  # the lines this block reports pixels for
-        te, tn, th = truth.ground(t[lo:hi])
+        te, tn, th = truth.ground(t[lo:hi], (seg.segment, lo))
         blk = np.asarray(igm[lo:hi])
         along, right = along_across_axes(te, tn)
         err = decompose(blk[:own, 0] - te[:own], blk[:own, 1] - tn[:own],
@@ -379,8 +422,15 @@ class RunAccuracy:
     fixes the float sums): a caller may add each segment as soon as its IGM is written."""
 
     def __init__(self, scn: Scenario, run: Path, epsg: int,
-                 log_fixes: AntennaFixes | None = None) -> None:
-        self.truth = TruthGround(scn, run, epsg, log_fixes)
+                 log_fixes: AntennaFixes | None = None, truth: TruthGround | None = None
+                 ) -> None:
+        """`truth`: built before (without the log's check or the CRS: both done here)."""
+        if truth is None:
+            truth = TruthGround(scn, run, epsg, log_fixes)
+        else:
+            check_against_fixes(run, scn, truth.traj, log_fixes)
+            truth.use_crs(epsg)
+        self.truth = truth
         gp_csv = run / "terrain" / "ground_points.csv"
         self.points = check_points(gp_csv, epsg) if gp_csv.is_file() else no_check_points()
         self.total = ErrorStats()
@@ -388,6 +438,7 @@ class RunAccuracy:
         self.checks: list[CheckPoint] = []
 
     def add(self, seg: SegmentResult, stop: threading.Event | None = None) -> None:
+        self.truth.drop_ahead(seg.segment)
         stats, found = segment_accuracy(self.truth, seg, self.points, seed=seg.segment,
                                         stop=stop)
         self.per_segment.append({"segment": seg.segment, **stats.summary()})

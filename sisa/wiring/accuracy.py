@@ -359,11 +359,11 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
     pe, pn, ph = points["easting_m"], points["northing_m"], points["height_m"]
     inside = ((pe > np.nanmin(te)) & (pe < np.nanmax(te)) & (pn > np.nanmin(tn))
               & (pn < np.nanmax(tn)))
+    boxes = _row_boxes(te, tn) if inside.any() else np.zeros((4, 0))
     for k in np.flatnonzero(inside):
-        d2 = (te - pe[k]) ** 2 + (tn - pn[k]) ** 2
-        if not np.isfinite(d2).any():
+        if (nearest := _nearest_pixel(te, tn, boxes, float(pe[k]), float(pn[k]))) is None:
             continue
-        i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
+        i, j = nearest
         if (i in (0, te.shape[0] - 1) and not last) or j in (0, te.shape[1] - 1):
             continue  # on a block edge or the swath edge: not inside this block
         li, pj = _invert(te, tn, float(pe[k]), float(pn[k]), int(i), int(j))
@@ -377,6 +377,37 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
         err = np.array([de * a[0] + dn * a[1], de * r[0] + dn * r[1], dh])
         out.append((str(points["id"][k]), li, pj, err))
     return out
+
+
+def _row_boxes(te: F64, tn: F64) -> F64:
+    """(4, lines): each line's least and greatest easting and northing, NaN for a line of
+    NaN only (fmin/fmax: NaN pixels left out, without numpy's all-NaN warning)."""
+    return np.stack([np.fmin.reduce(te, axis=1), np.fmax.reduce(te, axis=1),
+                     np.fmin.reduce(tn, axis=1), np.fmax.reduce(tn, axis=1)])
+
+
+def _nearest_pixel(te: F64, tn: F64, boxes: F64, e: float, n: float
+                   ) -> tuple[int, int] | None:
+    """(line, pixel) of the first pixel nearest (e, n), as np.nanargmin over the whole block
+    finds it; None if no pixel is finite. Only the lines whose box can hold it are searched:
+    a line's bound (its box's distance², each step monotonic in floating point) is never
+    above any of its pixels' d², so a line left out holds no pixel as near as one found."""
+    de = np.maximum(np.maximum(boxes[0] - e, e - boxes[1]), 0.0)
+    dn = np.maximum(np.maximum(boxes[2] - n, n - boxes[3]), 0.0)
+    bound = de ** 2 + dn ** 2
+    if not np.isfinite(bound).any():
+        return None
+    first = int(np.nanargmin(bound))
+    near = ((te[first] - e) ** 2 + (tn[first] - n) ** 2)
+    if not np.isfinite(near).any():  # a line of eastings without northings: search all
+        rows = np.arange(te.shape[0])
+    else:
+        rows = np.flatnonzero(bound <= np.nanmin(near))
+    d2 = (te[rows] - e) ** 2 + (tn[rows] - n) ** 2
+    if not np.isfinite(d2).any():
+        return None
+    i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
+    return int(rows[i]), int(j)
 
 
 def check_points(path: Path, epsg: int) -> dict[str, Any]:

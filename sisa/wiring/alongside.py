@@ -1,9 +1,11 @@
 """A simulated run's accuracy against truth worked out alongside the rest of `sisa process`
-(issue 38): in a thread of its own, segment by segment as the georeferencing casts them, while
-the main thread casts the next segments and makes the orthos, the mosaic and the strip
-registration. The truth's ray casting (numba, nogil, on its own thread pool) and the IGM
-reads release the GIL, so the two share the cores; the figures are `run_accuracy`'s, summed
-in the same order.
+(issue 38): in a thread of its own, from the command's start (the truth built and its first
+blocks cast while the main thread reads the log on one core), then segment by segment as the
+georeferencing casts them, while the main thread casts the next segments and makes the
+orthos, the mosaic and the strip registration. The truth's ray casting (numba, nogil, run on
+this thread alone: a kernel split over both cores waited for the half the main thread held
+up) and the IGM reads release the GIL, so the two share the cores; the figures are
+`run_accuracy`'s, summed in the same order.
 
     with AccuracyAlongside(scn, run) as judge:   # its thread starts: the truth, cast ahead
         ...  judge.start(handoff, epsg) once the log is synchronised, judge.add(seg) per
@@ -37,9 +39,9 @@ AHEAD_BYTES: Final = 256 << 20  # truth cast ahead while the log is read (~10 bl
 
 class AccuracyAlongside:
     """The accuracy of a run's segments, judged in a worker thread as they are given. The
-    thread starts with the `with` block: while the main thread reads the log (one core), it builds the
-    truth and casts the first blocks of lines ahead (AHEAD_BYTES at most, until the first
-    segment is cast: the products' peak memory comes later)."""
+    thread starts with the `with` block: while the main thread reads the log (one core), it
+    builds the truth and casts the first blocks of lines ahead (AHEAD_BYTES at most, until
+    the first segment is cast: the products' peak memory comes later)."""
 
     def __init__(self, scn: Scenario, run: Path) -> None:
         self._scn, self._run = scn, run

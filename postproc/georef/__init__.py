@@ -21,7 +21,7 @@ names below.
 from postproc.georef.dem import PLAUSIBLE_HEIGHTS_M, Dem, check_undulation_m
 from postproc.georef.flightproducts import flight_summary, registrations, write_footprints
 from postproc.georef.handoff import Handoff, load_handoff, merged_wanted, save_handoff
-from postproc.georef.job import GeorefJob, Skipped
+from postproc.georef.job import GeorefJob, OnCast, OnSynced, Skipped
 from postproc.georef.jobrecords import GeorefOptions, GeorefResult, SegmentResult, SegmentSkip
 from postproc.georef.navigation import (
     MAX_GAP_LIMIT_S,
@@ -60,13 +60,13 @@ __all__ = [
     "CALIBRATED_SUFFIX", "CSV_GEODETIC_COLUMNS", "CSV_MAP_COLUMNS", "LEAP_SECONDS_RANGE",
     "MAX_GAP_LIMIT_S", "NAV_WANTED", "PLAUSIBLE_HEIGHTS_M", "AntennaFixes", "CastStats", "Dem",
     "GeorefJob", "GeorefOptions", "GeorefResult", "GroundPoints", "Handoff", "InsSamples",
-    "PhotoCorners", "PhotoEo", "PhotoGeo", "PhotoOrthos", "PhotoSigma", "PhotoTimes", "Pose",
-    "Provenance", "SegmentResult", "SegmentSkip", "SensorModel", "Skipped", "Trajectory",
-    "cast_photos", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns", "flight_summary",
-    "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_camera", "load_handoff", "merged_wanted",
-    "nav_from_columns", "ortho_cell_m", "photo_corners", "photo_eo", "photo_label", "photo_orthos",
-    "photo_products", "project_to_photo", "read_photo_times", "reference_intersect",
-    "registrations", "save_handoff", "segment_image", "segment_products", "segment_raster",
-    "segment_rasters", "write_footprints", "write_odm_geo", "write_photo_csv",
-    "write_photo_footprints", "write_photo_sidecars", "write_report",
+    "OnCast", "OnSynced", "PhotoCorners", "PhotoEo", "PhotoGeo", "PhotoOrthos", "PhotoSigma",
+    "PhotoTimes", "Pose", "Provenance", "SegmentResult", "SegmentSkip", "SensorModel", "Skipped",
+    "Trajectory", "cast_photos", "check_undulation_m", "ecef_to_geodetic", "fixes_from_columns",
+    "flight_summary", "fuse_ins_gps", "geodetic_to_ecef", "intersect", "load_camera",
+    "load_handoff", "merged_wanted", "nav_from_columns", "ortho_cell_m", "photo_corners",
+    "photo_eo", "photo_label", "photo_orthos", "photo_products", "project_to_photo",
+    "read_photo_times", "reference_intersect", "registrations", "save_handoff", "segment_image",
+    "segment_products", "segment_raster", "segment_rasters", "write_footprints", "write_odm_geo",
+    "write_photo_csv", "write_photo_footprints", "write_photo_sidecars", "write_report",
 ]

@@ -36,6 +36,7 @@ records are `jobrecords`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,6 +53,9 @@ from postproc.products import EnviRaster, Progress
 from postproc.sync import SyncResult
 from recorder.framing import Paths
 from sisa.core.jsonio import write_json
+
+OnSynced = Callable[[Handoff, int], None]  # the hand-off, the output EPSG
+OnCast = Callable[[SegmentResult], None]
 
 
 @dataclass
@@ -80,11 +84,16 @@ class GeorefJob:
         self.warnings: list[str] = crs_notes(crs, self.cover.dem_epsg, self.cover.dem_bounds)
         self.warnings += input_notes(options)
 
-    def run(self, progress: Progress | None = None, on_total: Progress | None = None
+    def run(self, progress: Progress | None = None, on_total: Progress | None = None, *,
+            on_synced: OnSynced | None = None, on_cast: OnCast | None = None
             ) -> GeorefResult:
         """Sync, then every segment; `on_total` is told the scan lines to georeference,
-        `progress` each block of lines done."""
+        `progress` each block of lines done; `on_synced` the hand-off and the output EPSG
+        once the log is synchronised, `on_cast` each segment once its IGM is whole (for work
+        alongside the products: `sisa process`'s accuracy)."""
         handoff = self.synchronise()
+        if on_synced is not None:
+            on_synced(handoff, self.epsg)
         rasters = segment_rasters(self.scanner_dir, handoff.sync, self.warnings)
         if on_total is not None:
             on_total(sum(raw.lines for raw in rasters.values()))
@@ -93,6 +102,8 @@ class GeorefJob:
         for s, raw in rasters.items():
             if (seg := self.segment(handoff, s, raw, skipped, progress)) is not None:
                 done.append(seg)
+                if on_cast is not None:
+                    on_cast(seg)
         self.check_any_done(handoff, done, skipped)
         cell_m = ortho_cell_m(self.opt, done)
         mosaic_path = flight_products(done, self.out, self.epsg, cell_m, self.opt.products,

@@ -22,6 +22,7 @@ import json
 import math
 import os
 import platform
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
@@ -32,9 +33,9 @@ import numpy.typing as npt
 from postproc.georef.exterior import exterior_orientation
 from postproc.georef.jobrecords import GeorefResult
 from postproc.georef.navigation import ecef_to_geodetic
-from postproc.products import read_rgb
+from postproc.products import RgbView, read_rgb
 from sisa.core.outdir import write_whole
-from sisa.core.provenance import file_record, software_label
+from sisa.core.provenance import FileRecord, file_record, software_label
 from sisa.core.sensor import Mounting
 from sisa.core.timescale import NS_PER_S, datetime_from_gps_ns, gps_span_label, gps_time_label
 
@@ -370,17 +371,20 @@ def _band_legend(view: Any) -> str:
     return "; ".join(parts) + "; each stretched over 2–98 % of its valid values"
 
 
-def _mosaic(out_dir: Path, result: GeorefResult) -> str:
-    """The scanner's mosaic (`mosaic_figure`)."""
-    return mosaic_figure(out_dir / "mosaic.tif", result.cell_m, "Ortho mosaic")
+def mosaic_overview(tif: Path) -> RgbView | None:
+    """The whole of a mosaic, read decimated for its figure; None without one."""
+    return read_rgb(tif, max_size_px=MOSAIC_MAX_PX) if tif.is_file() else None
 
 
-def mosaic_figure(tif: Path, cell: float, what: str) -> str:
+def mosaic_figure(tif: Path, cell: float, what: str, *,
+                  overview: RgbView | None = None) -> str:
     """A mosaic on its map grid: the whole of it, and a full-resolution detail of its centre,
-    with coordinates, a scale bar and which band is shown in which colour."""
+    with coordinates, a scale bar and which band is shown in which colour; `overview`:
+    `mosaic_overview(tif)`, read before."""
     if not tif.is_file():
         return "<p>no mosaic</p>"
-    overview = read_rgb(tif, max_size_px=MOSAIC_MAX_PX)
+    if overview is None:
+        overview = read_rgb(tif, max_size_px=MOSAIC_MAX_PX)
     if overview.bounds is None:
         return "<p>the mosaic has no map grid</p>"
     w, s, e, n = overview.bounds
@@ -455,12 +459,17 @@ def _strip_rows(result: GeorefResult) -> list[list[Any]]:
     return rows
 
 
-def _archive(result: GeorefResult, prov: Provenance, sensor_toml: str, axis: TimeAxis,
-             sensor_name: str) -> str:
-    """The archive record: what a report kept with its data must say about how it was made."""
+def input_records(prov: Provenance) -> list[FileRecord]:
+    """Size and SHA-256 of each input file the provenance names (those that are files)."""
+    return [file_record(p, prov.root) for p in prov.inputs if Path(p).is_file()]
+
+
+def _archive(result: GeorefResult, prov: Provenance, files: list[FileRecord], sensor_toml: str,
+             axis: TimeAxis, sensor_name: str) -> str:
+    """The archive record: what a report kept with its data must say about how it was made;
+    `files`: `input_records(prov)`."""
     made = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
     t0, t1 = result.trajectory.span_ns
-    files = [file_record(p, prov.root) for p in prov.inputs if Path(p).is_file()]
     file_rows = "".join(f"<tr><td><code>{html.escape(f.shown)}</code></td><td>{f.size_bytes}</td>"
                         f'<td class="hash">{f.sha256}</td></tr>' for f in files)
     summary = result.summary
@@ -549,11 +558,7 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
     """The HTML report; `accuracy` from sisa.wiring.accuracy.run_accuracy for a simulated run;
     `provenance` (and the sensor file's TOML and name) for the archive record; `photos`: the
     frame camera's summary (postproc.georef.photo_products), its products in out_dir/photos."""
-    seg_rows = [[s.segment, s.lines, s.lines_timed, s.lines_georeferenced,
-                 f"{s.rays_hit / max(s.rays, 1):.2%}", s.gsd_across_m, s.gsd_along_m]
-                for s in result.segments]
     axis = TimeAxis.of(result)
-    latch_rows, res_ns = _latch_rows(result)
     body = [f"<h1>{html.escape(title)}</h1>"]
     if headline:
         body.append(_table(["figure", "value"], [[k, v] for k, v in headline]))
@@ -561,9 +566,29 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
         body += ["<h2>Warnings</h2>", "<ul>", *(f"<li>{html.escape(w)}</li>"
                                                 for w in result.warnings), "</ul>"]
     prov = provenance or Provenance(command="", working_dir=os.getcwd())
-    body += [_archive(result, prov, sensor_toml, axis, sensor_name),
-             "<h2>Segments</h2>",
-             _table(["segment", "lines", "timed", "georeferenced", "pixels on DEM",
+    # the input files' hashes and the mosaic's overview read on threads (hashlib and GDAL
+    # release the GIL) while the figures are drawn: the report was one core's work alone
+    with ThreadPoolExecutor(2, thread_name_prefix="sisa-report") as pool:
+        hashed = pool.submit(input_records, prov)
+        overview = pool.submit(mosaic_overview, out_dir / "mosaic.tif")
+        rest = _sections(result, out_dir, mounting, axis, accuracy, overview, photos)
+        archive = _archive(result, prov, hashed.result(), sensor_toml, axis, sensor_name)
+    body += [archive, *rest]
+    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+            f"</title><style>{STYLE}</style></head><body>{''.join(body)}</body></html>\n")
+    write_whole(path, page)
+
+
+def _sections(result: GeorefResult, out_dir: Path, mounting: Mounting, axis: TimeAxis,
+              accuracy: dict[str, Any] | None, overview: Future[RgbView | None],
+              photos: dict[str, Any] | None) -> list[str]:
+    """The report's body after its archive record, in order."""
+    seg_rows = [[s.segment, s.lines, s.lines_timed, s.lines_georeferenced,
+                 f"{s.rays_hit / max(s.rays, 1):.2%}", s.gsd_across_m, s.gsd_along_m]
+                for s in result.segments]
+    latch_rows, res_ns = _latch_rows(result)
+    body = ["<h2>Segments</h2>",
+            _table(["segment", "lines", "timed", "georeferenced", "pixels on DEM",
                      "pixel across (m)", "line spacing (m)"], seg_rows),
              "<h2>Recording</h2>", _recording(result),
              "<h2>Trajectory and footprints</h2>", _map(result, out_dir, mounting),
@@ -579,11 +604,11 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
                  "ellipsoidal. Pixels: each segment's median pixel spacing across track "
                  "(along track for the along component).</p>",
                  _accuracy_tables(accuracy), _errors(accuracy)]
-    body += ["<h2>Ortho mosaic</h2>", _mosaic(out_dir, result),
+    body += ["<h2>Ortho mosaic</h2>",
+             mosaic_figure(out_dir / "mosaic.tif", result.cell_m, "Ortho mosaic",
+                           overview=overview.result()),
              f'<p class="note">CRS EPSG:{result.epsg}, cell {result.cell_m:g} m. '
              "Generated by sisa.</p>"]
     if photos is not None:
         body += ["<h2>Frame camera</h2>", _photos(result, out_dir / "photos", photos)]
-    page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
-            f"</title><style>{STYLE}</style></head><body>{''.join(body)}</body></html>\n")
-    write_whole(path, page)
+    return body

@@ -49,7 +49,7 @@ from sisa.core.errors import InputError
 from sisa.core.outdir import staged_output_dir
 
 if TYPE_CHECKING:
-    from postproc.georef import GeorefOptions, GeorefResult, PhotoTimes
+    from postproc.georef import GeorefOptions, GeorefResult, OnCast, OnSynced, PhotoTimes
     from sisa.core.framecamera import FrameCamera
 
 MAX_CELL_M = 10_000.0  # an ortho cell wider than any swath
@@ -262,9 +262,11 @@ def options_from_args(args: argparse.Namespace, sensor_default: object = None
 
 
 def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOptions,
-               bar: Progress, command: str = "georef") -> GeorefResult:
+               bar: Progress, command: str = "georef", *, on_synced: OnSynced | None = None,
+               on_cast: OnCast | None = None) -> GeorefResult:
     """The job, its steps shown on `bar` (reading and sync, then the scan lines, then the
-    products); its warnings (segments or lines skipped, and why) one line each on stderr."""
+    products); its warnings (segments or lines skipped, and why) one line each on stderr;
+    `on_synced` and `on_cast` as `GeorefJob.run`'s."""
     from postproc.georef import GeorefJob
 
     job = GeorefJob(flight, scanner, out, options)
@@ -278,7 +280,7 @@ def run_georef(flight: list[Path], scanner: Path, out: Path, options: GeorefOpti
         if bar.total is not None and bar.completed >= bar.total:
             bar.step("ortho, mosaic, footprints" if options.products else "footprints")
 
-    result = job.run(progress=advance, on_total=on_total)
+    result = job.run(progress=advance, on_total=on_total, on_synced=on_synced, on_cast=on_cast)
     for warning in result.warnings:
         say_warning(command, warning)
     return result

@@ -16,6 +16,7 @@ RUN/process/ (or --out)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import shlex
@@ -55,6 +56,7 @@ if TYPE_CHECKING:
     from emulators.scenario import Scenario
     from postproc.georef import GeorefOptions, Provenance, SensorModel
     from sisa.core.framecamera import FrameCamera
+    from sisa.wiring.alongside import AccuracyAlongside
 
 
 def register(sub: SubParsers[argparse.ArgumentParser]) -> None:
@@ -172,6 +174,16 @@ def _say_what_is_not_judged(run: Path, acc: dict[str, Any] | None) -> None:
         say_warning("process", "no check point lies on a georeferenced line: no check points")
 
 
+def _alongside_line(judge: AccuracyAlongside, started_s: float) -> str:
+    """The accuracy's own span: it ran beside the steps above (its CPU is counted in
+    theirs), and its step above is only the wait for its end."""
+    begin_s, end_s = (t - started_s for t in judge.span_s)
+    return (f"  alongside, in a thread of its own: accuracy against truth from {begin_s:.1f} "
+            f"to {end_s:.1f} s ({end_s - begin_s:.1f} s wall, {judge.cpu_s:.1f} s CPU, counted "
+            f"in the steps it ran beside, {judge.ahead_lines} lines of truth cast while the "
+            "log was read; its step above is the wait for its end)")
+
+
 def _provenance(args: argparse.Namespace, run: Path, parts: list[Path],
                 options: GeorefOptions) -> Provenance:
     """The archive record's command, inputs and sensor source (the report hashes the files)."""
@@ -215,7 +227,7 @@ def _run(args: argparse.Namespace) -> int:
     from emulators.scenario import load_scenario
     from postproc.georef import write_report
     from sisa.core.jsonio import write_json
-    from sisa.wiring.accuracy import run_accuracy
+    from sisa.wiring.alongside import AccuracyAlongside
 
     scn = load_scenario(run / "scenario.toml")
     args.dem = run / "terrain" / "dem.tif"
@@ -223,8 +235,12 @@ def _run(args: argparse.Namespace) -> int:
                                   leap_seconds_fallback=scn.block.leap_seconds)
     out = args.out if args.out is not None else run / "process"
     parts = flight_parts([run / "flight.mcap"])
-    with staged_output_dir(out, force=args.force) as tmp, progress("process") as bar:
-        result = run_georef(parts, run / "scanner", tmp, options, bar, command="process")
+    judge = AccuracyAlongside(scn, run) if (run / "truth").is_dir() else None
+    with (staged_output_dir(out, force=args.force) as tmp, progress("process") as bar,
+          judge if judge is not None else contextlib.nullcontext()):
+        result = run_georef(parts, run / "scanner", tmp, options, bar, command="process",
+                            on_synced=None if judge is None else judge.start,
+                            on_cast=None if judge is None else judge.add)
         photos = _photo_inputs(args, run, scn, tmp, bar, getattr(result.sync, "photos", None))
         summary = (None if photos is None else
                    run_photos(tmp, result, options, photos, bar, command="process"))
@@ -235,7 +251,7 @@ def _run(args: argparse.Namespace) -> int:
                                                     tmp / "photos" / "sidecars")
             write_json(tmp / "photos" / "photo_summary.json", summary)
         bar.step("accuracy against truth")
-        acc = run_accuracy(scn, run, result) if (run / "truth").is_dir() else None
+        acc = None if judge is None else judge.result()
         _say_what_is_not_judged(run, acc)
         if acc is not None:
             public = {k: v for k, v in acc.items() if not k.startswith("_")}
@@ -255,6 +271,8 @@ def _run(args: argparse.Namespace) -> int:
     for line in split_lines(bar, time.perf_counter() - started,
                             time.process_time() - cpu_started):
         print(line)
+    if judge is not None:
+        print(_alongside_line(judge, started))
     lost = [text for text in (losses(result), None if summary is None or photos is None else
                               photo_losses(summary, photos.images is not None)) if text]
     return 0 if not lost else finished_with_losses("process", "; ".join(lost))

@@ -14,6 +14,7 @@ in metres and in pixels (the segment's median pixel spacing across and along tra
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -147,9 +148,11 @@ def decompose(d_e: F64, d_n: F64, d_h: F64, along: F64, right: F64) -> F64:
 
 
 def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int64],
-                   log_fixes: AntennaFixes | None = None) -> TruthTrajectory:
+                   log_fixes: AntennaFixes | None = None, *, check_log: bool = True
+                   ) -> TruthTrajectory:
     """The scenario's true trajectory, checked against the run's truth frames: a scenario.toml
-    changed after the run (another preset) put the frames outside it, a traceback later."""
+    changed after the run (another preset) put the frames outside it, a traceback later; and
+    with `check_log` against the log's GPS fixes (`check_against_fixes`)."""
     traj = TruthTrajectory.from_scenario(scn)
     t = np.asarray(t_frames_gps_ns, dtype=np.int64)
     if t.size and (t.min() < traj.t_start_ns or t.max() > traj.t_end_ns):
@@ -157,11 +160,12 @@ def run_trajectory(run: Path, scn: Scenario, t_frames_gps_ns: npt.NDArray[np.int
                          f"({gps_span_label(traj.t_start_ns, traj.t_end_ns)}) does not hold the "
                          f"run's truth frames ({gps_span_label(int(t.min()), int(t.max()))}): "
                          "not the scenario this run was made from")
-    _check_against_fixes(run, scn, traj, log_fixes)
+    if check_log:
+        check_against_fixes(run, scn, traj, log_fixes)
     return traj
 
 
-def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
+def check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
                          fixes: AntennaFixes | None) -> None:
     """The flight a scenario.toml rebuilds against the run's own log: each logged GPS fix less
     the error the emulator recorded adding to it (truth/gps_fixes.csv) is where the rebuilt
@@ -193,20 +197,39 @@ def _check_against_fixes(run: Path, scn: Scenario, traj: TruthTrajectory,
 
 
 class TruthGround:
-    """True ground position of every pixel of a segment, block by block."""
+    """True ground position of every pixel of a segment, block by block. Built without the
+    log (`check_log` False: `check_against_fixes` once it is read) and without the output CRS
+    (`use_crs` once it is known), it can cast blocks ahead (`cast_ahead`) while the log is
+    read."""
 
-    def __init__(self, scn: Scenario, run: Path, out_epsg: int,
-                 log_fixes: AntennaFixes | None = None) -> None:
+    def __init__(self, scn: Scenario, run: Path, out_epsg: int | None,
+                 log_fixes: AntennaFixes | None = None, *, check_log: bool = True) -> None:
         self.scn = scn
         frames = read_truth_csv(run / "truth" / "frames.csv")
-        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"], log_fixes)
+        self.traj = run_trajectory(run, scn, frames["t_mid_gps_ns"], log_fixes,
+                                   check_log=check_log)
         self.terrain = Terrain.from_scenario(scn)
         self.intersector = GroundIntersector(self.terrain)
         self.look = scn.scanner.look_vectors_camera()
         kept = frames["line_index"] >= 0
         self.frames = {k: v[kept] for k, v in frames.items()}
+        self._to_out: Transformer | None = None
+        self._ahead: dict[tuple[int, int], tuple[npt.NDArray[np.int64], F64]] = {}
+        if out_epsg is not None:
+            self.use_crs(out_epsg)
+
+    def use_crs(self, out_epsg: int) -> None:
+        """The output CRS `ground` gives (E, N) in."""
         self._to_out = (None if out_epsg == self.terrain.epsg else
                         Transformer.from_crs(self.terrain.epsg, out_epsg, always_xy=True))
+
+    def segment_lines(self) -> dict[int, int]:
+        """segment → its lines as the truth knows them (an image may hold fewer)."""
+        lines: dict[int, int] = {}
+        for s, i in zip(self.frames["segment"].tolist(), self.frames["line_index"].tolist(),
+                        strict=True):
+            lines[s] = max(lines.get(s, 0), i + 1)
+        return dict(sorted(lines.items()))
 
     def line_times(self, segment: int, lines: int) -> npt.NDArray[np.int64]:
         """The true time of each of the segment's first `lines` lines (an image cut short is
@@ -216,17 +239,38 @@ class TruthGround:
         t[self.frames["line_index"][sel]] = self.frames["t_mid_gps_ns"][sel]
         return t
 
-    def ground(self, t_ns: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
-        """(E, N, h) (lines, pixels) in the output CRS; NaN rows where t < 0."""
+    def cast_ahead(self, segment: int, first_line: int, t_ns: npt.NDArray[np.int64]) -> int:
+        """Cast the block of the segment's lines from first_line at times t_ns now, for
+        `ground` to take later; its bytes."""
+        grid = self._cast(t_ns)
+        self._ahead[(segment, first_line)] = (t_ns.copy(), grid)
+        return grid.nbytes
+
+    def ground(self, t_ns: npt.NDArray[np.int64], block: tuple[int, int] | None = None
+               ) -> tuple[F64, F64, F64]:
+        """(E, N, h) (lines, pixels) in the output CRS; NaN rows where t < 0. `block`
+        (segment, first line): cast ahead at these very times, taken (the same numbers)."""
+        ahead = self._ahead.pop(block, None) if block is not None else None
+        out = ahead[1] if ahead is not None and np.array_equal(ahead[0], t_ns) else \
+            self._cast(t_ns)
+        e, n, h = out[..., 0], out[..., 1], out[..., 2]
+        if self._to_out is not None:
+            e, n = (np.asarray(v) for v in self._to_out.transform(e, n))
+        return e, n, h
+
+    def drop_ahead(self, before_segment: int) -> None:
+        """Blocks cast ahead for segments before this one, never asked for (skipped)."""
+        for key in [k for k in self._ahead if k[0] < before_segment]:
+            del self._ahead[key]
+
+    def _cast(self, t_ns: npt.NDArray[np.int64]) -> F64:
+        """(lines, pixels, 3) ground in the terrain's CRS."""
         ok = t_ns >= 0
         out = np.full((t_ns.size, self.look.shape[1], 3), np.nan)
         if ok.any():
             centre, r_ce = camera_pose_ecef(self.traj.state(t_ns[ok]), self.scn.mounting)
             out[ok] = self.intersector.intersect_lines(centre, r_ce, self.look)
-        e, n, h = out[..., 0], out[..., 1], out[..., 2]
-        if self._to_out is not None:
-            e, n = (np.asarray(v) for v in self._to_out.transform(e, n))
-        return e, n, h
+        return out
 
 
 @dataclass
@@ -275,10 +319,12 @@ def _invert(te: F64, tn: F64, e: float, n: float, i: int, j: int) -> tuple[float
 
 
 def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, Any],
-                     seed: int = 0) -> tuple[ErrorStats, list[CheckPoint]]:
+                     seed: int = 0, stop: threading.Event | None = None
+                     ) -> tuple[ErrorStats, list[CheckPoint]]:
     """One segment against truth, the truth cast once per block of lines: every pixel (IGM
     minus truth, along/across/height) and the check points inside its swath (found in the image
-    through the truth, the IGM interpolated there, compared with the surveyed coordinates)."""
+    through the truth, the IGM interpolated there, compared with the surveyed coordinates).
+    `stop` set: the blocks left are not judged (a command stopped: its figures are dropped)."""
     igm = open_igm(seg.igm)
     t = truth.line_times(seg.segment, seg.lines)
     px = np.array([seg.gsd_along_m, seg.gsd_across_m, seg.gsd_across_m])
@@ -286,9 +332,11 @@ def segment_accuracy(truth: TruthGround, seg: SegmentResult, points: dict[str, A
     rng = np.random.default_rng(seed)
     found: list[CheckPoint] = []
     for lo in range(0, seg.lines, BLOCK_LINES):
+        if stop is not None and stop.is_set():
+            break
         hi = min(lo + BLOCK_LINES + 1, seg.lines)  # one line of overlap between blocks
         own = min(BLOCK_LINES, hi - lo)  # the lines this block reports pixels for
-        te, tn, th = truth.ground(t[lo:hi])
+        te, tn, th = truth.ground(t[lo:hi], (seg.segment, lo))
         blk = np.asarray(igm[lo:hi])
         along, right = along_across_axes(te, tn)
         err = decompose(blk[:own, 0] - te[:own], blk[:own, 1] - tn[:own],
@@ -311,11 +359,11 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
     pe, pn, ph = points["easting_m"], points["northing_m"], points["height_m"]
     inside = ((pe > np.nanmin(te)) & (pe < np.nanmax(te)) & (pn > np.nanmin(tn))
               & (pn < np.nanmax(tn)))
+    boxes = _row_boxes(te, tn) if inside.any() else np.zeros((4, 0))
     for k in np.flatnonzero(inside):
-        d2 = (te - pe[k]) ** 2 + (tn - pn[k]) ** 2
-        if not np.isfinite(d2).any():
+        if (nearest := _nearest_pixel(te, tn, boxes, float(pe[k]), float(pn[k]))) is None:
             continue
-        i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
+        i, j = nearest
         if (i in (0, te.shape[0] - 1) and not last) or j in (0, te.shape[1] - 1):
             continue  # on a block edge or the swath edge: not inside this block
         li, pj = _invert(te, tn, float(pe[k]), float(pn[k]), int(i), int(j))
@@ -329,6 +377,37 @@ def _check_points_in_block(te: F64, tn: F64, blk: F64, points: dict[str, Any], *
         err = np.array([de * a[0] + dn * a[1], de * r[0] + dn * r[1], dh])
         out.append((str(points["id"][k]), li, pj, err))
     return out
+
+
+def _row_boxes(te: F64, tn: F64) -> F64:
+    """(4, lines): each line's least and greatest easting and northing, NaN for a line of
+    NaN only (fmin/fmax: NaN pixels left out, without numpy's all-NaN warning)."""
+    return np.stack([np.fmin.reduce(te, axis=1), np.fmax.reduce(te, axis=1),
+                     np.fmin.reduce(tn, axis=1), np.fmax.reduce(tn, axis=1)])
+
+
+def _nearest_pixel(te: F64, tn: F64, boxes: F64, e: float, n: float
+                   ) -> tuple[int, int] | None:
+    """(line, pixel) of the first pixel nearest (e, n), as np.nanargmin over the whole block
+    finds it; None if no pixel is finite. Only the lines whose box can hold it are searched:
+    a line's bound (its box's distance², each step monotonic in floating point) is never
+    above any of its pixels' d², so a line left out holds no pixel as near as one found."""
+    de = np.maximum(np.maximum(boxes[0] - e, e - boxes[1]), 0.0)
+    dn = np.maximum(np.maximum(boxes[2] - n, n - boxes[3]), 0.0)
+    bound = de ** 2 + dn ** 2
+    if not np.isfinite(bound).any():
+        return None
+    first = int(np.nanargmin(bound))
+    near = ((te[first] - e) ** 2 + (tn[first] - n) ** 2)
+    if not np.isfinite(near).any():  # a line of eastings without northings: search all
+        rows = np.arange(te.shape[0])
+    else:
+        rows = np.flatnonzero(bound <= np.nanmin(near))
+    d2 = (te[rows] - e) ** 2 + (tn[rows] - n) ** 2
+    if not np.isfinite(d2).any():
+        return None
+    i, j = np.unravel_index(int(np.nanargmin(d2)), d2.shape)
+    return int(rows[i]), int(j)
 
 
 def check_points(path: Path, epsg: int) -> dict[str, Any]:
@@ -363,25 +442,54 @@ def check_point_summary(points: list[CheckPoint]) -> dict[str, Any]:
     return out
 
 
+def no_check_points() -> dict[str, Any]:
+    """`check_points`' columns for a run without a ground points file."""
+    return {"id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
+            "height_m": np.zeros(0), "ecef_m": np.zeros((0, 3))}
+
+
+class RunAccuracy:
+    """A run's accuracy summed segment by segment, in the order they are added (the order
+    fixes the float sums): a caller may add each segment as soon as its IGM is written."""
+
+    def __init__(self, scn: Scenario, run: Path, epsg: int,
+                 log_fixes: AntennaFixes | None = None, truth: TruthGround | None = None
+                 ) -> None:
+        """`truth`: built before (without the log's check or the CRS: both done here)."""
+        if truth is None:
+            truth = TruthGround(scn, run, epsg, log_fixes)
+        else:
+            check_against_fixes(run, scn, truth.traj, log_fixes)
+            truth.use_crs(epsg)
+        self.truth = truth
+        gp_csv = run / "terrain" / "ground_points.csv"
+        self.points = check_points(gp_csv, epsg) if gp_csv.is_file() else no_check_points()
+        self.total = ErrorStats()
+        self.per_segment: list[dict[str, Any]] = []
+        self.checks: list[CheckPoint] = []
+
+    def add(self, seg: SegmentResult, stop: threading.Event | None = None) -> None:
+        self.truth.drop_ahead(seg.segment)
+        stats, found = segment_accuracy(self.truth, seg, self.points, seed=seg.segment,
+                                        stop=stop)
+        self.per_segment.append({"segment": seg.segment, **stats.summary()})
+        self.total.merge(stats)
+        self.checks += found
+
+    def summary(self) -> dict[str, Any]:
+        """accuracy.json's figures, and the report's sample of pixel errors (`_sample_px`)."""
+        checks, sample = self.checks, self.total.sample_px
+        return {"pixels": self.total.summary(), "segments": self.per_segment,
+                "check_points": check_point_summary(checks),
+                "check_point_list": [{"id": c.id, "segment": c.segment, "line": c.line,
+                                      "pixel": c.pixel, "err_m": c.err_m.tolist(),
+                                      "err_px": c.err_px.tolist()} for c in checks],
+                "_sample_px": np.concatenate(sample) if sample else np.zeros((0, 3))}
+
+
 def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, Any]:
     """Every-pixel and check-point accuracy of a georeferenced simulated run."""
-    truth = TruthGround(scn, run, result.epsg, result.log_fixes)
-    total = ErrorStats()
-    per_segment = []
-    checks: list[CheckPoint] = []
-    gp_csv = run / "terrain" / "ground_points.csv"
-    chk = check_points(gp_csv, result.epsg) if gp_csv.is_file() else {
-        "id": np.zeros(0, str), "easting_m": np.zeros(0), "northing_m": np.zeros(0),
-        "height_m": np.zeros(0), "ecef_m": np.zeros((0, 3))}
+    acc = RunAccuracy(scn, run, result.epsg, result.log_fixes)
     for seg in result.segments:
-        stats, found = segment_accuracy(truth, seg, chk, seed=seg.segment)
-        per_segment.append({"segment": seg.segment, **stats.summary()})
-        total.merge(stats)
-        checks += found
-    return {"pixels": total.summary(), "segments": per_segment,
-            "check_points": check_point_summary(checks),
-            "check_point_list": [{"id": c.id, "segment": c.segment, "line": c.line,
-                                  "pixel": c.pixel, "err_m": c.err_m.tolist(),
-                                  "err_px": c.err_px.tolist()} for c in checks],
-            "_sample_px": np.concatenate(total.sample_px) if total.sample_px
-            else np.zeros((0, 3))}
+        acc.add(seg)
+    return acc.summary()

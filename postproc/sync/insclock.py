@@ -13,8 +13,8 @@ What the records tell by themselves (no GPS time yet):
   pulse fit finds it.
 - A latched pulse (sync_flag) holds the clock at the pulse, read down to the clock's resolution
   (truncated), so the pulse came on average half a resolution step later. The resolution is the
-  greatest common divisor of the latched values (from MIN_LATCHES_FOR_GCD of them: fewer could
-  share a factor by chance), unless the caller states it.
+  greatest common divisor of the steps between latched values (from MIN_LATCHES_FOR_GCD of
+  them: fewer could share a factor by chance), unless the caller states it.
 """
 
 from __future__ import annotations
@@ -105,9 +105,15 @@ def _period_ticks(d: I64, dc: I64) -> float:
 
 
 def _resolution_ticks(ins: InsColumns) -> int:
+    """The greatest common divisor of the steps between consecutive latched values, not of the
+    values: a clock that started below zero wraps to 2^48 − k, which is no multiple of the
+    resolution (an INS set to −12 333 s, 1 µs resolution: 200 ns from the values, and every
+    other record of a 128 Hz stream, 7 812 / 7 813 µs apart, was taken for a clock jump). A
+    step that goes down (the 48-bit clock wrapping, a jump back) is left out."""
     latched = ins.sync_time_ticks[ins.sync_flag]
-    latched = latched[latched > 0]
-    return int(np.gcd.reduce(latched)) if latched.size >= MIN_LATCHES_FOR_GCD else 1
+    steps = np.diff(latched[latched > 0])
+    steps = steps[steps > 0]
+    return int(np.gcd.reduce(steps)) if steps.size >= MIN_LATCHES_FOR_GCD else 1
 
 
 def _transitions(ins: InsColumns, modulus: int, resolution: int

@@ -278,3 +278,21 @@ def test_a_jump_past_the_last_latch_is_never_timed(tmp_path: Path) -> None:
     assert after_small.sum() > 800
     assert not (res.ins.status[after_small] == TimeStatus.OK).any()
     all_timed_between_latches(res, max_beyond=80 * 64)
+
+
+def test_an_ins_clock_set_below_zero_at_128_hz_is_timed(tmp_path: Path) -> None:
+    """A 128 Hz INS (7 812.5 µs a record: intervals of 7 812 and 7 813 µs on a 1 µs clock)
+    whose clock started at −12 333 s, so its 48-bit ticks wrapped to 2^48 − k. The clock's
+    resolution, taken as the GCD of the latched values, came out 200 ns (2^48 − k is no
+    multiple of 1 µs); every other record then looked like a clock jump, and not one of
+    29 894 records was timed. From the steps between latches it is 1 µs."""
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 5, **SHORT}, {"ins": {
+        "rate_hz": 128.0, "clock_offset_s": -12333.231754, "clock_resolution_ns": 1000}}))
+    simulate(scn, tmp_path, images=False)
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp)
+    assert res.report["ins"]["clock_resolution_ns"] == 1000
+    assert res.report["ins"]["clock_pieces"] == 1
+    truth = ins_truth_ns(tmp_path, inp)
+    assert np.abs(ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)).max() < WRONG_NS
+    all_timed_between_latches(res, MAX_BEYOND * 2)  # 128 records a second

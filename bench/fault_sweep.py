@@ -1,7 +1,7 @@
 """Wrong time tags under random mixes of faults: flights the fault matrix never flies.
 
     .venv/bin/python bench/fault_sweep.py [--runs 40] [--first-seed 1000] [--out runs/fault_sweep]
-                                          [--wide]
+                                          [--wide] [--vary-ins]
 
 The fault matrix in the tests flies one fault at a time on two seeds. Here every run draws its
 own mix from the seed: the receiver (Z-12, F9P, OEM7), the LFSR length (4–7 bits), 1-of-n
@@ -158,10 +158,23 @@ def draw_wide_mix(rng: np.random.Generator) -> dict[str, Any]:
     }
 
 
-def one_run(seed: int, wide: bool = False) -> dict[str, Any]:
+def vary_ins(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+    """The INS itself drawn too: its rate (128 Hz is 7 812.5 µs a record, no whole number of
+    1 µs steps), a clock set anywhere in ±1e5 s (below zero it wraps on the wire), its output
+    delay and its clock's resolution."""
+    mix["ins"].update({"rate_hz": float(rng.choice([50.0, 64.0, 100.0, 128.0, 200.0])),
+                       "clock_offset_s": round(float(rng.uniform(-1e5, 1e5)), 6),
+                       "output_delay_ms": round(float(rng.uniform(1.0, 400.0)), 3),
+                       "clock_resolution_ns": int(rng.choice([100, 500, 1000]))})
+    return mix
+
+
+def one_run(seed: int, wide: bool = False, ins: bool = False) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     for _ in range(20):
         mix = (draw_wide_mix if wide else draw_mix)(rng)
+        if ins:
+            mix = vary_ins(mix, rng)
         try:
             scn = scenario_from_table(merged({"base": "bench", "seed": seed, **SHORT}, mix))
             break
@@ -220,6 +233,8 @@ def main() -> None:
     ap.add_argument("--wide", action="store_true",
                     help="harsher mixes (draw_wide_mix): higher rates, several timed faults, "
                          "drawn close together")
+    ap.add_argument("--vary-ins", action="store_true",
+                    help="also draw the INS rate, clock offset, output delay and resolution")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "fault_sweep.json"
@@ -229,7 +244,7 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.runs):
         if seed in done:
             continue
-        r = one_run(seed, args.wide)
+        r = one_run(seed, args.wide, args.vary_ins)
         rows.append(r)
         path.write_text(json.dumps(rows) + "\n", encoding="utf-8")
         print(f"seed {seed}: INS {r['ins'][0]}/{r['ins'][1]}, lines {r['lines'][0]}/"

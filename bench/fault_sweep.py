@@ -25,6 +25,7 @@ import argparse
 import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +45,53 @@ WRONG_NS = 5_000
 FLIGHT_S = 220.0  # faults are placed inside the short flight
 
 
+# a rate fault: its key, the odds it is drawn, how its value is drawn, and the fault it is
+# drawn only beside (None: any mix)
+RateDraw = tuple[str, float, Callable[[np.random.Generator], float], str | None]
+
+
+def _uniform(lo: float, hi: float, digits: int) -> Callable[[np.random.Generator], float]:
+    return lambda rng: round(float(rng.uniform(lo, hi)), digits)
+
+
+def _one_of(*values: float) -> Callable[[np.random.Generator], float]:
+    return lambda rng: float(rng.choice(list(values)))
+
+
+RATES: tuple[RateDraw, ...] = (
+    ("lost_pulse_fraction", 0.5, _uniform(0.0, 0.1, 4), None),
+    ("spurious_pulse_rate_hz", 0.5, _uniform(0.0, 3.0, 3), None),
+    ("spurious_pps_near_second_ms", 0.4, _uniform(0.2, 3.0, 3), "spurious_pulse_rate_hz"),
+    ("corrupt_byte_rate", 0.3, _one_of(1e-4, 2e-4, 5e-4), None),
+    ("lost_byte_rate", 0.2, _one_of(1e-4, 2e-4), None),
+    ("lost_can_frame_fraction", 0.2, _uniform(0.0, 0.01, 4), None),
+    ("corrupt_can_frame_fraction", 0.2, _uniform(0.0, 0.01, 4), None),
+    ("dropped_frame_fraction", 0.3, _uniform(0.0, 0.05, 4), None),
+)
+WIDE_RATES: tuple[RateDraw, ...] = (  # several times higher
+    ("lost_pulse_fraction", 0.6, _uniform(0.0, 0.3, 4), None),
+    ("spurious_pulse_rate_hz", 0.6, _uniform(0.0, 10.0, 3), None),
+    ("spurious_pps_near_second_ms", 0.5, _uniform(0.05, 5.0, 3), "spurious_pulse_rate_hz"),
+    ("corrupt_byte_rate", 0.4, _one_of(5e-4, 1e-3, 3e-3), None),
+    ("lost_byte_rate", 0.3, _one_of(5e-4, 1e-3), None),
+    ("lost_can_frame_fraction", 0.3, _uniform(0.0, 0.05, 4), None),
+    ("corrupt_can_frame_fraction", 0.3, _uniform(0.0, 0.05, 4), None),
+    ("dropped_frame_fraction", 0.4, _uniform(0.0, 0.2, 4), None),
+)
+
+
+def draw_rates(rng: np.random.Generator, table: tuple[RateDraw, ...]) -> dict[str, Any]:
+    """The rate faults of one mix, each with its own odds, drawn in the table's order (a seed
+    draws the same mix as long as the table stays the same)."""
+    faults: dict[str, Any] = {}
+    for key, odds, draw, beside in table:
+        if beside is not None and beside not in faults:
+            continue
+        if rng.random() < odds:
+            faults[key] = draw(rng)
+    return faults
+
+
 def draw_mix(rng: np.random.Generator) -> dict[str, Any]:
     """One random scenario overlay: settings and faults."""
     def maybe(p: float) -> bool:
@@ -52,23 +100,7 @@ def draw_mix(rng: np.random.Generator) -> dict[str, Any]:
     def at() -> float:
         return round(float(rng.uniform(25.0, FLIGHT_S)), 2)
 
-    faults: dict[str, Any] = {}
-    if maybe(0.5):
-        faults["lost_pulse_fraction"] = round(float(rng.uniform(0.0, 0.1)), 4)
-    if maybe(0.5):
-        faults["spurious_pulse_rate_hz"] = round(float(rng.uniform(0.0, 3.0)), 3)
-        if maybe(0.4):
-            faults["spurious_pps_near_second_ms"] = round(float(rng.uniform(0.2, 3.0)), 3)
-    if maybe(0.3):
-        faults["corrupt_byte_rate"] = float(rng.choice([1e-4, 2e-4, 5e-4]))
-    if maybe(0.2):
-        faults["lost_byte_rate"] = float(rng.choice([1e-4, 2e-4]))
-    if maybe(0.2):
-        faults["lost_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.01)), 4)
-    if maybe(0.2):
-        faults["corrupt_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.01)), 4)
-    if maybe(0.3):
-        faults["dropped_frame_fraction"] = round(float(rng.uniform(0.0, 0.05)), 4)
+    faults = draw_rates(rng, RATES)
     if maybe(0.3):
         faults["pps_outages"] = [{"at_s": at(), "duration_s": round(float(rng.uniform(5, 60)),
                                                                      1)}]
@@ -118,23 +150,7 @@ def draw_wide_mix(rng: np.random.Generator) -> dict[str, Any]:
         return [{"at_s": at(), "duration_s": round(float(rng.uniform(lo_s, hi_s)), 2)}
                 for _ in range(int(rng.integers(1, n_max + 1)))]
 
-    faults: dict[str, Any] = {}
-    if maybe(0.6):
-        faults["lost_pulse_fraction"] = round(float(rng.uniform(0.0, 0.3)), 4)
-    if maybe(0.6):
-        faults["spurious_pulse_rate_hz"] = round(float(rng.uniform(0.0, 10.0)), 3)
-        if maybe(0.5):
-            faults["spurious_pps_near_second_ms"] = round(float(rng.uniform(0.05, 5.0)), 3)
-    if maybe(0.4):
-        faults["corrupt_byte_rate"] = float(rng.choice([5e-4, 1e-3, 3e-3]))
-    if maybe(0.3):
-        faults["lost_byte_rate"] = float(rng.choice([5e-4, 1e-3]))
-    if maybe(0.3):
-        faults["lost_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.05)), 4)
-    if maybe(0.3):
-        faults["corrupt_can_frame_fraction"] = round(float(rng.uniform(0.0, 0.05)), 4)
-    if maybe(0.4):
-        faults["dropped_frame_fraction"] = round(float(rng.uniform(0.0, 0.2)), 4)
+    faults = draw_rates(rng, WIDE_RATES)
     if maybe(0.5):
         faults["pps_outages"] = timed(3, 1.0, 90.0)
     if maybe(0.3):
@@ -190,15 +206,16 @@ def one_run(seed: int, wide: bool = False, ins: bool = False) -> dict[str, Any]:
         truth_ins = ins_truth_ns(run, inp, unknown_ok=True)
         # a record the INS never sent (corrupted past its CRC): any time given it is wrong
         forged = truth_ins < 0
-        forged_ok = int(np.count_nonzero(forged & (res.ins.status == TimeStatus.OK)))
-        truth_ins[forged] = res.ins.t_gps_ns[forged] + 10 * WRONG_NS
-        e_ins = ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth_ins)
+        ins_ok = res.ins.status == TimeStatus.OK
+        forged_ok = int(np.count_nonzero(forged & ins_ok))
+        e_ins = ok_errors_ns(res.ins.t_gps_ns[~forged], res.ins.status[~forged],
+                             truth_ins[~forged])
         e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(run, res))
     return {
         "seed": seed, "mix": mix,
-        "ins": [int(e_ins.size), int(res.ins.status.size)],
+        "ins": [int(np.count_nonzero(ins_ok)), int(res.ins.status.size)],
         "lines": [int(e_line.size), int(res.lines.status.size)],
-        "wrong_ins": int(np.count_nonzero(np.abs(e_ins) > WRONG_NS)),
+        "wrong_ins": int(np.count_nonzero(np.abs(e_ins) > WRONG_NS)) + forged_ok,
         "wrong_lines": int(np.count_nonzero(np.abs(e_line) > WRONG_NS)),
         "forged_ins": [forged_ok, int(np.count_nonzero(forged))],
         "worst_ns": float(max(np.abs(e_ins).max(initial=0.0), np.abs(e_line).max(initial=0.0))),

@@ -555,7 +555,7 @@ def write_report(path: Path, result: GeorefResult, out_dir: Path, mounting: Moun
                  headline: list[tuple[str, str]] | None = None,
                  provenance: Provenance | None = None, sensor_toml: str = "",
                  sensor_name: str = "", photos: dict[str, Any] | None = None) -> None:
-    """The HTML report; `accuracy` from sisa.wiring.accuracy.run_accuracy for a simulated run;
+    """The HTML report; `accuracy` from sisa.wiring.accuracy.RunAccuracy for a simulated run;
     `provenance` (and the sensor file's TOML and name) for the archive record; `photos`: the
     frame camera's summary (postproc.georef.photo_products), its products in out_dir/photos."""
     axis = TimeAxis.of(result)

@@ -115,12 +115,11 @@ def _run(args: argparse.Namespace) -> int:
         say_warning("sync", note)
     ok_ins = int((ins.status == TimeStatus.OK).sum())
     ok_lines = int((ln.status == TimeStatus.OK).sum())
-    # the INS records the pulses promise: those from the first latched pulse to the last (none
-    # is timed outside them: the flight's first and last seconds; docs/sync.md, Limits)
+    # what the inputs promised: the INS records from the first latched pulse to the last (none
+    # is timed outside them: the flight's first and last seconds; docs/sync.md, Limits); per
+    # segment, the lines of the scanner's files or the log's frame headers, whichever says
+    # more (a log cut short holds fewer headers; a lines file cut short, fewer lines)
     beyond = result.ins_solution.timeline.outside_latch_span()
-    # what the inputs promised: every INS record in the log; per segment, the lines of the
-    # scanner's files or the log's frame headers, whichever says more (a log cut short holds
-    # fewer headers; a lines file cut short, fewer lines)
     promised, unlisted = promised_lines(ln.segment, cols[Topic.SCANNER_HEADER]["segment"])
     pulses = result.report["pulses"]
     print(f"{args.out}: INS records {ok_ins}/{ins.status.size} timed, scan lines "

@@ -34,7 +34,6 @@ from emulators.truth import read_truth_csv
 from postproc.calibration import read_ground_points
 from postproc.georef import (
     AntennaFixes,
-    GeorefResult,
     SegmentResult,
     ecef_to_geodetic,
     fixes_from_columns,
@@ -485,11 +484,3 @@ class RunAccuracy:
                                       "pixel": c.pixel, "err_m": c.err_m.tolist(),
                                       "err_px": c.err_px.tolist()} for c in checks],
                 "_sample_px": np.concatenate(sample) if sample else np.zeros((0, 3))}
-
-
-def run_accuracy(scn: Scenario, run: Path, result: GeorefResult) -> dict[str, Any]:
-    """Every-pixel and check-point accuracy of a georeferenced simulated run."""
-    acc = RunAccuracy(scn, run, result.epsg, result.log_fixes)
-    for seg in result.segments:
-        acc.add(seg)
-    return acc.summary()

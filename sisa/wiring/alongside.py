@@ -5,7 +5,7 @@ georeferencing casts them, while the main thread casts the next segments and mak
 orthos, the mosaic and the strip registration. The truth's ray casting (numba, nogil, run on
 this thread alone: a kernel split over both cores waited for the half the main thread held
 up) and the IGM reads release the GIL, so the two share the cores; the figures are
-`run_accuracy`'s, summed in the same order.
+`RunAccuracy`'s, summed in the same order.
 
     with AccuracyAlongside(scn, run) as judge:   # its thread starts: the truth, cast ahead
         ...  judge.start(handoff, epsg) once the log is synchronised, judge.add(seg) per
@@ -64,7 +64,7 @@ class AccuracyAlongside:
         self._todo.put(seg)
 
     def result(self) -> dict[str, Any]:
-        """Every segment given, judged: `run_accuracy`'s dict; the thread's error raised."""
+        """Every segment given, judged: `RunAccuracy.summary`'s dict; the thread's error raised."""
         self._todo.put(None)
         self._synced.put(None)  # never synchronised: the thread ends (with an error)
         self._thread.join()

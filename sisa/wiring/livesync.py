@@ -188,10 +188,11 @@ def crew_warnings(cols: dict[str, dict[str, npt.NDArray[Any]]], res: SyncResult,
     stale = ins["log_time_ns"] < newest - int(stale_s * 1e9)
     untimed = stale & (res.ins.status != TimeStatus.OK)
     tl = res.ins_solution.timeline
-    if tl.latch_record.size:  # before the first latch: the sync had not begun, nothing to do
-        untimed[:int(tl.latch_record.min())] = False
-        after_last = untimed & tl.outside_latch_span()
-        untimed &= ~after_last
+    if tl.latch_record.size:  # outside the latched pulses: never timed
+        beyond = tl.outside_latch_span()
+        after_last = untimed & beyond  # before the first latch the sync had not begun: no warning
+        after_last[:int(tl.latch_record.min())] = False
+        untimed &= ~beyond
         if np.any(after_last):
             out.append(f"no pulse latched: {int(np.count_nonzero(after_last))} INS records "
                        f"logged over {stale_s:g} s ago, after the last pulse the INS latched, "

@@ -254,15 +254,27 @@ class StreamDecoder(Generic[M]):
         try:
             message = framer.decode(raw)
         except RefusedError as err:
-            self.stats.bytes_skipped += length
-            self._error(err.kind, err.reason, str(err), offset, raw)
+            self._refuse(offset, raw, err.kind, err.reason, str(err))
             return
         except DecodeError as err:
-            self.stats.bytes_skipped += length
-            self._error(ErrorKind.FRAMING, f"{framer.name}.malformed", str(err), offset, raw)
+            self._refuse(offset, raw, ErrorKind.FRAMING, f"{framer.name}.malformed", str(err))
             return
         self.stats.count_message(framer.kind(message))
         out.append(Decoded(raw, message))
+
+    def _refuse(self, offset: int, raw: bytes, kind: ErrorKind, reason: str, detail: str
+                ) -> None:
+        """A whole message its decoder refused is one error, and then treated as a damaged
+        one: only its first byte is passed, and its bytes are looked at again under its
+        shadow, so a good message that began inside it is still decoded (a checksum can pass
+        by chance over a damaged frame and the start of the next: 1 in 65 536 for UBX's, and
+        the next was lost); the rest of it is this error."""
+        try:
+            self._error(kind, reason, detail, offset, raw)
+        finally:
+            self._pos = offset - self._base + 1
+            self.stats.bytes_skipped += 1
+            self._quiet_until = max(self._quiet_until, offset + len(raw))
 
     def _reject(self, cut: Cut) -> None:
         offset = self._base + self._pos

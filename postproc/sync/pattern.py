@@ -51,6 +51,7 @@ class PatternConfig:
     min_margin: int = 3
     max_false_match: float = 1e-9  # per block: bound on the probability of taking a wrong shift
     density_window_s: float = 2.0  # chance agreement: 2·tol × most pulses in any such span / span
+    max_group_blocks: int = 8  # a piece with no block resolved is matched in groups up to this
 
 
 @dataclass(frozen=True)
@@ -172,15 +173,47 @@ def block_ranges(x_s: F64, piece: I64, block_s: float) -> list[tuple[int, int]]:
     return list(itertools.pairwise(bounds))
 
 
+def _match(u_s: F64, y_s: F64, piece: I64, first: int, stop: int, cfg: PatternConfig
+           ) -> BlockMatch:
+    score = score_shifts(u_s[first:stop], y_s, cfg.window_s, cfg.tol_s, cfg.density_window_s)
+    resolved = (score.best >= cfg.min_matches and score.margin >= cfg.min_margin
+                and score.decisive(cfg.max_false_match))
+    return BlockMatch(int(piece[first]), first, stop, score, resolved)
+
+
+def _merged_groups(blocks: list[BlockMatch], u_s: F64, y_s: F64, piece: I64,
+                   cfg: PatternConfig) -> list[BlockMatch]:
+    """A piece none of whose blocks resolved, matched again as groups of 2, 4, … consecutive
+    blocks, until a group resolves or groups reach `max_group_blocks` (or the whole piece). A
+    block holds too few PPS-pattern latches when most pulses are mode 2, lost or in a PPS
+    outage, yet every block of the piece may agree on one shift: a group's own false-match
+    bound then counts all its latches. One coarse shift over a longer span is no weaker an
+    assumption than over one block: where the coarse time drifts, its latches stop matching
+    and the group is not taken (its bound, or the contradiction test). Returns the blocks
+    with every resolved group in place of its members."""
+    if len(blocks) < 2 or any(b.resolved for b in blocks):
+        return blocks
+    limit = min(len(blocks), cfg.max_group_blocks)
+    size = 2
+    while size // 2 < limit:  # the last level's groups held fewer blocks than the limit
+        groups = [blocks[i:i + size] for i in range(0, len(blocks), size)]
+        scored = [_match(u_s, y_s, piece, g[0].first, g[-1].stop, cfg) if len(g) > 1 else g[0]
+                  for g in groups]
+        if any(b.resolved for b in scored):
+            return [m for g, b in zip(groups, scored, strict=True)
+                    for m in ([b] if b.resolved else g)]
+        size *= 2
+    return blocks
+
+
 def match_blocks(u_s: F64, x_s: F64, piece: I64, y_s: F64, cfg: PatternConfig
                  ) -> list[BlockMatch]:
     """Score every block of latches (coarse GPS u_s, INS clock x_s, piece) against the
-    pulses y_s (sorted GPS seconds)."""
-    out = []
-    for first, stop in block_ranges(x_s, piece, cfg.block_s):
-        score = score_shifts(u_s[first:stop], y_s, cfg.window_s, cfg.tol_s,
-                             cfg.density_window_s)
-        resolved = (score.best >= cfg.min_matches and score.margin >= cfg.min_margin
-                    and score.decisive(cfg.max_false_match))
-        out.append(BlockMatch(int(piece[first]), first, stop, score, resolved))
+    pulses y_s (sorted GPS seconds); a piece with no block resolved is tried again in groups
+    of blocks (`_merged_groups`)."""
+    blocks = [_match(u_s, y_s, piece, first, stop, cfg)
+              for first, stop in block_ranges(x_s, piece, cfg.block_s)]
+    out: list[BlockMatch] = []
+    for _, of_piece in itertools.groupby(blocks, key=lambda b: b.piece):
+        out += _merged_groups(list(of_piece), u_s, y_s, piece, cfg)
     return out

@@ -512,7 +512,21 @@ class _FrameRun:
         period = float(statistics.median(inliers))
         mad = float(statistics.median(abs(i - period) for i in inliers))
         grid = _Grid(period, min(max(8 * MAD_TO_SIGMA * mad, GRID_FLOOR_NS), limit))
-        return None if _split_periods(self.intervals, grid) else grid
+        if _split_periods(self.intervals, grid) or self._lost_majority(grid):
+            return None
+        return grid
+
+    def _lost_majority(self, grid: _Grid) -> bool:
+        """Could the grid be two or three line periods, most ppf of a short run lost? Only if
+        its period is that multiple of the operator's line period and some interval is one
+        such period: a spurious ppf lands that close to a period after a frame's rarely, a
+        frame always. On such a grid a header ties to the next frame's ppf on time alone and
+        every counter after it agrees (fault sweep seed 40024), so there is no grid until the
+        intervals of one period are the majority."""
+        nominal = self.cfg.line_period_ns
+        near = self.cfg.interval_tolerance * nominal
+        return (any(abs(grid.period_ns - m * nominal) <= m * near for m in SPLIT_READINGS)
+                and any(abs(i - nominal) <= near for i in self.intervals))
 
     def steps_between(self, first: int, last: int) -> int | None:
         """Line periods from frame `first` to frame `last` (first ≤ last), lost ppf included and

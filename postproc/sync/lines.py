@@ -40,6 +40,9 @@ Bool = npt.NDArray[np.bool_]
 MIN_COUNTER_BITS: Final = 8
 LINE_SIGMA_FLOOR_S: Final = 100e-9  # line-clock jitter and tag resolution
 MAX_WRAP_SHIFT: Final = 4  # lines file vs headers: whole wraps tried either way
+EARLY_HEADER_FLOOR_S: Final = 0.5e-3  # a header before its frame's mid-exposure by more: early
+EARLY_HEADER_HOST_SIGMAS: Final = 5.0  # ... plus this many of the host map's residual RMS
+EARLY_HEADERS_MIN: Final = 3  # a segment with this many early headers (and ≥ 1 %) is refused
 
 
 @dataclass(frozen=True)
@@ -166,6 +169,41 @@ def segment_fits(seg_of_fwd: I64, u_fwd: I64, t_fwd_ns: I64, segments: I64, refs
             fit_segment(f.segment, (u_fwd[seg_of_fwd == f.segment] - f.ref).astype(np.float64),
                         y[seg_of_fwd == f.segment], f.ref, period)
             for f in first]
+
+
+def early_headers(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_gps_ns: I64,
+                  epoch_ns: int, tolerance_s: float) -> dict[int, tuple[int, int]]:
+    """Per fitted segment: its headers that reached the host before their own frame's
+    mid-exposure (by more than `tolerance_s`, the host map's error), and its headers checked.
+
+    A header describes a frame the scanner has exposed, so it cannot reach the host before the
+    exposure's middle. When the header window does not fit the scanner's latency, the sync
+    filter ties each header to the next frame's pulse and every later counter agrees with that
+    tie (docs/sync.md, Limits): the fit then puts every frame one line period late, and headers
+    whose latency is shorter than a line period come out before their frame."""
+    out: dict[int, tuple[int, int]] = {}
+    by_seg = dict(by_segment(hdr.segment))
+    for f in fits:
+        idx = by_seg.get(f.segment)
+        if f.line is None or idx is None:
+            continue
+        x = (u_hdr[idx] - f.ref).astype(np.float64)
+        inside = (x >= f.line.x_min) & (x <= f.line.x_max)
+        mid_s = f.line(x[inside])
+        arrived_s = (hdr_gps_ns[idx][inside] - epoch_ns).astype(np.float64) * 1e-9
+        out[f.segment] = (int(np.count_nonzero(arrived_s < mid_s - tolerance_s)),
+                          int(np.count_nonzero(inside)))
+    return out
+
+
+def refuse_early(fits: list[SegmentFit], early: dict[int, tuple[int, int]]
+                 ) -> list[SegmentFit]:
+    """Segments with early headers (EARLY_HEADERS_MIN and 1 % of those checked) lose their
+    fit: their lines are flagged `no_pulses`, not timed a line period wrong."""
+    bad = {seg for seg, (n, checked) in early.items()
+           if n >= max(EARLY_HEADERS_MIN, 0.01 * checked)}
+    return [SegmentFit(f.segment, None, f.ref, 0, f.frames_timed + f.frames_rejected, False)
+            if f.segment in bad else f for f in fits]
 
 
 def align_lines(table: LineTable, hdr: HeaderColumns, u_hdr: I64, modulus: int

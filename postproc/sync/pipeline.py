@@ -92,11 +92,15 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
     modulus = ln.counter_modulus(hdr.frame_counter, lines.frame_counter, pulses.frame_counter)
     period_s = ln.measured_header_period_s(hdr, modulus)
     u_hdr = ln.unwrap_headers(hdr, modulus, 1.0 if period_s is None else period_s)
-    fwd, seg_f, u_f = ln.place_forwards(pulses, hdr, u_hdr, ln.hdr_gps(hdr, host), modulus)
+    hdr_gps_ns = ln.hdr_gps(hdr, host)
+    fwd, seg_f, u_f = ln.place_forwards(pulses, hdr, u_hdr, hdr_gps_ns, modulus)
     groups = ln.by_segment(hdr.segment)
     segments = np.array([seg for seg, _ in groups], dtype=np.int64)
     refs = np.array([u_hdr[idx[0]] for _, idx in groups], dtype=np.int64)
     fits = ln.segment_fits(seg_f, u_f, pulses.t_gps_ns[fwd], segments, refs, epoch_ns)
+    early = ln.early_headers(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns, ln.EARLY_HEADER_FLOOR_S
+                             + ln.EARLY_HEADER_HOST_SIGMAS * host.line.sigma)
+    fits = ln.refuse_early(fits, early)
     u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
     t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
     frame_pulse = pulses.mode == 2
@@ -118,7 +122,11 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
               "frame_pulses_with_counter": int(np.count_nonzero(
                   frame_pulse & (pulses.frame_counter >= 0))),
               "frame_pulses_placed": int(fwd.size),
-              "header_line_period_ns": None if period_s is None else round(period_s * 1e9, 3)}
+              "header_line_period_ns": None if period_s is None else round(period_s * 1e9, 3),
+              # segments refused: headers that would have reached the host before their own
+              # frame's mid-exposure (lines.early_headers): [early, headers checked]
+              "segments_early_headers": {str(seg): list(v) for seg, v in early.items()
+                                         if v[0] >= max(ln.EARLY_HEADERS_MIN, 0.01 * v[1])}}
     return LineTimes(lines.segment, lines.line, lines.frame_counter, t, status), fits, counts
 
 

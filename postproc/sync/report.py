@@ -201,12 +201,31 @@ def header_order_note(lines: dict[str, Any], what: str = "line_times.csv") -> st
 def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
     """`untied_frames_note` with the header window `flight` was recorded with (or the
     default), when `frames_untied`; else None. For every command that syncs a log: `georef`
-    and `calibrate` failed with a bare count of no_pulses lines."""
-    if not frames_untied(lines):
-        return None
+    and `calibrate` failed with a bare count of no_pulses lines. Segments refused for early
+    headers (`early_headers_note`) are said first."""
+    early = early_headers_note(lines)
+    if early is not None or not frames_untied(lines):
+        return early
     from recorder.settings import header_window_of_log
 
     return untied_frames_note(lines, *header_window_of_log(flight))
+
+
+def early_headers_note(lines: dict[str, Any]) -> str | None:
+    """Why the lines of some segments are no_pulses although their frames were tied: the fit
+    put headers before their own frames (lines.early_headers), the mark of a header window
+    that does not fit the scanner's latency. None when no segment was refused."""
+    early = lines.get("segments_early_headers") or {}
+    if not early:
+        return None
+    which = ", ".join(f"segment {s}: {n} of {k}" for s, (n, k) in sorted(
+        early.items(), key=lambda kv: int(kv[0])))
+    return (f"scan lines of {len(early)} segment(s) not timed (no_pulses): with the frame "
+            f"counters the sync filter gave, frame headers would have reached the recorder "
+            f"before the middle of their frames' exposure ({which}), so it tied headers to "
+            "other frames' pulses and every time would be a line period wrong: the header window "
+            "(sisa.header_window_ms) does not fit the scanner's header latency; measure it and "
+            "record with a window that covers it (docs/sync.md, Limits)")
 
 
 def untied_frames_note(lines: dict[str, Any], window_ms: tuple[float, float],

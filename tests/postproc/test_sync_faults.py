@@ -18,7 +18,13 @@ import pytest
 from acquisition.syncfilter import GATE_DELAY_NS, SyncFilterConfig
 from emulators.scenario import scenario_from_table
 from emulators.truth import read_truth_csv
-from postproc.sync import SyncResult, TimeStatus, read_sync_input, synchronise
+from postproc.sync import (
+    SyncResult,
+    TimeStatus,
+    read_sync_input,
+    synchronise,
+    untimed_lines_note,
+)
 from recorder.columns import read_columns
 from recorder.messages import Topic
 from sisa.wiring.simulation import simulate
@@ -296,3 +302,59 @@ def test_an_ins_clock_set_below_zero_at_128_hz_is_timed(tmp_path: Path) -> None:
     truth = ins_truth_ns(tmp_path, inp)
     assert np.abs(ok_errors_ns(res.ins.t_gps_ns, res.ins.status, truth)).max() < WRONG_NS
     all_timed_between_latches(res, MAX_BEYOND * 2)  # 128 records a second
+
+
+def test_a_header_window_that_misses_the_latency_never_times_a_line_wrong(
+        tmp_path: Path) -> None:
+    """8 ms lines; headers reach the host 3.8–9.1 ms after their frame ends (2–5 ms scanner
+    latency, 1.6 ms on the wire, up to 1.5 ms USB, a 1 ms read clock), the window says −2 … 4
+    ms: narrower than a line period, so the filter ties on time alone, and the late headers
+    land in the next frame's window. Every counter agreed with such a tie, and every line
+    came out one period (8 ms) late, `ok`. The log cannot tell which frame a pulse was, but
+    physics can: the fit then puts headers before their own frame's mid-exposure, and such
+    segments are refused (no_pulses, with a note)."""
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 3, **SHORT}, {
+        "scanner": {"line_period_ms": 8.0, "integration_time_ms": 4.0,
+                    "header_latency_ms": [2.0, 5.0]},
+        "sisa": {"header_window_ms": [-2.0, 4.0], "read_interval_ms": 1.0}}))
+    simulate(scn, tmp_path, images=False)
+    res = synchronise(read_sync_input(tmp_path / "flight.mcap"))
+    e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(tmp_path, res))
+    assert np.abs(e_line).max(initial=0) < WRONG_NS
+    early = res.report["lines"]["segments_early_headers"]
+    assert early
+    assert all(n >= 3 for n, _ in early.values())
+    assert res.report["lines"]["frame_pulses_with_counter"] > 0  # the filter did tie them
+    note = untimed_lines_note(res.report["lines"], [tmp_path / "flight.mcap"])
+    assert note is not None
+    assert "header window" in note
+
+
+def test_a_piece_no_block_resolves_alone_is_timed_through_groups_of_blocks(
+        tmp_path: Path) -> None:
+    """Fault sweep seed 40023 (`bench/fault_sweep.py --wide --vary-devices`): an INS reboot
+    and a −2.8 s clock jump split the INS clock, 3 % of CAN frames corrupt, 1.9 Hz of
+    spurious pulses, 1 of 8 frame pulses at 20 ms lines. After the jump no 30 s block held
+    PPS-pattern latches enough to be taken alone, and 4 995 of 11 388 records were timed;
+    blocks taken together (postproc.sync.pattern._merged_groups) time 10 345, none wrong."""
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 40023, **SHORT}, {
+        "gps": {"receiver": "ashtech_z12", "max_event_rate_hz": 10.0, "nmea_rate_hz": 10.0,
+                "pps_jitter_ns": 5.0, "event_tag_resolution_ns": 50, "serial_baud": 115200},
+        "sisa": {"lfsr_bits": 5, "one_of_n": 8, "read_interval_ms": 0.0},
+        "scanner": {"frame_counter_bits": 32, "line_clock_drift_ppm": -127.66,
+                    "line_period_ms": 20.0, "integration_time_ms": 10.646,
+                    "header_latency_ms": [0.403, 3.615], "line_clock_jitter_ns": 153.1},
+        "ins": {"counter_bits": 32, "clock_drift_ppm": -167.06},
+        "faults": {"spurious_pulse_rate_hz": 1.858, "lost_byte_rate": 0.001,
+                   "corrupt_can_frame_fraction": 0.0311, "dropped_frame_fraction": 0.0255,
+                   "ins_reboots": [{"at_s": 113.88, "duration_s": 12.48}],
+                   "ins_clock_jumps": [{"at_s": 135.94, "jump_ms": -2834.933263},
+                                       {"at_s": 111.88, "jump_ms": -0.001231}]}}))
+    simulate(scn, tmp_path, images=False)
+    inp = read_sync_input(tmp_path / "flight.mcap")
+    res = synchronise(inp)
+    truth = ins_truth_ns(tmp_path, inp, unknown_ok=True)
+    known = truth >= 0
+    e = ok_errors_ns(res.ins.t_gps_ns[known], res.ins.status[known], truth[known])
+    assert np.abs(e).max() < WRONG_NS
+    assert (res.ins.status == TimeStatus.OK).mean() > 0.85

@@ -37,6 +37,7 @@ def derived_figures(scn: Any) -> dict[str, Any]:
     from emulators.block import block_figures
     from emulators.scenario import gps_event_rate_hz, gps_serial_load
     from emulators.trajectory import TruthTrajectory
+    from sisa.wiring.simulation import header_transit_ms
 
     fig = block_figures(scn)
     traj = TruthTrajectory.from_scenario(scn)
@@ -63,7 +64,11 @@ def derived_figures(scn: Any) -> dict[str, Any]:
         "imaging_time_s": round(imaging_s, 1),
         "flight_duration_s": round((traj.t_end_ns - traj.t_start_ns) / 1e9, 1),
         "header_window_width_ms": round(window_hi_ms - window_lo_ms, 3),
-        "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1]
+        # after the frame ends: the scanner's own latency, the header's bytes on the wire, the
+        # USB read latency and (at the latest) a whole read interval
+        "header_early_by_min_ms": round(scn.scanner.header_latency_ms[0]
+                                        + header_transit_ms()[0], 3),
+        "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1] + header_transit_ms()[1]
                                        + scn.sisa.read_interval_ms, 3),
         "gps_event_rate_hz": round(gps_event_rate_hz(scn), 4),
         "gps_serial_load_pct": round(100.0 * gps_serial_load(scn)[1], 1),
@@ -88,6 +93,30 @@ def camera_figures(scn: Any, frame_events_hz: float) -> dict[str, Any]:
             "frame_pulses_tagged_pct": round(100.0 * max(0.0, 1.0 - photo_hz / rate), 1)}
 
 
+def header_window_notes(early_ms: float, late_ms: float, window_ms: tuple[float, float],
+                        period_ms: float) -> list[str]:
+    """Headers that can reach the recorder outside the header window (ms after their frame
+    ends): untied if no other frame's pulse is in the window then; tied to the next (or the
+    previous) frame's pulse if it is, and then every counter of the stretch agrees with that
+    tie and its lines are timed a line period wrong (docs/sync.md, Limits)."""
+    lo, hi = window_ms
+    span = (f"a frame header reaches the recorder {early_ms}–{late_ms} ms after its frame ends "
+            "(scanner.header_latency_ms, its bytes on the wire, the USB latency, "
+            "sisa.read_interval_ms)")
+    if late_ms - period_ms >= lo or early_ms + period_ms <= hi:
+        if late_ms > hi or early_ms < lo:
+            return [f"{span}, outside sisa.header_window_ms {list(window_ms)} by up to a line "
+                    f"period ({period_ms} ms): a header can be tied to another frame's pulse, "
+                    "and the scan lines of its stretch then timed one line period wrong: set the "
+                    "window to cover the latencies"]
+        return []
+    if late_ms > hi or early_ms < lo:
+        return [f"{span}, outside sisa.header_window_ms {list(window_ms)}: such headers are not "
+                "tied to their pulses (their frames' counters are inferred from neighbours or "
+                "left unknown)"]
+    return []
+
+
 def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
     from emulators.terrain import ground_point_room_problem
 
@@ -104,11 +133,9 @@ def _notes(scn: Any, derived: dict[str, Any]) -> list[str]:
         notes.append(f"sisa.header_window_ms is {derived['header_window_width_ms']} ms wide, not "
                      f"narrower than a line period ({period_ms} ms): frame headers cannot be "
                      "tied to their pulses and lines will be flagged, not timed")
-    if derived["header_late_by_max_ms"] > scn.sisa.header_window_ms[1]:
-        notes.append(f"a frame header can reach the recorder {derived['header_late_by_max_ms']} "
-                     "ms after its frame ends (scanner.header_latency_ms + "
-                     "sisa.read_interval_ms), past the end of sisa.header_window_ms: such "
-                     "headers are not tied to their pulses")
+    notes += header_window_notes(derived["header_early_by_min_ms"],
+                                 derived["header_late_by_max_ms"], scn.sisa.header_window_ms,
+                                 period_ms)
     from emulators.scenario import GPS_LINK_WARN_LOAD
 
     load = derived["gps_serial_load_pct"]

@@ -1,7 +1,7 @@
 """Wrong time tags under random mixes of faults: flights the fault matrix never flies.
 
     .venv/bin/python bench/fault_sweep.py [--runs 40] [--first-seed 1000] [--out runs/fault_sweep]
-                                          [--wide] [--vary-ins]
+                                          [--wide] [--vary-ins] [--vary-devices]
 
 The fault matrix in the tests flies one fault at a time on two seeds. Here every run draws its
 own mix from the seed: the receiver (Z-12, F9P, OEM7), the LFSR length (4–7 bits), 1-of-n
@@ -36,7 +36,7 @@ from emulators.truth import read_truth_csv
 from postproc.sync import TimeStatus, read_sync_input, synchronise
 from postproc.sync.lines import LineTable
 from sisa.core.errors import ConfigError
-from sisa.wiring.simulation import simulate
+from sisa.wiring.simulation import header_transit_ms, simulate
 from tests.postproc.test_sync import ins_truth_ns, line_truth_ns, ok_errors_ns
 from tests.postproc.test_sync_faults import SHORT  # the fault matrix's short flight
 from tests.postproc.test_sync_faults import _merge as merged
@@ -185,12 +185,50 @@ def vary_ins(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
     return mix
 
 
-def one_run(seed: int, wide: bool = False, ins: bool = False) -> dict[str, Any]:
+def vary_devices(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
+    """The scanner's line clock and header timing, the recorder's read clock and the
+    receiver's own timing drawn too. Eight mixes in ten get a header window that covers the
+    headers' latencies (`sisa scenario show`'s header_early_by_min_ms to header_late_by_max_ms);
+    one in ten a window as wide that closes before the latest headers (a latency
+    underestimated); one in ten keeps the default window whatever the line period and latency.
+    A window wider than a period, or one that misses the latency, is a misconfigured unit, and
+    it must cost flagged lines, never wrong ones."""
+    period_ms = float(rng.choice([5.0, 8.0, 10.0, 12.5, 16.0, 20.0, 25.0, 40.0]))
+    lat_lo_ms = round(float(rng.uniform(0.0, 3.0)), 3)
+    lat_hi_ms = round(lat_lo_ms + float(rng.uniform(0.0, 5.0)), 3)
+    read_ms = float(rng.choice([0.0, 1.0, 2.0, 5.0]))
+    mix["scanner"].update({
+        "line_period_ms": period_ms,
+        "integration_time_ms": round(period_ms * float(rng.uniform(0.3, 0.95)), 3),
+        "header_latency_ms": [lat_lo_ms, lat_hi_ms],
+        "line_clock_jitter_ns": round(float(rng.uniform(0.0, 500.0)), 1),
+        "line_clock_drift_ppm": round(float(rng.uniform(-300.0, 300.0)), 2)})
+    mix["sisa"]["read_interval_ms"] = read_ms
+    early_ms = lat_lo_ms + header_transit_ms()[0]
+    late_ms = lat_hi_ms + header_transit_ms()[1] + read_ms
+    window = rng.random()
+    if window < 0.8:
+        mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5, 3), round(late_ms + 0.5, 3)]
+    elif window < 0.9:  # closes before the latest headers (their latency underestimated)
+        cut_ms = float(rng.uniform(0.3, 0.9)) * (late_ms - early_ms + 1.0)
+        mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5 - cut_ms, 3),
+                                           round(late_ms + 0.5 - cut_ms, 3)]
+    mix["gps"].update({"nmea_rate_hz": float(rng.choice([1.0, 2.0, 5.0, 10.0])),
+                       "pps_jitter_ns": float(rng.choice([5.0, 20.0, 200.0])),
+                       "event_tag_resolution_ns": int(rng.choice([1, 50, 100, 1000])),
+                       "serial_baud": int(rng.choice([9600, 19200, 38400, 115200]))})
+    return mix
+
+
+def one_run(seed: int, wide: bool = False, ins: bool = False,
+            devices: bool = False) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     for _ in range(20):
         mix = (draw_wide_mix if wide else draw_mix)(rng)
         if ins:
             mix = vary_ins(mix, rng)
+        if devices:
+            mix = vary_devices(mix, rng)
         try:
             scn = scenario_from_table(merged({"base": "bench", "seed": seed, **SHORT}, mix))
             break
@@ -252,6 +290,9 @@ def main() -> None:
                          "drawn close together")
     ap.add_argument("--vary-ins", action="store_true",
                     help="also draw the INS rate, clock offset, output delay and resolution")
+    ap.add_argument("--vary-devices", action="store_true",
+                    help="also draw the scanner's line clock and header timing, the read "
+                         "clock, the header window and the receiver's timing (vary_devices)")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "fault_sweep.json"
@@ -261,7 +302,7 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.runs):
         if seed in done:
             continue
-        r = one_run(seed, args.wide, args.vary_ins)
+        r = one_run(seed, args.wide, args.vary_ins, args.vary_devices)
         rows.append(r)
         path.write_text(json.dumps(rows) + "\n", encoding="utf-8")
         print(f"seed {seed}: INS {r['ins'][0]}/{r['ins'][1]}, lines {r['lines'][0]}/"

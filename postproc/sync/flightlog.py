@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from recorder.columns import read_topics
-from recorder.framing import Paths
+from recorder.framing import Paths, log_paths
 from recorder.messages import Topic
 
 Columns = dict[str, npt.NDArray[Any]]
@@ -26,7 +26,7 @@ Bool = npt.NDArray[np.bool_]
 WANTED: Final[dict[str, tuple[str, ...]]] = {
     Topic.INS_RECORD: ("t_host_ns", "counter", "ins_time_ticks",
                        "status", "sync_flag", "sync_time_ticks"),
-    Topic.SCANNER_HEADER: ("t_host_ns", "frame_counter", "segment"),
+    Topic.SCANNER_HEADER: ("t_host_ns", "frame_counter", "segment", "integration_time_us"),
     Topic.GPS_FIX: ("t_host_ns", "t_gps_ns"),
     Topic.GPS_TIME_TAG: ("t_host_ns", "kind", "t_gps_ns"),
     Topic.SYNC_SESSION: ("session", "lfsr_bits"),
@@ -99,6 +99,7 @@ class HeaderColumns:
     t_host_ns: I64
     frame_counter: I64
     segment: I64
+    integration_time_us: I64 | None = None  # None: not given (the window checks are skipped)
 
 
 @dataclass(frozen=True)
@@ -128,10 +129,15 @@ class SyncInput:
     sisa: SisaColumns
     headers: HeaderColumns
     camera: CameraColumns = dataclasses.field(default_factory=no_camera)
+    # the sync filter's header window (ms after a frame's end) as the log records it, or the
+    # default: only to refuse segments whose ties it cannot have made (lines.neighbour_ties)
+    header_window_ms: tuple[float, float] | None = None
 
 
-def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
-    """The typed bundle from `read_topics(paths, WANTED)`."""
+def sync_input_from_columns(cols: dict[str, Columns],
+                            header_window_ms: tuple[float, float] | None = None) -> SyncInput:
+    """The typed bundle from `read_topics(paths, WANTED)`; `header_window_ms` as the log
+    records it (`recorder.settings.header_window_of_log`), None to skip the checks it makes."""
     ins, tags = cols[Topic.INS_RECORD], cols[Topic.GPS_TIME_TAG]
     fix, pps, fwd = cols[Topic.GPS_FIX], cols[Topic.SYNC_PPS], cols[Topic.SYNC_FORWARD]
     hdr = cols[Topic.SCANNER_HEADER]
@@ -153,10 +159,14 @@ def sync_input_from_columns(cols: dict[str, Columns]) -> SyncInput:
             _i64(fwd, "frame_counter"), _i64(cols[Topic.SYNC_SESSION], "lfsr_bits"),
             len(cols[Topic.SYNC_MODE]["to_mode"])),
         HeaderColumns(_i64(hdr, "t_host_ns"), _i64(hdr, "frame_counter"),
-                      _i64(hdr, "segment")), camera)
+                      _i64(hdr, "segment"), _i64(hdr, "integration_time_us")), camera,
+        header_window_ms)
 
 
 def read_sync_input(paths: Paths) -> SyncInput:
     """Everything time synchronisation needs from a log (one file or the parts of a split one),
     in one streaming pass."""
-    return sync_input_from_columns(read_topics(paths, WANTED))
+    from recorder.settings import header_window_of_log
+
+    return sync_input_from_columns(read_topics(paths, WANTED),
+                                   header_window_of_log(log_paths(paths))[0])

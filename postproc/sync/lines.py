@@ -196,14 +196,54 @@ def early_headers(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_gp
     return out
 
 
-def refuse_early(fits: list[SegmentFit], early: dict[int, tuple[int, int]]
-                 ) -> list[SegmentFit]:
-    """Segments with early headers (EARLY_HEADERS_MIN and 1 % of those checked) lose their
-    fit: their lines are flagged `no_pulses`, not timed a line period wrong."""
-    bad = {seg for seg, (n, checked) in early.items()
-           if n >= max(EARLY_HEADERS_MIN, 0.01 * checked)}
+def neighbour_ties(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_gps_ns: I64,
+                   epoch_ns: int, window_ms: tuple[float, float]) -> dict[int, tuple[int, int]]:
+    """Per fitted segment: its headers that, on time alone, fall in another frame's header
+    window (the frame before or after theirs, on the fit), and its headers that fall in one
+    frame's window at all.
+
+    The sync filter ties a header to the one frame pulse its window (ms after the frame's end)
+    holds, and every later counter follows from that tie. A window that holds the latency of
+    some headers and not of others puts those in a neighbour's window: the first tie of a
+    stretch may then have been either kind, and the whole stretch a line period wrong either
+    way; headers that come before their frame show only one of the two (`early_headers`).
+    Skipped (empty) for a window not narrower than a line period (no tie on time alone is
+    made) or headers without their integration time."""
+    out: dict[int, tuple[int, int]] = {}
+    if hdr.integration_time_us is None:
+        return out
+    by_seg = dict(by_segment(hdr.segment))
+    lo_s, hi_s = window_ms[0] * 1e-3, window_ms[1] * 1e-3
+    for f in fits:
+        idx = by_seg.get(f.segment)
+        if f.line is None or idx is None or hi_s - lo_s >= abs(f.line.slope):
+            continue
+        x = (u_hdr[idx] - f.ref).astype(np.float64)
+        inside = (x >= f.line.x_min) & (x <= f.line.x_max)
+        after_end_s = ((hdr_gps_ns[idx][inside] - epoch_ns).astype(np.float64) * 1e-9
+                       - f.line(x[inside]) - hdr.integration_time_us[idx][inside] * 0.5e-6)
+        ties = [(after_end_s - j * f.line.slope >= lo_s) & (after_end_s - j * f.line.slope <= hi_s)
+                for j in (-2, -1, 0, 1, 2)]
+        tied = np.logical_or.reduce(ties)
+        other = tied & ~ties[2]
+        out[f.segment] = (int(np.count_nonzero(other)), int(np.count_nonzero(tied)))
+    return out
+
+
+def refuse_segments(fits: list[SegmentFit], *checks: dict[int, tuple[int, int]]
+                    ) -> list[SegmentFit]:
+    """Segments that fail a check (EARLY_HEADERS_MIN of its headers, and 1 % of those
+    checked) lose their fit: their lines are flagged `no_pulses`, not timed a line period
+    wrong."""
+    bad = {seg for check in checks for seg in refused(check)}
     return [SegmentFit(f.segment, None, f.ref, 0, f.frames_timed + f.frames_rejected, False)
             if f.segment in bad else f for f in fits]
+
+
+def refused(check: dict[int, tuple[int, int]]) -> dict[int, tuple[int, int]]:
+    """The segments of a check's counts (found, checked) that fail it."""
+    return {seg: (n, k) for seg, (n, k) in check.items()
+            if n >= max(EARLY_HEADERS_MIN, 0.01 * k)}
 
 
 def align_lines(table: LineTable, hdr: HeaderColumns, u_hdr: I64, modulus: int

@@ -98,9 +98,13 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
     segments = np.array([seg for seg, _ in groups], dtype=np.int64)
     refs = np.array([u_hdr[idx[0]] for _, idx in groups], dtype=np.int64)
     fits = ln.segment_fits(seg_f, u_f, pulses.t_gps_ns[fwd], segments, refs, epoch_ns)
-    early = ln.early_headers(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns, ln.EARLY_HEADER_FLOOR_S
-                             + ln.EARLY_HEADER_HOST_SIGMAS * host.line.sigma)
-    fits = ln.refuse_early(fits, early)
+    early = ln.refused(ln.early_headers(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns,
+                                        ln.EARLY_HEADER_FLOOR_S
+                                        + ln.EARLY_HEADER_HOST_SIGMAS * host.line.sigma))
+    neighbours = ln.refused(ln.neighbour_ties(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns,
+                                              inp.header_window_ms)
+                            if inp.header_window_ms is not None else {})
+    fits = ln.refuse_segments(fits, early, neighbours)
     u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
     t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
     frame_pulse = pulses.mode == 2
@@ -125,8 +129,9 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
               "header_line_period_ns": None if period_s is None else round(period_s * 1e9, 3),
               # segments refused: headers that would have reached the host before their own
               # frame's mid-exposure (lines.early_headers): [early, headers checked]
-              "segments_early_headers": {str(seg): list(v) for seg, v in early.items()
-                                         if v[0] >= max(ln.EARLY_HEADERS_MIN, 0.01 * v[1])}}
+              "segments_early_headers": {str(seg): list(v) for seg, v in early.items()},
+              # and those with headers in a neighbour frame's header window (lines.neighbour_ties)
+              "segments_neighbour_ties": {str(seg): list(v) for seg, v in neighbours.items()}}
     return LineTimes(lines.segment, lines.line, lines.frame_counter, t, status), fits, counts
 
 

@@ -213,19 +213,30 @@ def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | N
 
 def early_headers_note(lines: dict[str, Any]) -> str | None:
     """Why the lines of some segments are no_pulses although their frames were tied: the fit
-    put headers before their own frames (lines.early_headers), the mark of a header window
-    that does not fit the scanner's latency. None when no segment was refused."""
+    put headers before their own frames (lines.early_headers), or in a neighbouring frame's
+    header window (lines.neighbour_ties): the marks of a header window that does not fit the
+    scanner's latency. None when no segment was refused."""
     early = lines.get("segments_early_headers") or {}
-    if not early:
+    neighbours = lines.get("segments_neighbour_ties") or {}
+    if not early and not neighbours:
         return None
-    which = ", ".join(f"segment {s}: {n} of {k}" for s, (n, k) in sorted(
-        early.items(), key=lambda kv: int(kv[0])))
-    return (f"scan lines of {len(early)} segment(s) not timed (no_pulses): with the frame "
-            f"counters the sync filter gave, frame headers would have reached the recorder "
-            f"before the middle of their frames' exposure ({which}), so it tied headers to "
-            "other frames' pulses and every time would be a line period wrong: the header window "
-            "(sisa.header_window_ms) does not fit the scanner's header latency; measure it and "
-            "record with a window that covers it (docs/sync.md, Limits)")
+
+    def each(counts: dict[str, list[int]]) -> str:
+        return ", ".join(f"segment {s}: {n} of {k}" for s, (n, k) in sorted(
+            counts.items(), key=lambda kv: int(kv[0])))
+
+    why = []
+    if early:
+        why.append(f"headers would have reached the recorder before the middle of their "
+                   f"frames' exposure ({each(early)})")
+    if neighbours:
+        why.append(f"headers fall in another frame's header window ({each(neighbours)})")
+    return (f"scan lines of {len({*early, *neighbours})} segment(s) not timed (no_pulses): with "
+            f"the frame counters the sync filter gave, {' and '.join(why)}, so the sync filter "
+            "may have tied headers to other frames' pulses, and every time would then be a "
+            "line period wrong: the header window (sisa.header_window_ms) does not fit the "
+            "scanner's header latency; measure it and record with a window that covers it "
+            "(docs/sync.md, Limits)")
 
 
 def untied_frames_note(lines: dict[str, Any], window_ms: tuple[float, float],

@@ -83,6 +83,8 @@ class LiveSync:
     """The passes over one growing log."""
 
     def __init__(self, log: Path, half_swath_m: float) -> None:
+        self.log = log
+        self._window: tuple[float, float] | None = None  # as the log records it
         self.follower = LogFollower(log)
         self.columns = GrowingColumns(LIVE_WANTED)
         self.half_swath_m = half_swath_m
@@ -91,6 +93,18 @@ class LiveSync:
         self.line_first = FirstTimed()
         self.result: SyncResult | None = None
         self.cols: dict[str, dict[str, npt.NDArray[Any]]] = {}
+
+    def header_window_ms(self) -> tuple[float, float]:
+        """The header window as `sisa sync` will read it from the log (so the live and the
+        offline sync refuse the same segments), once the recorder has written it."""
+        from recorder.settings import header_window_of_log
+
+        if self._window is None:
+            window, source = header_window_of_log([self.log])
+            if source is None:  # not written yet, or a log without it: the default for now
+                return window
+            self._window = window
+        return self._window
 
     def run_pass(self) -> dict[str, Any]:
         """Read what is new, synchronise everything so far; the pass's summary."""
@@ -103,7 +117,7 @@ class LiveSync:
         out: dict[str, Any] = {"pass": self.passes, "t_wall_ns": now_ns,
                                "log_bytes_read": self.follower.stats.bytes_read}
         try:
-            result = synchronise(sync_input_from_columns(cols))
+            result = synchronise(sync_input_from_columns(cols, self.header_window_ms()))
         except (SisaError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
             self.result = None  # early in a flight the log may not hold enough yet
             out["state"] = _empty_state(cols, f"not yet synchronised: {exc}")

@@ -330,6 +330,28 @@ def test_a_header_window_that_misses_the_latency_never_times_a_line_wrong(
     assert "header window" in note
 
 
+def test_a_header_window_that_opens_late_never_times_a_line_wrong(tmp_path: Path) -> None:
+    """8 ms lines; headers reach the host 2.3–7.1 ms after their frame ends, the window says
+    5 … 11 ms. Headers that come after 5 ms tie to their own frame's pulse; those before 3 ms
+    fall in the previous frame's window and tie to its pulse. Whichever came first, every
+    later counter agreed with it: on this seed every line came out 8 ms early, `ok` (headers
+    then look later than they came, never early). The fit shows headers in a neighbouring
+    frame's window, and such segments are refused (lines.neighbour_ties)."""
+    scn = scenario_from_table(_merge({"base": "bench", "seed": 3, **SHORT}, {
+        "scanner": {"line_period_ms": 8.0, "integration_time_ms": 4.0,
+                    "header_latency_ms": [0.5, 3.0]},
+        "sisa": {"header_window_ms": [5.0, 11.0], "read_interval_ms": 1.0}}))
+    simulate(scn, tmp_path, images=False)
+    res = synchronise(read_sync_input(tmp_path / "flight.mcap"))
+    e_line = ok_errors_ns(res.lines.t_gps_ns, res.lines.status, line_truth_ns(tmp_path, res))
+    assert np.abs(e_line).max(initial=0) < WRONG_NS
+    assert res.report["lines"]["frame_pulses_with_counter"] > 0  # the filter did tie them
+    assert res.report["lines"]["segments_neighbour_ties"]
+    note = untimed_lines_note(res.report["lines"], [tmp_path / "flight.mcap"])
+    assert note is not None
+    assert "another frame's header window" in note
+
+
 def test_a_piece_no_block_resolves_alone_is_timed_through_groups_of_blocks(
         tmp_path: Path) -> None:
     """Fault sweep seed 40023 (`bench/fault_sweep.py --wide --vary-devices`): an INS reboot

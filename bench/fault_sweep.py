@@ -187,10 +187,11 @@ def vary_ins(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
 
 def vary_devices(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any]:
     """The scanner's line clock and header timing, the recorder's read clock and the
-    receiver's own timing drawn too. Eight mixes in ten get a header window that covers the
+    receiver's own timing drawn too. Seven mixes in ten get a header window that covers the
     headers' latencies (`sisa scenario show`'s header_early_by_min_ms to header_late_by_max_ms);
     one in ten a window as wide that closes before the latest headers (a latency
-    underestimated); one in ten keeps the default window whatever the line period and latency.
+    underestimated), one in ten one that opens after the earliest (overestimated); one in ten
+    keeps the default window whatever the line period and latency.
     A window wider than a period, or one that misses the latency, is a misconfigured unit, and
     it must cost flagged lines, never wrong ones."""
     period_ms = float(rng.choice([5.0, 8.0, 10.0, 12.5, 16.0, 20.0, 25.0, 40.0]))
@@ -207,12 +208,13 @@ def vary_devices(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any
     early_ms = lat_lo_ms + header_transit_ms()[0]
     late_ms = lat_hi_ms + header_transit_ms()[1] + read_ms
     window = rng.random()
-    if window < 0.8:
+    if window < 0.7:
         mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5, 3), round(late_ms + 0.5, 3)]
-    elif window < 0.9:  # closes before the latest headers (their latency underestimated)
-        cut_ms = float(rng.uniform(0.3, 0.9)) * (late_ms - early_ms + 1.0)
-        mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5 - cut_ms, 3),
-                                           round(late_ms + 0.5 - cut_ms, 3)]
+    elif window < 0.9:  # closes before the latest headers, or opens after the earliest
+        shift_ms = float(rng.uniform(0.3, 0.9)) * (late_ms - early_ms + 1.0) * (
+            -1.0 if window < 0.8 else 1.0)
+        mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5 + shift_ms, 3),
+                                           round(late_ms + 0.5 + shift_ms, 3)]
     mix["gps"].update({"nmea_rate_hz": float(rng.choice([1.0, 2.0, 5.0, 10.0])),
                        "pps_jitter_ns": float(rng.choice([5.0, 20.0, 200.0])),
                        "event_tag_resolution_ns": int(rng.choice([1, 50, 100, 1000])),

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from typing import Final
 
@@ -42,7 +43,7 @@ LINE_SIGMA_FLOOR_S: Final = 100e-9  # line-clock jitter and tag resolution
 MAX_WRAP_SHIFT: Final = 4  # lines file vs headers: whole wraps tried either way
 EARLY_HEADER_FLOOR_S: Final = 0.5e-3  # a header before its frame's mid-exposure by more: early
 EARLY_HEADER_HOST_SIGMAS: Final = 5.0  # ... plus this many of the host map's residual RMS
-EARLY_HEADERS_MIN: Final = 3  # a segment with this many early headers (and ≥ 1 %) is refused
+SUSPECT_HEADERS_MIN: Final = 3  # a segment with this many suspect headers (and ≥ 1 %) is refused
 
 
 @dataclass(frozen=True)
@@ -171,6 +172,20 @@ def segment_fits(seg_of_fwd: I64, u_fwd: I64, t_fwd_ns: I64, segments: I64, refs
             for f in first]
 
 
+def _fitted_headers(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64
+                    ) -> Iterator[tuple[int, Line, I64, F64]]:
+    """Per fitted segment: its number, its fit, the indices of its headers within the fit's
+    span, and their x."""
+    by_seg = dict(by_segment(hdr.segment))
+    for f in fits:
+        idx = by_seg.get(f.segment)
+        if f.line is None or idx is None:
+            continue
+        x = (u_hdr[idx] - f.ref).astype(np.float64)
+        inside = (x >= f.line.x_min) & (x <= f.line.x_max)
+        yield f.segment, f.line, idx[inside], x[inside]
+
+
 def early_headers(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_gps_ns: I64,
                   epoch_ns: int, tolerance_s: float) -> dict[int, tuple[int, int]]:
     """Per fitted segment: its headers that reached the host before their own frame's
@@ -182,17 +197,9 @@ def early_headers(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_gp
     tie (docs/sync.md, Limits): the fit then puts every frame one line period late, and headers
     whose latency is shorter than a line period come out before their frame."""
     out: dict[int, tuple[int, int]] = {}
-    by_seg = dict(by_segment(hdr.segment))
-    for f in fits:
-        idx = by_seg.get(f.segment)
-        if f.line is None or idx is None:
-            continue
-        x = (u_hdr[idx] - f.ref).astype(np.float64)
-        inside = (x >= f.line.x_min) & (x <= f.line.x_max)
-        mid_s = f.line(x[inside])
-        arrived_s = (hdr_gps_ns[idx][inside] - epoch_ns).astype(np.float64) * 1e-9
-        out[f.segment] = (int(np.count_nonzero(arrived_s < mid_s - tolerance_s)),
-                          int(np.count_nonzero(inside)))
+    for seg, line, idx, x in _fitted_headers(fits, hdr, u_hdr):
+        arrived_s = (hdr_gps_ns[idx] - epoch_ns).astype(np.float64) * 1e-9
+        out[seg] = (int(np.count_nonzero(arrived_s < line(x) - tolerance_s)), int(idx.size))
     return out
 
 
@@ -212,38 +219,31 @@ def neighbour_ties(fits: list[SegmentFit], hdr: HeaderColumns, u_hdr: I64, hdr_g
     out: dict[int, tuple[int, int]] = {}
     if hdr.integration_time_us is None:
         return out
-    by_seg = dict(by_segment(hdr.segment))
     lo_s, hi_s = window_ms[0] * 1e-3, window_ms[1] * 1e-3
-    for f in fits:
-        idx = by_seg.get(f.segment)
-        if f.line is None or idx is None or hi_s - lo_s >= abs(f.line.slope):
+    for seg, line, idx, x in _fitted_headers(fits, hdr, u_hdr):
+        if hi_s - lo_s >= abs(line.slope):
             continue
-        x = (u_hdr[idx] - f.ref).astype(np.float64)
-        inside = (x >= f.line.x_min) & (x <= f.line.x_max)
-        after_end_s = ((hdr_gps_ns[idx][inside] - epoch_ns).astype(np.float64) * 1e-9
-                       - f.line(x[inside]) - hdr.integration_time_us[idx][inside] * 0.5e-6)
-        ties = [(after_end_s - j * f.line.slope >= lo_s) & (after_end_s - j * f.line.slope <= hi_s)
-                for j in (-2, -1, 0, 1, 2)]
-        tied = np.logical_or.reduce(ties)
-        other = tied & ~ties[2]
-        out[f.segment] = (int(np.count_nonzero(other)), int(np.count_nonzero(tied)))
+        after_end_s = ((hdr_gps_ns[idx] - epoch_ns).astype(np.float64) * 1e-9 - line(x)
+                       - hdr.integration_time_us[idx] * 0.5e-6)
+        frames_s = after_end_s[:, None] - np.array([-2, -1, 0, 1, 2]) * line.slope
+        ties = (frames_s >= lo_s) & (frames_s <= hi_s)  # header × frame offset −2 … 2
+        tied = ties.any(axis=1)
+        out[seg] = (int(np.count_nonzero(tied & ~ties[:, 2])), int(np.count_nonzero(tied)))
     return out
 
 
-def refuse_segments(fits: list[SegmentFit], *checks: dict[int, tuple[int, int]]
-                    ) -> list[SegmentFit]:
-    """Segments that fail a check (EARLY_HEADERS_MIN of its headers, and 1 % of those
-    checked) lose their fit: their lines are flagged `no_pulses`, not timed a line period
-    wrong."""
-    bad = {seg for check in checks for seg in refused(check)}
-    return [SegmentFit(f.segment, None, f.ref, 0, f.frames_timed + f.frames_rejected, False)
-            if f.segment in bad else f for f in fits]
-
-
-def refused(check: dict[int, tuple[int, int]]) -> dict[int, tuple[int, int]]:
-    """The segments of a check's counts (found, checked) that fail it."""
+def suspect_segments(check: dict[int, tuple[int, int]]) -> dict[int, tuple[int, int]]:
+    """The segments of a check's counts (found, checked) that fail it: SUSPECT_HEADERS_MIN
+    headers found, and 1 % of those checked."""
     return {seg: (n, k) for seg, (n, k) in check.items()
-            if n >= max(EARLY_HEADERS_MIN, 0.01 * k)}
+            if n >= max(SUSPECT_HEADERS_MIN, 0.01 * k)}
+
+
+def refuse_segments(fits: list[SegmentFit], segments: Collection[int]) -> list[SegmentFit]:
+    """These segments lose their fit: their lines are flagged `no_pulses`, not timed a line
+    period wrong."""
+    return [SegmentFit(f.segment, None, f.ref, 0, f.frames_timed + f.frames_rejected, False)
+            if f.segment in segments else f for f in fits]
 
 
 def align_lines(table: LineTable, hdr: HeaderColumns, u_hdr: I64, modulus: int

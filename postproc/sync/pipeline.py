@@ -98,13 +98,13 @@ def solve_lines(inp: SyncInput, table: ln.LineTable | None, pulses: SisaPulses,
     segments = np.array([seg for seg, _ in groups], dtype=np.int64)
     refs = np.array([u_hdr[idx[0]] for _, idx in groups], dtype=np.int64)
     fits = ln.segment_fits(seg_f, u_f, pulses.t_gps_ns[fwd], segments, refs, epoch_ns)
-    early = ln.refused(ln.early_headers(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns,
-                                        ln.EARLY_HEADER_FLOOR_S
-                                        + ln.EARLY_HEADER_HOST_SIGMAS * host.line.sigma))
-    neighbours = ln.refused(ln.neighbour_ties(fits, hdr, u_hdr, hdr_gps_ns, epoch_ns,
-                                              inp.header_window_ms)
-                            if inp.header_window_ms is not None else {})
-    fits = ln.refuse_segments(fits, early, neighbours)
+    early = ln.suspect_segments(ln.early_headers(
+        fits, hdr, u_hdr, hdr_gps_ns, epoch_ns,
+        ln.EARLY_HEADER_FLOOR_S + ln.EARLY_HEADER_HOST_SIGMAS * host.line.sigma))
+    neighbours = ln.suspect_segments(ln.neighbour_ties(
+        fits, hdr, u_hdr, hdr_gps_ns, epoch_ns, inp.header_window_ms)
+        if inp.header_window_ms is not None else {})
+    fits = ln.refuse_segments(fits, early.keys() | neighbours.keys())
     u_line, linked = ln.align_lines(lines, hdr, u_hdr, modulus)
     t, status = ln.time_lines(lines.segment, u_line, linked, fits, epoch_ns, cfg)
     frame_pulse = pulses.mode == 2

@@ -207,8 +207,9 @@ def vary_devices(mix: dict[str, Any], rng: np.random.Generator) -> dict[str, Any
         "line_clock_jitter_ns": round(float(rng.uniform(0.0, 500.0)), 1),
         "line_clock_drift_ppm": round(float(rng.uniform(-300.0, 300.0)), 2)})
     mix["sisa"]["read_interval_ms"] = read_ms
-    early_ms = lat_lo_ms + header_transit_ms()[0]
-    late_ms = lat_hi_ms + header_transit_ms()[1] + read_ms
+    transit_ms = header_transit_ms()
+    early_ms = lat_lo_ms + transit_ms[0]
+    late_ms = lat_hi_ms + transit_ms[1] + read_ms
     window = rng.random()
     if window < 0.7:
         mix["sisa"]["header_window_ms"] = [round(early_ms - 0.5, 3), round(late_ms + 0.5, 3)]
@@ -283,8 +284,9 @@ def window_covers(scn: Scenario) -> float | None:
     lo, hi = scn.sisa.header_window_ms
     if hi - lo >= scn.scanner.line_period_ms:
         return None
-    early = scn.scanner.header_latency_ms[0] + header_transit_ms()[0]
-    late = scn.scanner.header_latency_ms[1] + header_transit_ms()[1] + scn.sisa.read_interval_ms
+    transit_ms = header_transit_ms()
+    early = scn.scanner.header_latency_ms[0] + transit_ms[0]
+    late = scn.scanner.header_latency_ms[1] + transit_ms[1] + scn.sisa.read_interval_ms
     return round(float(max(0.0, min(late, hi) - max(early, lo)) / (late - early)), 3)
 
 

@@ -26,6 +26,11 @@ def recorded_header_window_ms(metadata: dict[str, str]) -> tuple[float, float] |
     return (lo, hi) if lo < hi else None
 
 
+def header_window_ms(metadata: dict[str, str]) -> tuple[float, float]:
+    """The header window the sync filter used: as the log recorded it, else the default."""
+    return recorded_header_window_ms(metadata) or DEFAULT_HEADER_WINDOW_MS
+
+
 def recorded_camera_window_ms(metadata: dict[str, str]) -> tuple[float, float] | None:
     """The photo-message window a log with a camera was recorded with, None if it does not
     say (no camera, or another recorder's log)."""
@@ -37,9 +42,10 @@ def recorded_camera_window_ms(metadata: dict[str, str]) -> tuple[float, float] |
 
 
 def header_window_of_log(flight: Sequence[Path]) -> tuple[tuple[float, float], str | None]:
-    """The header window a flight was recorded with, to explain untimed lines (never to time
-    anything): as the log's recording settings say it, with where from; else the default and
-    None (a log recorded before it kept them)."""
+    """The header window a flight was recorded with, to explain untimed lines and to refuse
+    segments whose ties it cannot have made (never to time anything): as the log's recording
+    settings say it, with where from; else the default and None (a log recorded before it kept
+    them)."""
     from recorder.parts import recording_metadata  # the scenario's default above stays light
 
     window = recorded_header_window_ms(recording_metadata(flight[0]))

@@ -43,7 +43,7 @@ from recorder.framing import Paths, log_paths
 from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
 from recorder.messages import Topic
 from recorder.parts import recording_metadata
-from recorder.settings import header_window_of_log, recorded_camera_window_ms
+from recorder.settings import header_window_ms, recorded_camera_window_ms
 from sisa.core.errors import InputError
 from sisa.core.jsonio import finite_json
 from sisa.core.outdir import write_whole
@@ -99,10 +99,9 @@ def read_and_sync(flight: Paths, scanner_dir: Path, opt: GeorefOptions, notes: l
     recording = recording_note(health, log_paths(flight)[0])
     if recording is not None:  # the log may hold less than the devices sent
         notes.append(recording)
-    window_ms = header_window_of_log(log_paths(flight))[0]
-    result = synchronise(sync_input_from_columns(cols, window_ms), lines,
-                         camera_window_ms=recorded_camera_window_ms(
-                             recording_metadata(log_paths(flight)[0])))
+    meta = recording_metadata(log_paths(flight)[0])
+    result = synchronise(sync_input_from_columns(cols, header_window_ms(meta)), lines,
+                         camera_window_ms=recorded_camera_window_ms(meta))
     log_fixes = fixes_from_columns(cols)  # the log's own GPS, for a judge of the run
     info: dict[str, Any] = {}
     traj = _trajectory(cols, result, opt, info, notes)

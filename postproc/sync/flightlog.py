@@ -18,6 +18,7 @@ import numpy.typing as npt
 from recorder.columns import read_topics
 from recorder.framing import Paths, log_paths
 from recorder.messages import Topic
+from recorder.settings import header_window_of_log
 
 Columns = dict[str, npt.NDArray[Any]]
 I64 = npt.NDArray[np.int64]
@@ -166,7 +167,5 @@ def sync_input_from_columns(cols: dict[str, Columns],
 def read_sync_input(paths: Paths) -> SyncInput:
     """Everything time synchronisation needs from a log (one file or the parts of a split one),
     in one streaming pass."""
-    from recorder.settings import header_window_of_log
-
     return sync_input_from_columns(read_topics(paths, WANTED),
                                    header_window_of_log(log_paths(paths))[0])

@@ -201,9 +201,9 @@ def header_order_note(lines: dict[str, Any], what: str = "line_times.csv") -> st
 def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | None:
     """`untied_frames_note` with the header window `flight` was recorded with (or the
     default), when `frames_untied`; else None. For every command that syncs a log: `georef`
-    and `calibrate` failed with a bare count of no_pulses lines. Segments refused for early
-    headers (`early_headers_note`) are said first."""
-    early = early_headers_note(lines)
+    and `calibrate` failed with a bare count of no_pulses lines. Segments refused for their
+    headers (`refused_segments_note`) are said first."""
+    early = refused_segments_note(lines)
     if early is not None or not frames_untied(lines):
         return early
     from recorder.settings import header_window_of_log
@@ -211,7 +211,7 @@ def untimed_lines_note(lines: dict[str, Any], flight: Sequence[Path]) -> str | N
     return untied_frames_note(lines, *header_window_of_log(flight))
 
 
-def early_headers_note(lines: dict[str, Any]) -> str | None:
+def refused_segments_note(lines: dict[str, Any]) -> str | None:
     """Why the lines of some segments are no_pulses although their frames were tied: the fit
     put headers before their own frames (lines.early_headers), or in a neighbouring frame's
     header window (lines.neighbour_ties): the marks of a header window that does not fit the

@@ -363,15 +363,16 @@ def log_navigation(args: argparse.Namespace, paths: list[Path], scanner: Path | 
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.parts import recording_metadata
-    from recorder.settings import header_window_of_log, recorded_camera_window_ms
+    from recorder.settings import header_window_ms, recorded_camera_window_ms
 
     cols = read_topics(paths, {**merged_wanted(SYNC_WANTED, NAV_WANTED), **HEALTH_WANTED})
     recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), paths[0])
     if recording is not None:
         say_warning(args.command, recording)
-    sync = synchronise(sync_input_from_columns(cols, header_window_of_log(paths)[0]),
+    meta = recording_metadata(paths[0])
+    sync = synchronise(sync_input_from_columns(cols, header_window_ms(meta)),
                        read_scanner_lines(scanner) if scanner is not None else None,
-                       camera_window_ms=recorded_camera_window_ms(recording_metadata(paths[0])))
+                       camera_window_ms=recorded_camera_window_ms(meta))
     unsure = header_order_note(sync.report["lines"], "the image measurements' lines")
     if unsure is not None:  # a measurement's line may be timed a line period off
         say_warning(args.command, unsure)

@@ -43,6 +43,7 @@ def derived_figures(scn: Any) -> dict[str, Any]:
     traj = TruthTrajectory.from_scenario(scn)
     imaging_s = sum((s.t_end_ns - s.t_start_ns) for s in traj.strips) / 1e9
     window_lo_ms, window_hi_ms = scn.sisa.header_window_ms
+    transit_ms = header_transit_ms()
     return {
         "gsd_across_nadir_m": round(fig.gsd_across_nadir_m, 3),
         "gsd_across_nadir_true_focal_m": round(fig.gsd_across_nadir_true_m, 3),
@@ -66,9 +67,8 @@ def derived_figures(scn: Any) -> dict[str, Any]:
         "header_window_width_ms": round(window_hi_ms - window_lo_ms, 3),
         # after the frame ends: the scanner's own latency, the header's bytes on the wire, the
         # USB read latency and (at the latest) a whole read interval
-        "header_early_by_min_ms": round(scn.scanner.header_latency_ms[0]
-                                        + header_transit_ms()[0], 3),
-        "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1] + header_transit_ms()[1]
+        "header_early_by_min_ms": round(scn.scanner.header_latency_ms[0] + transit_ms[0], 3),
+        "header_late_by_max_ms": round(scn.scanner.header_latency_ms[1] + transit_ms[1]
                                        + scn.sisa.read_interval_ms, 3),
         "gps_event_rate_hz": round(gps_event_rate_hz(scn), 4),
         "gps_serial_load_pct": round(100.0 * gps_serial_load(scn)[1], 1),

@@ -68,7 +68,7 @@ def _run(args: argparse.Namespace) -> int:
     from recorder.health import HEALTH_WANTED, HealthTotals, recording_note
     from recorder.messages import Topic
     from recorder.parts import recording_metadata
-    from recorder.settings import header_window_of_log, recorded_camera_window_ms
+    from recorder.settings import header_window_ms, recorded_camera_window_ms
 
     started = time.perf_counter()
     with staged_output_dir(args.out, force=args.force) as out, progress("sync") as bar:
@@ -79,10 +79,9 @@ def _run(args: argparse.Namespace) -> int:
         recording = recording_note(HealthTotals.from_columns(cols[Topic.HEALTH]), flight[0])
         bar.step("synchronising")
         try:
-            window_ms = header_window_of_log(flight)[0]
-            result = synchronise(sync_input_from_columns(cols, window_ms), lines,
-                                 camera_window_ms=recorded_camera_window_ms(
-                                     recording_metadata(flight[0])))
+            meta = recording_metadata(flight[0])
+            result = synchronise(sync_input_from_columns(cols, header_window_ms(meta)), lines,
+                                 camera_window_ms=recorded_camera_window_ms(meta))
         except InputError as exc:  # what the log lacks: named by the log
             raise InputError(f"{flight[0]}: {exc}") from None
         bar.step("writing the tables")

@@ -18,6 +18,7 @@ import numpy as np
 from acquisition.clocks import SimulatedHostClock, TimingBoard
 from acquisition.pulses import Edge
 from acquisition.runner import Acquisition
+from acquisition.scanner_header import HEADER_BYTES
 from emulators.gps import wire_time_ns
 from emulators.runtime import Output, Port, Runner
 from emulators.scenario import Scenario
@@ -31,18 +32,16 @@ from sisa.wiring.acqconfig import acquisition_config, recording_settings
 
 SERIAL_BAUD = 115_200  # the scanner's and the camera's ports (the GPS receiver's: gps.serial_baud)
 USB_LATENCY_NS = (200_000, 1_500_000)  # uniform range of the host's read latency
+CAN_LATENCY_NS = (100_000, 400_000)
+TICK_NS = 100_000_000
+Deliver = Callable[[int, Any], None]  # an Acquisition input: (host receive time, payload)
 
 
 def header_transit_ms() -> tuple[float, float]:
     """A frame header's bytes from the scanner's port to the host: the wire at SERIAL_BAUD plus
     the USB latency, shortest and longest (the read interval comes on top)."""
-    from acquisition.scanner_header import HEADER_BYTES
-
     wire_ms = wire_time_ns(HEADER_BYTES, SERIAL_BAUD) / 1e6
     return wire_ms + USB_LATENCY_NS[0] / 1e6, wire_ms + USB_LATENCY_NS[1] / 1e6
-CAN_LATENCY_NS = (100_000, 400_000)
-TICK_NS = 100_000_000
-Deliver = Callable[[int, Any], None]  # an Acquisition input: (host receive time, payload)
 
 
 class Steps(Protocol):

@@ -3,12 +3,14 @@
 - The SISA's timing board: a free-running counter (its own offset and drift) that time-stamps
   every pulse edge. Edges from the emulated wires carry the emulation's timeline; the board turns
   that into its own counter, and only the counter is logged.
-- The host clock: the logging computer's wall clock (UTC-ish, NTP-disciplined, not GPS time).
-  In real time it is `time.time_ns()`; in a virtual-time simulation it is modelled.
+- The host clock: the logging computer's idea of UTC (NTP-set at best, not GPS time). In real
+  time it is `wall_clock_ns()`: the system clock's reading when the process started, carried
+  on by a clock that never steps; in a virtual-time simulation it is modelled.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -48,6 +50,29 @@ class SimulatedHostClock:
             dt * self.drift_ppm * PPM)
 
 
+# the system clock's reading when the process started, carried on by the raw clock since; a
+# child process (the live view's sync) inherits its parent's, so both read one clock
+HOST_CLOCK_ENV = "SISA_HOST_CLOCK_RAW_TO_UNIX_NS"
+
+
+def _raw_to_unix_ns() -> int:
+    inherited = os.environ.get(HOST_CLOCK_ENV, "")
+    if inherited.isdigit():
+        return int(inherited)
+    return time.time_ns() - time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW)
+
+
+_RAW_TO_UNIX_NS = _raw_to_unix_ns()
+os.environ[HOST_CLOCK_ENV] = str(_RAW_TO_UNIX_NS)
+
+
 def wall_clock_ns() -> int:
-    """The host clock in real time."""
-    return time.time_ns()
+    """The host clock in real time: Unix ns as the system clock read when the process started,
+    run on by CLOCK_MONOTONIC_RAW since, so it never steps or slews.
+
+    The system clock does both in flight: chrony's `makestep` sets it seconds at a time once
+    it hears the receiver, a leap second sets it back a second, someone sets it by hand, and
+    chrony slews it by up to 8.3 % meanwhile. Every receive time after a step would move
+    by it, and `sisa sync` maps host time to GPS with one line. The raw clock is the crystal's: its
+    tens of ppm are that line's slope."""
+    return time.clock_gettime_ns(time.CLOCK_MONOTONIC_RAW) + _RAW_TO_UNIX_NS

@@ -46,6 +46,7 @@ from foxglove.channels import GeoJsonChannel, LocationFixChannel
 from foxglove.messages import Color, GeoJson, LocationFix, Timestamp
 from foxglove.websocket import WebSocketServer
 
+from acquisition.clocks import wall_clock_ns
 from recorder.messages import (
     GpsFix,
     GpsTimeTag,
@@ -207,7 +208,7 @@ class _Latched:
     def put(self, geojson: str) -> None:
         self.latest = geojson
         if self.channel.has_sinks():
-            self.channel.log(GeoJson(geojson=geojson), log_time=time.time_ns())
+            self.channel.log(GeoJson(geojson=geojson), log_time=wall_clock_ns())
 
     def resend_if_new_subscriber(self, again_at: float) -> bool:
         """Send the latest again if a client has subscribed since the last look, or at
@@ -215,7 +216,7 @@ class _Latched:
         subscribed = self.channel.has_sinks()
         fresh, self._subscribed = subscribed and not self._subscribed, subscribed
         if self.latest and subscribed and (fresh or time.monotonic() >= again_at):
-            self.channel.log(GeoJson(geojson=self.latest), log_time=time.time_ns())
+            self.channel.log(GeoJson(geojson=self.latest), log_time=wall_clock_ns())
             return True
         return False
 
@@ -257,7 +258,7 @@ class LiveView:
         self.sync_passes = 0
         self.sync_failures = 0
         self._sizes: list[tuple[float, int]] = []
-        self._started_ns = time.time_ns()
+        self._started_ns = wall_clock_ns()
         self._stop = threading.Event()
         self._lock = threading.Lock()
         cmd = [sys.executable, "-m", "sisa.wiring.livesync", "--log", str(log),
@@ -299,7 +300,7 @@ class LiveView:
                     self.sync_failures += 1
                     continue
                 with self._lock:
-                    self._sync, self._sync_wall_ns = result, time.time_ns()
+                    self._sync, self._sync_wall_ns = result, wall_clock_ns()
                     self.sync_passes += 1
                 self._footprint.put(result["footprint"])
             except (ValueError, KeyError, TypeError):
@@ -318,7 +319,7 @@ class LiveView:
 
     def publish(self, *, every: bool = False) -> None:
         """The derived topics, now: those a client is subscribed to (`every`: all of them)."""
-        now_ns = time.time_ns()
+        now_ns = wall_clock_ns()
         want_sync, want_fix = self._sync_ch.has_sinks(), self._position_ch.has_sinks()
         if every or self._health_ch.has_sinks():
             self._health_ch.log(self.health(now_ns), log_time=now_ns)

@@ -32,6 +32,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.clocks import wall_clock_ns
 from postproc.sync import (
     WANTED,
     SyncResult,
@@ -113,7 +114,7 @@ class LiveSync:
             self.columns.add_chunk(channels, chunk)
         self.cols = cols = self.columns.columns()
         self.passes += 1
-        now_ns = time.time_ns()
+        now_ns = wall_clock_ns()
         out: dict[str, Any] = {"pass": self.passes, "t_wall_ns": now_ns,
                                "log_bytes_read": self.follower.stats.bytes_read}
         try:
@@ -339,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             line = json.dumps(live.run_pass(), separators=(",", ":"))
         except Exception as exc:  # a pass that fails says so and the next runs
-            line = json.dumps({"pass": live.passes, "t_wall_ns": time.time_ns(),
+            line = json.dumps({"pass": live.passes, "t_wall_ns": wall_clock_ns(),
                                "error": f"{type(exc).__name__}: {exc}"[:300]})
         with contextlib.suppress(BrokenPipeError):
             print(line, flush=True)

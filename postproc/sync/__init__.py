@@ -37,6 +37,7 @@ from postproc.sync.pipeline import sync_log, synchronise
 from postproc.sync.report import (
     AMBIGUOUS_HINT,
     header_order_note,
+    host_steps_note,
     no_ins_timed_note,
     untimed_lines_note,
 )
@@ -46,8 +47,8 @@ __all__ = [
     "AMBIGUOUS_HINT", "FRAME_COUNTER_MAX", "SEGMENT_MAX", "WANTED", "GpsTimes", "HeaderColumns",
     "InsColumns", "InsSolution", "InsTimes", "LineTimes", "PhotoStatus", "PhotoTimeSource",
     "PhotoTimes", "SisaColumns", "SyncConfig",
-    "SyncInput", "SyncResult", "TimeStatus", "header_order_note", "no_ins_timed_note",
-    "read_scanner_lines",
+    "SyncInput", "SyncResult", "TimeStatus", "header_order_note", "host_steps_note",
+    "no_ins_timed_note", "read_scanner_lines",
     "read_sync_input", "sync_input_from_columns", "sync_log", "synchronise",
     "unlisted_line_notes", "untimed_lines_note", "write_ins_times", "write_line_times",
     "write_photo_times", "write_report", "write_time_tables",

@@ -29,6 +29,7 @@ from postproc.sync.clockmap import ClockMap, board_map, host_map
 from postproc.sync.coarse import coarse_latches
 from postproc.sync.config import SyncConfig
 from postproc.sync.flightlog import InsColumns, SyncInput, read_sync_input
+from postproc.sync.hoststeps import find_steps, unstep_sync_input
 from postproc.sync.insclock import TICK_NS, ins_timeline
 from postproc.sync.insfit import fit_runs
 from postproc.sync.insjumps import carry_runs
@@ -144,8 +145,12 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     if inp.ins.counter.size == 0 and inp.headers.segment.size == 0:
         raise InputError("the log has no INS records and no frame headers: nothing to time")
     cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
-    g = inp.gps
     real_pps = ~inp.sisa.pps_spurious
+    # a log recorded on a clock that stepped: the steps out of every receive time first
+    host_steps = find_steps(inp.sisa.pps_t_host_ns[real_pps],
+                            inp.sisa.pps_gps_second_ns[real_pps])
+    inp = unstep_sync_input(inp, host_steps)
+    g = inp.gps
     host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns,
                     inp.sisa.pps_t_host_ns[real_pps], inp.sisa.pps_gps_second_ns[real_pps])
     board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
@@ -160,6 +165,9 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     line_times, fits, lcounts = solve_lines(inp, lines, pulses, host, epoch, cfg)
     report = {
         "flight_epoch_gps_ns": epoch,
+        # the logging computer's clock set in flight (hoststeps): when, by how much
+        "host_clock_steps": [{"gps_ns": h.gps_ns, "step_ms": round(h.step_ns / 1e6, 3)}
+                             for h in host_steps],
         "config": dataclasses.asdict(cfg),
         "pulses": pulse_report(inp.sisa, pulses, pstats, sol, host, board),
         "ins": ins_report(ins_times, sol),

@@ -180,6 +180,21 @@ def no_ins_timed_note(ins_status: npt.ArrayLike, report: dict[str, Any] | None =
             "times in the log (docs/sync.md, 'Clocks the log holds')")
 
 
+def host_steps_note(report: dict[str, Any]) -> str | None:
+    """The warning when the log's receive times step (a logger stamping the system clock):
+    when and by how much, taken out before anything was timed (hoststeps). None when none."""
+    steps = report.get("host_clock_steps") or []
+    if not steps:
+        return None
+    epoch = int(report["flight_epoch_gps_ns"])
+    each = "; ".join(f"{s['step_ms'] / 1e3:+.3f} s at {(s['gps_ns'] - epoch) / 1e9:.0f} s"
+                     for s in steps)
+    return (f"the log's receive times step {len(steps)} time(s) ({each} into the log): it was "
+            "recorded on a clock that was set in flight (chrony's makestep, a leap second, by "
+            "hand; `sisa record` stamps a clock that never steps). Each step was taken out of "
+            "every receive time before timing (docs/sync.md, 'Host clock steps')")
+
+
 def header_order_note(lines: dict[str, Any], what: str = "line_times.csv") -> str | None:
     """The warning when lines were numbered by frame-header order and the frame counter skips:
     from the first skip of a segment on, the number may not be the image's line (a dropped

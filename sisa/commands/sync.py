@@ -54,6 +54,7 @@ def _run(args: argparse.Namespace) -> int:
     from postproc.sync import (
         TimeStatus,
         header_order_note,
+        host_steps_note,
         no_ins_timed_note,
         read_scanner_lines,
         sync_input_from_columns,
@@ -92,6 +93,9 @@ def _run(args: argparse.Namespace) -> int:
         if result.photos is not None:
             write_photo_times(out, result.photos)
         notes = [] if recording is None else [recording]
+        stepped = host_steps_note(result.report)
+        if stepped is not None:  # the times are sound, the recorder was not
+            notes.append(stepped)
         notes += [] if args.scanner is None else unlisted_line_notes(
             args.scanner, result.lines.segment, result.lines.line, "timed")
         ambiguous = no_ins_timed_note(ins.status, result.report)

@@ -71,7 +71,9 @@ Design choices, and why:
   leave the next one in it alone; such frames keep counter 'unknown'.
 - A forwarded ppf without its own header gets an inferred counter only between two matched frames
   of the same segment whose counters differ by exactly the line periods between them (one wrap
-  allowed): counter = earlier counter + periods to it. A header-matched ppf off the grid of its
+  allowed): counter = earlier counter + periods to it, unless another ppf shares its grid
+  position (a spurious one within the grid's tolerance of it: which of the two is the frame's
+  cannot be told). A header-matched ppf off the grid of its
   neighbours (a spurious ppf that took a lost frame's header) is 'unknown', and so is one that
   cannot be judged (fewer than 4 ppf in the stretch). 'unknown' rather than a guess, always.
 - Log records wait until they are complete (PTT, frame counter) or can no longer become complete,
@@ -668,6 +670,17 @@ class _FrameRun:
         return not any(grid.steps(abs(frame.board_ns - f.board_ns)) is not None
                        for f in earlier + later)
 
+    def _crowded(self, frame: _Frame) -> bool:
+        """Another ppf at the frame's grid position (both within the grid's tolerance of it,
+        µs apart): a spurious one, and nothing tells which is the frame's; the first of the two
+        was counted for it, the other skipped as off the grid."""
+        grid = self.grid()
+        if grid is None:
+            return False
+        return any(other is not None and abs(other.board_ns - frame.board_ns)
+                   <= 2 * grid.tolerance_ns
+                   for other in (self.frame(frame.index - 1), self.frame(frame.index + 1)))
+
     def _inferred(self, frame: _Frame, ended: bool) -> tuple[int, CounterSource] | None:
         pos = bisect.bisect_left(self.matched, frame.index)
         before = self.frame(self.matched[pos - 1]) if pos > 0 else None
@@ -683,7 +696,8 @@ class _FrameRun:
     def _bracket(self, frame: _Frame, a: _Frame, b: _Frame) -> tuple[int, CounterSource]:
         span = self.steps_between(a.index, b.index)
         offset = self.steps_between(a.index, frame.index)
-        if a.counter is None or b.counter is None or span is None or offset is None:
+        if a.counter is None or b.counter is None or span is None or offset is None or \
+                self._crowded(frame):
             return -1, CounterSource.UNKNOWN
         wrapped = self._wrapped(a.counter, b.counter, span)
         if wrapped is None or a.segment != b.segment or span > self.cfg.infer_max_gap_frames:

@@ -732,6 +732,21 @@ def test_a_spurious_ppf_is_skipped_in_the_count_and_never_labelled():
                          (8, "header")]
 
 
+def test_a_spurious_ppf_at_a_frames_grid_position_leaves_both_unknown():
+    """A spurious ppf 3 µs before a frame whose header was lost sits inside the grid's
+    tolerance of the frame's position: it was counted for the frame and given its counter,
+    the true ppf skipped as off the grid (hypothesis found it, seed 317209819). Which of the
+    two is the frame's cannot be told: no counter (the second is too close to forward)."""
+    b = Bench(max_event_rate_hz=1000.0)
+    for c in [1, 2, 3, 4]:
+        b.frame(c)
+    b._take(b.flt.on_ppf(b.t - 3_000, b.t - 3_000))
+    for c in [None, 6, 7]:
+        b.frame(c)
+    assert b.flush() == [(1, "header"), (2, "header"), (3, "header"), (4, "header"),
+                         (-1, "unknown"), (6, "header"), (7, "header")]
+
+
 def test_a_counter_jump_makes_the_gap_unknown():
     b = Bench()
     for c in [1, 2, 3, None, 9, 10]:  # the scanner skipped counters

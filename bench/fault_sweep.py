@@ -16,7 +16,8 @@ matrix's short bench flight (~230 s, two strips); `sisa simulate`'s path (virtua
 Printed per run: the mix, INS records and scan lines timed, and those timed `ok` but off by
 more than 5 µs (wrong tags). The sum of wrong tags over every run must be 0: a wrong time
 marked ok is the failure the sync exists to prevent. Flagged rows are not errors, but a run
-that times under 99 % is listed so it can be looked at.
+that times under 99 % is listed so it can be looked at. A host clock step found in a log (whose
+recorder's clock never steps) is a false one and fails the sweep too.
 """
 
 from __future__ import annotations
@@ -267,6 +268,8 @@ def one_run(seed: int, wide: bool = False, ins: bool = False,
         "wrong_ins": int(np.count_nonzero(np.abs(e_ins) > WRONG_NS)) + forged_ok,
         "wrong_lines": int(np.count_nonzero(np.abs(e_line) > WRONG_NS)),
         "forged_ins": [forged_ok, int(np.count_nonzero(forged))],
+        # the simulated recorder's clock never steps: a step found is a false one
+        "host_steps": len(res.report["host_clock_steps"]),
         "worst_ns": float(max(np.abs(e_ins).max(initial=0.0), np.abs(e_line).max(initial=0.0))),
         "flagged_ins": {TimeStatus(int(s)).name.lower(): int(n) for s, n in zip(
             *np.unique(res.ins.status[res.ins.status != TimeStatus.OK], return_counts=True),
@@ -359,7 +362,10 @@ def main() -> None:
     for r in low:
         print(f"  under 99 %: seed {r['seed']}: INS {r['ins'][0]}/{r['ins'][1]} "
               f"{r['flagged_ins']}, lines {r['lines'][0]}/{r['lines'][1]}  [{summary(r['mix'])}]")
-    if wrong:
+    false_steps = [r["seed"] for r in rows if r.get("host_steps")]
+    if false_steps:
+        print(f"  host clock steps found in logs recorded without one: seeds {false_steps}")
+    if wrong or false_steps:
         raise SystemExit(1)
 
 

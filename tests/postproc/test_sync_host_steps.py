@@ -17,7 +17,7 @@ import pytest
 
 from emulators.scenario import scenario_from_table
 from postproc.sync import SyncInput, TimeStatus, host_steps_note, read_sync_input, synchronise
-from postproc.sync.hoststeps import find_steps, split_index, unstep_sync_input
+from postproc.sync.hoststeps import find_steps, split_candidates, split_index, unstep_sync_input
 from sisa.wiring.simulation import simulate
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
 from tests.postproc.test_sync_faults import SHORT, _merge
@@ -149,11 +149,13 @@ def test_a_stream_split_by_its_ties_where_its_gaps_cannot_tell() -> None:
     after = np.arange(70 * S, 80 * S, period) - 60 * S
     t = np.concatenate([before, after])
     step, moment = -60 * S, (40 * S - 5_000_000, 40 * S + 5_000_000)
-    assert split_index(t, step, moment) in (0, t.size)  # the gaps alone: all after, or none
+    spans = [(-S, moment[1]), (moment[0] + step, 100 * S)]  # before it, after it
+    places = split_candidates(t, spans, 0, 0)
+    assert split_index(t, step, places) in (0, t.size)  # the gaps alone: all after, or none
     tied = np.arange(7, t.size, 64)
     votes = tied, tied >= before.size
     last_before, first_after = tied[tied < before.size][-1], tied[tied >= before.size][0]
-    assert last_before < split_index(t, step, moment, votes=votes) <= first_after
+    assert last_before < split_index(t, step, places, votes=votes) <= first_after
     # a frame forwarded at the end of the strip pins it
     votes = np.append(tied, before.size - 1), np.append(votes[1], False)
-    assert before.size - 1 < split_index(t, step, moment, votes=votes) <= first_after
+    assert before.size - 1 < split_index(t, step, places, votes=votes) <= first_after

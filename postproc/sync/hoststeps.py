@@ -68,8 +68,8 @@ class HostStep:
     last_before_ns: int
     first_after_ns: int
     step_ns: int
-    gps_ns: int  # the GPS second of the first edge after it
-    gps_before_ns: int = 0  # and of the last edge before it
+    gps_before_ns: int  # the GPS second of the last edge before it
+    gps_after_ns: int  # and of the first after it
 
 
 def find_steps(pps_host_ns: I64, pps_gps_ns: I64) -> list[HostStep]:
@@ -107,8 +107,8 @@ def find_steps(pps_host_ns: I64, pps_gps_ns: I64) -> list[HostStep]:
             # seconds), or it is no step (a larger one comes in its window: that one's turn)
             i += 1
             continue
-        steps.append(HostStep(int(host[at - 1]), int(host[at]), int(jump[here]), int(gps[at]),
-                              int(gps[at - 1])))
+        steps.append(HostStep(int(host[at - 1]), int(host[at]), int(jump[here]),
+                              int(gps[at - 1]), int(gps[at])))
         i = here + LEVEL_POINTS
     return steps
 
@@ -291,7 +291,7 @@ def anchored_stretch(t_host_ns: I64, t_gps_ns: I64, latency_ns: tuple[int, int],
         # time by the last PPS edge before it (its report's latency aside, a few ms)
         offset = step.last_before_ns - step.gps_before_ns
         moment_lo = max(step.gps_before_ns, eras[k + 1][0] - step.step_ns - offset)
-        moment_hi = min(step.gps_ns, eras[k][1] - offset)
+        moment_hi = min(step.gps_after_ns, eras[k][1] - offset)
         surely_after = known & (t_gps_ns + latency_ns[0] > moment_hi)
         surely_before = known & (t_gps_ns + latency_ns[1] < moment_lo)
         fits_after = _within(t_host_ns, [eras[k + 1]]) & ~_within(t_host_ns, [eras[k]])
@@ -315,11 +315,12 @@ def frame_ties(inp: SyncInput) -> tuple[I64, I64]:
         empty = np.zeros(0, dtype=np.int64)
         return empty, empty
     t_f, c_f = sisa.fwd_t_host_ns[fwd], sisa.fwd_frame_counter[fwd]
-    near = np.searchsorted(hdr_t, t_f)
+    order = np.argsort(hdr_t, kind="stable")  # a step back leaves them out of order
+    near = np.searchsorted(hdr_t[order], t_f)
     best = np.full(fwd.size, -1, dtype=np.int64)
     best_dt = np.full(fwd.size, TIE_NS + 1, dtype=np.int64)
     for k in range(-TIE_ITEMS, TIE_ITEMS + 1):
-        h = np.clip(near + k, 0, hdr_t.size - 1)
+        h = order[np.clip(near + k, 0, hdr_t.size - 1)]
         dt = np.abs(hdr_t[h] - t_f)
         better = (hdr_c[h] == c_f) & (dt < best_dt)
         best[better], best_dt[better] = h[better], dt[better]

@@ -166,7 +166,7 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
     report = {
         "flight_epoch_gps_ns": epoch,
         # the logging computer's clock set in flight (hoststeps): when, by how much
-        "host_clock_steps": [{"gps_ns": h.gps_ns, "step_ms": round(h.step_ns / 1e6, 3)}
+        "host_clock_steps": [{"gps_ns": h.gps_after_ns, "step_ms": round(h.step_ns / 1e6, 3)}
                              for h in host_steps],
         "config": dataclasses.asdict(cfg),
         "pulses": pulse_report(inp.sisa, pulses, pstats, sol, host, board),

@@ -135,7 +135,7 @@ def test_a_host_that_stalls_is_no_step() -> None:
     found = find_steps(host, gps)
     assert len(found) == 1
     assert abs(found[0].step_ns - 250_000_000) < 3_000_000  # to the reports' latency scatter
-    assert found[0].gps_ns == gps[40]
+    assert found[0].gps_after_ns == gps[40]
 
 
 def test_a_stream_split_by_its_ties_where_its_gaps_cannot_tell() -> None:

@@ -732,7 +732,7 @@ def test_a_spurious_ppf_is_skipped_in_the_count_and_never_labelled():
                          (8, "header")]
 
 
-def test_a_spurious_ppf_at_a_frames_grid_position_leaves_both_unknown():
+def test_a_spurious_ppf_at_a_frames_grid_position_gets_no_counter():
     """A spurious ppf 3 µs before a frame whose header was lost sits inside the grid's
     tolerance of the frame's position: it was counted for the frame and given its counter,
     the true ppf skipped as off the grid (hypothesis found it, seed 317209819). Which of the

@@ -9,16 +9,20 @@ written them (`bench/host_clock_steps.py` draws many more)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from mcap.records import Message
 
 from emulators.scenario import scenario_from_table
 from postproc.sync import SyncInput, TimeStatus, host_steps_note, read_sync_input, synchronise
 from postproc.sync.hoststeps import find_steps, split_candidates, split_index, unstep_sync_input
+from sisa.cli import main
 from sisa.wiring.simulation import simulate
+from tests.mcaplog import rewrite_log
 from tests.postproc.test_sync import WRONG_NS, ins_truth_ns, line_truth_ns, ok_errors_ns
 from tests.postproc.test_sync_faults import SHORT, _merge
 
@@ -49,6 +53,37 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SyncInput]:
                    {"faults": {"spurious_pulse_rate_hz": 0.3, "lost_pulse_fraction": 0.02}})
     simulate(scenario_from_table(table), run, images=False)
     return run, read_sync_input(run / "flight.mcap")
+
+
+def _stepped_log(src: Path, dst: Path, at_ns: int, step_ns: int) -> None:
+    """A copy of a flight log as a logger on a stepping clock would have written it: every
+    `t_host_ns` (and log time) from `at_ns` on moved by `step_ns`; the rest as it was."""
+    def edit(topic: str, message: Message) -> list[tuple[int, bytes]]:
+        if message.log_time < at_ns:
+            return [(message.log_time, message.data)]
+        obj = json.loads(message.data)
+        if isinstance(obj, dict) and "t_host_ns" in obj:
+            obj["t_host_ns"] += step_ns
+            return [(message.log_time + step_ns, json.dumps(obj).encode())]
+        return [(message.log_time + step_ns, message.data)]
+    rewrite_log(src, dst, edit)
+
+
+def test_sisa_sync_warns_of_the_steps_and_times_the_flight_as_recorded(
+        flight: tuple[Path, SyncInput], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The command on a real MCAP file written on a stepping clock: the same tables as the
+    log as recorded, and a warning that names the step."""
+    run, inp = flight
+    assert main(["sync", str(run / "flight.mcap"), "--out", str(tmp_path / "sound")]) == 0
+    capsys.readouterr()
+    at_ns, step_ns = _placed(inp, "back_before_the_first_strip")[0]
+    _stepped_log(run / "flight.mcap", tmp_path / "stepped.mcap", at_ns, step_ns)
+    assert main(["sync", str(tmp_path / "stepped.mcap"), "--out", str(tmp_path / "s")]) == 0
+    err = capsys.readouterr().err
+    assert "the log's receive times step 1 time(s) (-400.000 s at" in err
+    for table in ("ins_times.csv", "line_times.csv"):
+        assert (tmp_path / "s" / table).read_bytes() == (tmp_path / "sound" / table).read_bytes()
 
 
 def _strip_gap(inp: SyncInput) -> tuple[int, int]:

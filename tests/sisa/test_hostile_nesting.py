@@ -9,8 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
-from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.records import Message
 
 from recorder.columns import read_topics
 from recorder.messages import Topic
@@ -20,6 +19,7 @@ from recorder.replay import ScheduleStats, iter_schedule
 from recorder.stats import DamagedLogWarning
 from recorder.writer import FlightRecorder
 from sisa.cli import main
+from tests.mcaplog import rewrite_log
 from tests.recorder import sample_messages
 
 DEEP = 10_000
@@ -107,27 +107,17 @@ def _log_with_hostile(folder: Path, topic: Topic, data: bytes = DEEP_JSON) -> Pa
             for msg, t in sample_messages(1_700_000_000 * 10**9 + round_ * 10**9):
                 rec.write(msg, t)
     hostile = folder / "hostile.mcap"
-    with clean.open("rb") as src, hostile.open("wb") as out:
-        reader = make_reader(src)
-        writer = Writer(out)
-        writer.start(profile="", library="test")
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        added = False
-        for schema, channel, msg in reader.iter_messages():
-            assert schema is not None
-            if schema.id not in schemas:
-                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
-                                                            schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(
-                    channel.topic, channel.message_encoding, schemas[schema.id])
-            writer.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time)
-            if channel.topic == topic and not added:
-                writer.add_message(channels[channel.id], msg.log_time + 1, data,
-                                   msg.publish_time)
-                added = True
-        writer.finish()
+    added = False
+
+    def edit(on: str, msg: Message) -> list[tuple[int, bytes]]:
+        nonlocal added
+        out = [(msg.log_time, msg.data)]
+        if on == topic and not added:
+            out.append((msg.log_time + 1, data))
+            added = True
+        return out
+
+    rewrite_log(clean, hostile, edit)
     assert added
     return hostile
 

@@ -29,8 +29,7 @@ import numpy as np
 import numpy.typing as npt
 from numpy.lib.stride_tricks import sliding_window_view
 
-from postproc.sync.clockmap import BOARD_SIGMA_FLOOR_S, fit_clock_map
-from postproc.sync.flightlog import SisaColumns, SyncInput
+from postproc.sync.flightlog import SyncInput
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -247,6 +246,7 @@ def unstep_stream(t_host_ns: I64, steps: list[HostStep], eras: list[tuple[int, i
     step it pins the step's moment in `eras` for the streams after it; a sparse stream, whose
     gaps can hide a small step among its own, never does."""
     out = t_host_ns.copy()
+    usual = _usual_gap(t_host_ns)
     start = 0
     for k, step in enumerate(steps):
         s = step.step_ns
@@ -254,7 +254,7 @@ def unstep_stream(t_host_ns: I64, steps: list[HostStep], eras: list[tuple[int, i
                                 None if votes is None else votes(k))
         out[j:] -= s
         if pin and 0 < j < t_host_ns.size and not _odd(
-                t_host_ns[j:j + 1] - s - t_host_ns[j - 1:j], _usual_gap(t_host_ns))[0]:
+                t_host_ns[j:j + 1] - s - t_host_ns[j - 1:j], usual)[0]:
             # the stream ran on across it: the step came between these two items
             eras[k] = (eras[k][0], min(eras[k][1], int(t_host_ns[j] - s) + MOMENT_MARGIN_NS))
             eras[k + 1] = (max(eras[k + 1][0], int(t_host_ns[j - 1]) + s - MOMENT_MARGIN_NS),
@@ -328,11 +328,13 @@ def frame_ties(inp: SyncInput) -> tuple[I64, I64]:
     return best[found], fwd[found]
 
 
-def unstep_sync_input(inp: SyncInput, steps: list[HostStep]) -> SyncInput:
+def unstep_sync_input(inp: SyncInput, steps: list[HostStep],
+                      board_to_gps: Callable[[I64], I64] | None) -> SyncInput:
     """The log's every receive time with the steps taken out. The INS records, the headers and
     the photo messages by where the steps fall in them (`unstep_stream`; the headers by their
     ties to the forwarded frame pulses where they alone cannot tell); the fixes and tags by
-    their GPS time, the sync unit's records by their board time through GPS
+    their GPS time, the sync unit's records by their board time through GPS (`board_to_gps`,
+    the sync's board map, which takes no receive time; None: by their receive times alone)
     (`anchored_stretch`): a sparse stream's gaps can hide a step back as long as one of them."""
     if not steps:
         return inp
@@ -341,10 +343,9 @@ def unstep_sync_input(inp: SyncInput, steps: list[HostStep]) -> SyncInput:
     eras = era_spans(steps, (int(pps[0]), int(pps[-1])))
     ins_t = unstep_stream(inp.ins.t_host_ns, steps, eras, pin=True)
     photo_t = unstep_stream(cam.photo_t_host_ns, steps, eras)
-    board = _board_to_gps(sisa)
 
     def by_board(board_ns: I64) -> I64:
-        return board(board_ns) if board is not None else np.full(board_ns.size, -1)
+        return board_to_gps(board_ns) if board_to_gps is not None else np.full(board_ns.size, -1)
 
     def stretch(t_host_ns: I64, t_gps_ns: I64, latency_ns: tuple[int, int]) -> I64:
         return anchored_stretch(t_host_ns, t_gps_ns, latency_ns, steps, eras)
@@ -372,11 +373,3 @@ def unstep_sync_input(inp: SyncInput, steps: list[HostStep]) -> SyncInput:
                 cam.pulse_t_host_ns, by_board(cam.pulse_board_ns), BOARD_REPORT_LATENCY_NS),
                 steps)))
 
-
-def _board_to_gps(sisa: SisaColumns) -> Callable[[I64], I64] | None:
-    """The timing board's counter → GPS, from the PPS edges with their second (good to far
-    better than the latency spans it is used with)."""
-    have = (sisa.pps_gps_second_ns > 0) & ~sisa.pps_spurious
-    board = fit_clock_map(sisa.pps_board_ns[have], sisa.pps_gps_second_ns[have],
-                          BOARD_SIGMA_FLOOR_S)
-    return None if board is None else board.gps_ns

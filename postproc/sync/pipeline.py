@@ -146,15 +146,16 @@ def synchronise(inp: SyncInput, lines: ln.LineTable | None = None,
         raise InputError("the log has no INS records and no frame headers: nothing to time")
     cfg = _pattern_config(config or SyncConfig(), inp.sisa.session_lfsr_bits)
     real_pps = ~inp.sisa.pps_spurious
+    # the board map takes no receive time: one fit serves the step finder and the pulses
+    board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
+                      inp.gps.tag_t_gps_ns, inp.gps.tag_is_ptt)
     # a log recorded on a clock that stepped: the steps out of every receive time first
     host_steps = find_steps(inp.sisa.pps_t_host_ns[real_pps],
                             inp.sisa.pps_gps_second_ns[real_pps])
-    inp = unstep_sync_input(inp, host_steps)
+    inp = unstep_sync_input(inp, host_steps, None if board is None else board.gps_ns)
     g = inp.gps
     host = host_map(g.fix_t_host_ns, g.fix_t_gps_ns, g.tag_t_host_ns, g.tag_t_gps_ns,
                     inp.sisa.pps_t_host_ns[real_pps], inp.sisa.pps_gps_second_ns[real_pps])
-    board = board_map(inp.sisa.pps_board_ns, inp.sisa.pps_gps_second_ns, inp.sisa.pps_spurious,
-                      g.tag_t_gps_ns, g.tag_is_ptt)
     pulses, pstats = sisa_pulses(inp.sisa, g, board, host, ttt_window_ns=cfg.ttt_window_ns,
                                  max_board_gap_s=cfg.max_board_gap_s,
                                  agree_floor_ns=cfg.board_agree_floor_ns,

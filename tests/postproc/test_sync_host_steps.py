@@ -19,6 +19,7 @@ from mcap.records import Message
 
 from emulators.scenario import scenario_from_table
 from postproc.sync import SyncInput, TimeStatus, host_steps_note, read_sync_input, synchronise
+from postproc.sync.clockmap import board_map
 from postproc.sync.hoststeps import find_steps, split_candidates, split_index, unstep_sync_input
 from sisa.cli import main
 from sisa.wiring.simulation import simulate
@@ -148,8 +149,11 @@ def test_every_receive_time_comes_back_as_recorded(flight: tuple[Path, SyncInput
                  "forward_1h"):
         log = stepped(inp, _placed(inp, case))
         real = ~log.sisa.pps_spurious
+        board = board_map(log.sisa.pps_board_ns, log.sisa.pps_gps_second_ns,
+                          log.sisa.pps_spurious, log.gps.tag_t_gps_ns, log.gps.tag_is_ptt)
+        assert board is not None
         back = unstep_sync_input(log, find_steps(log.sisa.pps_t_host_ns[real],
-                                                 log.sisa.pps_gps_second_ns[real]))
+                                                 log.sisa.pps_gps_second_ns[real]), board.gps_ns)
         for got, want in ((back.ins.t_host_ns, inp.ins.t_host_ns),
                           (back.headers.t_host_ns, inp.headers.t_host_ns),
                           (back.gps.fix_t_host_ns, inp.gps.fix_t_host_ns),
